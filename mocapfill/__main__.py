@@ -1,0 +1,3 @@
+from mocapfill.cli import main
+
+main()

@@ -1,0 +1,3 @@
+"""`mocapfill bones` (placeholder until its issue lands)."""
+
+from __future__ import annotations

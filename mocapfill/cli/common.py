@@ -1,0 +1,31 @@
+"""Options and helpers shared by the commands: one decorator per shared option, one stderr console."""
+
+from __future__ import annotations
+
+import functools
+from typing import Callable
+
+import click
+from rich.console import Console
+
+FORMATS = ("c3d", "csv", "trc")
+
+
+def quiet_option(func: Callable) -> Callable:
+    """``--quiet/-q``: nothing on stderr but errors."""
+    return click.option("-q", "--quiet", is_flag=True, help="Print nothing on stderr but errors.")(func)
+
+
+def format_options(func: Callable) -> Callable:
+    """``--format`` (output) and ``--input-format``: needed when a path is "-" or has an unusual extension."""
+    func = click.option("--input-format", type=click.Choice(FORMATS + ("vicon-csv",)), default=None,
+                        help="Format of the input (default: from its extension; needed for stdin).")(func)
+    func = click.option("-f", "--format", "output_format", type=click.Choice(FORMATS), default=None,
+                        help="Format of the output (default: from its extension, else the input's).")(func)
+    return func
+
+
+@functools.lru_cache(maxsize=2)
+def console(quiet: bool = False) -> Console:
+    """The stderr console for people: tables, progress, warnings.  Plain when stderr is not a terminal."""
+    return Console(stderr=True, quiet=quiet, highlight=False)

@@ -1,0 +1,3 @@
+"""`mocapfill info` (placeholder until its issue lands)."""
+
+from __future__ import annotations

@@ -1,0 +1,66 @@
+"""The registry of fill methods: the one place that names them.
+
+Every method is a function ``fill_<name>(positions, *, seed=None, **options) -> FillResult`` taking positions of
+shape (n_frames, n_markers, 3) with NaN = missing.  The CLI's ``--method`` choices and the conformance test are read
+from :data:`METHODS`.  Modules are imported lazily so that ``import mocapfill`` stays cheap.
+
+Context keywords: besides its own options a method may accept any of ``seed``, ``units`` ("mm", "cm", "m"),
+``rate`` (Hz), ``labels`` (list of str), ``bones`` (:class:`mocapfill.bones.BoneSet` or None) and ``progress``
+(a :data:`~mocapfill.methods.base.ProgressFn`); :func:`mocapfill.fill` passes those the function's signature names.
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+from typing import Callable, NamedTuple
+
+from ..errors import MethodError
+from .base import FillResult, finish
+
+
+class MethodSpec(NamedTuple):
+    """A registered method: its CLI name, where its function lives, and a one-line summary."""
+
+    name: str
+    target: str  # "module:function", module relative to mocapfill.methods
+    summary: str
+    uncertainty: bool  # whether the method returns a per-sample std
+
+    def load(self) -> Callable[..., FillResult]:
+        module_name, func_name = self.target.split(":")
+        module = importlib.import_module(f"{__name__}.{module_name}")
+        return getattr(module, func_name)
+
+    def parameters(self) -> set[str]:
+        """Names of the keyword options the function accepts."""
+        return set(inspect.signature(self.load()).parameters) - {"positions"}
+
+
+METHODS: dict[str, MethodSpec] = {
+    spec.name: spec
+    for spec in [
+        MethodSpec("linear", "interp:fill_linear", "per-coordinate linear interpolation", False),
+        MethodSpec("spline", "interp:fill_spline", "per-coordinate cubic spline", False),
+        MethodSpec("msvd", "msvd:fill_msvd", "iterative low-rank SVD imputation", False),
+        MethodSpec("dynammo", "dynammo:fill_dynammo", "linear dynamical system learned by EM (DynaMMo)", True),
+        MethodSpec("bolero-hc", "bolero:fill_bolero_hc", "DynaMMo with hard bone-length constraints", True),
+        MethodSpec("bolero-sc", "bolero:fill_bolero_sc", "DynaMMo with soft bone-length constraints", True),
+        MethodSpec("bilinear", "bilinear:fill_bilinear", "DCT-conditioned bilinear spatiotemporal basis", False),
+        MethodSpec("pca", "pca:fill_pca", "distance-weighted PCA (Gloersen & Federolf 2016)", True),
+        MethodSpec("auto", "auto:fill_auto", "the most accurate combination measured (default)", True),
+    ]
+}
+
+DEFAULT_METHOD = "auto"
+
+
+def get_method(name: str) -> MethodSpec:
+    """The spec of method ``name``; raises MethodError listing the known names otherwise."""
+    try:
+        return METHODS[name]
+    except KeyError:
+        raise MethodError(f"unknown method {name!r}; choose one of {', '.join(METHODS)}") from None
+
+
+__all__ = ["METHODS", "DEFAULT_METHOD", "MethodSpec", "FillResult", "finish", "get_method"]

@@ -1,0 +1,103 @@
+"""What every fill method returns, and the shared step that guarantees observed samples come back untouched."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+#: Progress callback a method may call once per iteration: ``progress(iteration, n_max, objective)``.
+ProgressFn = Callable[[int, int, float], None]
+
+
+@dataclass
+class FillResult:
+    """The outcome of one fill.
+
+    Attributes
+    ----------
+    positions : ndarray, shape (n_frames, n_markers, 3), float64
+        Input positions with the gaps the method could fill filled; observed samples are bit-identical to the input;
+        samples the method could not fill stay NaN.
+    filled : ndarray of bool, shape (n_frames, n_markers)
+        True for samples missing in the input and finite in ``positions``.
+    std : ndarray, shape (n_frames, n_markers), or None
+        Per-sample standard deviation (data units) of a filled sample where the method has one (0 on observed
+        samples, NaN where unknown); None when the method gives no uncertainty.
+    n_iter : int
+        Iterations run (0 for direct methods).
+    converged : bool
+        Whether an iterative method met its tolerance (True for direct methods).
+    objective : list of float
+        The objective per iteration (e.g. DynaMMo's negative expected log-likelihood); empty for direct methods.
+    info : dict
+        Method-specific facts for reports (chosen rank, hidden dimension, bones used, which sub-method filled each
+        gap, ...).  JSON-serialisable values only.
+    """
+
+    positions: np.ndarray
+    filled: np.ndarray
+    std: np.ndarray | None = None
+    n_iter: int = 0
+    converged: bool = True
+    objective: list[float] = field(default_factory=list)
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+def finish(
+    original: np.ndarray,
+    estimate: np.ndarray,
+    *,
+    std: np.ndarray | None = None,
+    n_iter: int = 0,
+    converged: bool = True,
+    objective: list[float] | None = None,
+    info: dict[str, Any] | None = None,
+) -> FillResult:
+    """Build a :class:`FillResult`: copy observed samples back bit-for-bit and compute the filled mask.
+
+    Parameters
+    ----------
+    original : ndarray, shape (n_frames, n_markers, 3)
+        The method's input, NaN = missing.
+    estimate : ndarray, shape (n_frames, n_markers, 3)
+        The method's reconstruction; its values at observed samples are ignored.  A missing sample whose estimate
+        has any non-finite coordinate stays missing (all three coordinates NaN).
+    std : ndarray, shape (n_frames, n_markers), optional
+        Per-sample standard deviation; forced to 0 on observed samples and NaN on samples left missing.
+    """
+    original = np.asarray(original, dtype=np.float64)
+    estimate = np.asarray(estimate, dtype=np.float64)
+    missing = np.isnan(original).any(axis=2)
+    usable = np.isfinite(estimate).all(axis=2)
+    filled = missing & usable
+    out = original.copy()
+    out[filled] = estimate[filled]
+    out[missing & ~usable] = np.nan
+    if std is not None:
+        std = np.array(std, dtype=np.float64)
+        std[~missing] = 0.0
+        std[~filled & missing] = np.nan
+    return FillResult(
+        positions=out,
+        filled=filled,
+        std=std,
+        n_iter=int(n_iter),
+        converged=bool(converged),
+        objective=[float(v) for v in (objective or [])],
+        info=dict(info or {}),
+    )
+
+
+def check_positions(positions: np.ndarray) -> np.ndarray:
+    """Validate and return ``positions`` as float64 (n_frames, n_markers, 3); a partly-NaN sample becomes all-NaN."""
+    from ..errors import MethodError
+
+    positions = np.array(positions, dtype=np.float64)
+    if positions.ndim != 3 or positions.shape[2] != 3:
+        raise MethodError(f"positions must have shape (n_frames, n_markers, 3), got {positions.shape}")
+    if np.isinf(positions).any():
+        raise MethodError("positions contain infinite values")
+    positions[np.isnan(positions).any(axis=2)] = np.nan
+    return positions
