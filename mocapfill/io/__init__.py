@@ -1,0 +1,175 @@
+"""Marker I/O: C3D, CSV (plain wide, Vicon Nexus, header-only wide) and TRC, one module per format.
+
+- :func:`read` turns a file (or ``"-"`` = stdin, or an open binary stream) into one :class:`MarkerData`.
+- :func:`write` writes one back, atomically (temporary file + rename, see :mod:`mocapfill.io.atomic`).
+
+The format comes from ``format=`` when given, else from the file extension; on stdin without a format the content
+is sniffed (C3D parameter-block signature, TRC ``PathFileType`` header, else CSV).  Writing to stdout without a
+format uses the format the data was read from.
+"""
+
+from __future__ import annotations
+
+import io as _io
+import os
+import sys
+from pathlib import Path
+from typing import BinaryIO, Union
+
+from ..errors import FormatError, InputError
+from ..markers import MarkerData
+from .atomic import atomic_write, check_output_path, is_std_stream
+
+__all__ = ["read", "write", "atomic_write", "check_output_path", "detect_format", "READ_FORMATS",
+           "WRITE_FORMATS"]
+
+PathOrStream = Union[str, os.PathLike, BinaryIO]
+
+#: formats :func:`read` accepts ("csv" auto-detects plain, Vicon and header-only wide layouts).
+READ_FORMATS = ("c3d", "csv", "vicon-csv", "trc")
+#: formats :func:`write` produces.
+WRITE_FORMATS = ("c3d", "csv", "trc")
+_EXTENSIONS = {".c3d": "c3d", ".csv": "csv", ".trc": "trc"}
+
+
+def _name_of(path_or_stream) -> str:
+    if isinstance(path_or_stream, (str, os.PathLike)):
+        return os.fspath(path_or_stream)
+    return getattr(path_or_stream, "name", None) or "<stream>"
+
+
+def detect_format(path, format: str | None = None) -> str:
+    """The format to use for ``path``: ``format`` when given, else from the extension (case-insensitive).
+
+    Raises FormatError naming the path for an unknown extension.
+    """
+    if format is not None:
+        fmt = format.lower()
+        if fmt not in READ_FORMATS:
+            raise FormatError(f"{path}: unknown format {format!r} (expected one of {', '.join(READ_FORMATS)})")
+        return fmt
+    suffix = Path(os.fspath(path)).suffix.lower()
+    try:
+        return _EXTENSIONS[suffix]
+    except KeyError:
+        what = f"unknown file extension {suffix!r}" if suffix else "no file extension"
+        raise FormatError(f"{path}: {what}; expected .c3d, .csv or .trc (or give the format explicitly)") from None
+
+
+def _sniff(raw: bytes) -> str:
+    """Guess the format of content read from a stream without a name."""
+    if len(raw) >= 512 and raw[1] == 0x50:
+        return "c3d"
+    if raw[:64].lstrip().lower().startswith(b"pathfiletype"):
+        return "trc"
+    return "csv"
+
+
+def _read_bytes(path_or_stream, name: str) -> bytes:
+    if is_std_stream(path_or_stream):
+        return sys.stdin.buffer.read()
+    if not isinstance(path_or_stream, (str, os.PathLike)):
+        raw = path_or_stream.read()
+        return raw.encode("utf-8") if isinstance(raw, str) else raw
+    path = Path(os.fspath(path_or_stream))
+    if not path.exists():
+        raise InputError(f"{name}: no such file")
+    if path.is_dir():
+        raise InputError(f"{name}: is a directory, not a file")
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{name}: cannot read: {exc.strerror or exc}") from None
+
+
+def read(path_or_stream: PathOrStream, format: str | None = None) -> MarkerData:
+    """Read marker trajectories from a file, ``"-"`` (stdin) or a binary stream.
+
+    Parameters
+    ----------
+    path_or_stream : str, os.PathLike or binary file object
+        The input; ``"-"`` reads stdin (into memory first: the C3D reader seeks).
+    format : {"c3d", "csv", "vicon-csv", "trc"} or None
+        Overrides the extension; required for a stream whose content cannot be sniffed.
+
+    Returns
+    -------
+    MarkerData with ``positions`` (n_frames, n_markers, 3) float64, NaN = missing, and ``extra`` holding what the
+    writer needs to write the same file back.
+
+    Raises
+    ------
+    InputError (missing or unreadable file), FormatError (unknown extension, corrupt content); both name the file.
+    """
+    name = _name_of(path_or_stream)
+    stream = is_std_stream(path_or_stream) or not isinstance(path_or_stream, (str, os.PathLike))
+    fmt = detect_format(name, format) if (format is not None or not stream) else None
+    raw = _read_bytes(path_or_stream, name)
+    if fmt is None:
+        fmt = _sniff(raw)
+    if fmt == "c3d":
+        from .c3d import read_c3d
+        data = read_c3d(raw, name)
+    elif fmt in ("csv", "vicon-csv"):
+        from .csv import read_csv
+        data = read_csv(_decode(raw, name), name, layout="vicon" if fmt == "vicon-csv" else None)
+    else:
+        from .trc import read_trc
+        data = read_trc(_decode(raw, name), name)
+    data.path = name
+    return data
+
+
+def _decode(raw: bytes, name: str) -> str:
+    for encoding in ("utf-8-sig", "latin-1"):
+        try:
+            text = raw.decode(encoding)
+        except UnicodeDecodeError:
+            continue
+        if "\x00" in text:
+            raise FormatError(f"{name}: binary content where text was expected (is it really a text file?)")
+        return text
+    raise FormatError(f"{name}: cannot decode as text")  # pragma: no cover - latin-1 decodes everything
+
+
+def write(data: MarkerData, path_or_stream: PathOrStream, format: str | None = None) -> None:
+    """Write ``data`` to a file (atomically), ``"-"`` (stdout) or a binary stream.
+
+    Parameters
+    ----------
+    data : MarkerData
+        ``positions`` (n_frames, n_markers, 3); for C3D output, ``data.extra`` from a C3D read lets the writer keep
+        every parameter, analog channel, event and model output of the original (observed samples keep their
+        residuals, newly filled samples get residual 0, NaN samples residual -1).
+    path_or_stream : str, os.PathLike or binary file object
+    format : {"c3d", "csv", "trc"} or None
+        Overrides the extension; for ``"-"`` / streams the default is the format the data was read from.
+
+    Raises
+    ------
+    InputError (unwritable directory, ...), FormatError (unknown extension, data the format cannot hold).
+    """
+    name = _name_of(path_or_stream)
+    stream = is_std_stream(path_or_stream) or not isinstance(path_or_stream, (str, os.PathLike))
+    if format is not None or not stream:
+        fmt = detect_format(name, format)
+    else:
+        fmt = {"vicon-csv": "csv"}.get(data.source_format or "", data.source_format) or "csv"
+    if fmt == "vicon-csv":
+        fmt = "csv"
+    if fmt not in WRITE_FORMATS:
+        raise FormatError(f"{name}: cannot write format {fmt!r} (expected one of {', '.join(WRITE_FORMATS)})")
+    if fmt == "c3d":
+        from .c3d import c3d_bytes
+        payload = c3d_bytes(data, name)
+    elif fmt == "csv":
+        from .csv import csv_text
+        payload = csv_text(data).encode("utf-8")
+    else:
+        from .trc import trc_text
+        payload = trc_text(data, name).encode("utf-8")
+    if stream and not is_std_stream(path_or_stream):
+        path_or_stream.write(payload)
+        return
+    with atomic_write(path_or_stream, "wb") as handle:
+        handle.write(payload)
