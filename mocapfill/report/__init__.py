@@ -1,0 +1,72 @@
+"""Fill reports: a JSON record of what a fill did, and a self-contained HTML page with plots.
+
+Public API
+----------
+- :func:`build_fill_report` -> dict: JSON-ready summary, gap table, unfilled gaps, rejected samples, bones
+  (validates against ``fill_report.schema.json`` beside this module; see :data:`SCHEMA_PATH`).
+- :func:`write_report`: writes that dict as ``.json``, or as a self-contained ``.html`` page with inline SVG plots
+  (needs matplotlib, the optional extra ``mocapfill[report]``), chosen by the path's extension.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputError
+from .json_report import SCHEMA_PATH, build_fill_report, load_schema, report_json
+
+__all__ = ["build_fill_report", "write_report", "load_schema", "SCHEMA_PATH", "report_json"]
+
+
+def _atomic_write_text(path: str | Path, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` through :func:`mocapfill.io.atomic.atomic_write` when it exists."""
+    try:
+        from ..io.atomic import atomic_write  # written by the I/O helper
+    except ImportError:  # pragma: no cover - fallback until the I/O module lands
+        atomic_write = None
+    if atomic_write is not None:
+        with atomic_write(path, "w", encoding="utf-8") as handle:
+            handle.write(text)
+        return
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        tmp.replace(path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise InputError(f"cannot write report {path}: {exc.strerror or exc}") from None
+
+
+def write_report(report: dict[str, Any], path: str | Path, *, data, result, bones=None,
+                 max_markers: int = 40, max_bones: int = 40) -> None:
+    """Write ``report`` (from :func:`build_fill_report`) to ``path``: JSON or HTML by extension.
+
+    Parameters
+    ----------
+    report : dict
+        The JSON-ready report.
+    path : str or Path
+        Ends in ``.json`` (the report as JSON) or ``.html`` / ``.htm`` (one self-contained page: no network, no
+        external assets; plots as inline SVG).
+    data : MarkerData
+        The input before filling, positions (n_frames, n_markers, 3); used for the HTML plots.
+    result : FillResult
+        The fill, positions (n_frames, n_markers, 3), ``filled`` and optional ``std`` (n_frames, n_markers).
+    bones : BoneSet or None
+        Bones (pairs (B, 2), lengths (B,)) whose length-over-time plots go into the HTML page.
+    max_markers, max_bones : int
+        Caps on the number of trajectory and bone plots in the HTML page; the page says what was left out.
+    """
+    path_str = str(path)
+    suffix = Path(path_str).suffix.lower()
+    if suffix == ".json":
+        _atomic_write_text(path, report_json(report))
+    elif suffix in (".html", ".htm"):
+        from .html_report import render_html
+
+        _atomic_write_text(path, render_html(report, data=data, result=result, bones=bones,
+                                             max_markers=max_markers, max_bones=max_bones))
+    else:
+        raise InputError(f"report {path_str}: unknown extension {suffix or '(none)'!r}; use .json or .html")

@@ -1,0 +1,196 @@
+"""The report's plots, each drawn with matplotlib into an SVG string for inlining in the HTML page.
+
+matplotlib is optional (the extra ``mocapfill[report]``) and imported only inside these functions.  Figures are made
+with :class:`matplotlib.figure.Figure` directly, never through ``pyplot``, so no global state (backend, open
+figures) is touched; rc settings apply only inside :func:`_rc`.  Long clips are decimated for drawing (at most
+``max_points`` points per line) so that a page stays a few megabytes at most.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import re
+from typing import Iterator, Sequence
+
+import numpy as np
+
+from ..errors import MocapfillError
+
+#: Colours (colour-blind safe: Okabe-Ito) shared by the plots and the HTML legend.
+OBSERVED = "#222222"
+FILLED = "#D55E00"
+BAND = "#E69F00"
+UNFILLED = "#999999"
+REJECTED = "#CC79A7"
+REFERENCE = "#0072B2"
+AXIS_COLOURS = ("#0072B2", "#009E73", "#D55E00")  # x, y, z in the gap map legend only
+
+MISSING_MESSAGE = "HTML reports need matplotlib: pip install 'mocapfill[report]'"
+
+
+def _matplotlib():
+    try:
+        import matplotlib
+        from matplotlib.figure import Figure
+    except ImportError:
+        raise MocapfillError(MISSING_MESSAGE) from None
+    return matplotlib, Figure
+
+
+@contextlib.contextmanager
+def _rc() -> Iterator[type]:
+    """Temporary rc settings for report figures; yields the Figure class."""
+    matplotlib, Figure = _matplotlib()
+    settings = {
+        "svg.fonttype": "none",  # text stays text: smaller, searchable, rendered by the browser's fonts
+        "svg.hashsalt": "mocapfill",  # deterministic element ids
+        "font.size": 9,
+        "axes.spines.top": False,
+        "axes.spines.right": False,
+        "axes.grid": True,
+        "grid.alpha": 0.3,
+        "path.simplify": True,
+    }
+    with matplotlib.rc_context(settings):
+        yield Figure
+
+
+def svg_of(fig) -> str:
+    """The SVG markup of ``fig`` without the XML prolog, ready to inline in HTML."""
+    buf = io.StringIO()
+    fig.savefig(buf, format="svg", bbox_inches="tight")
+    text = buf.getvalue()
+    text = re.sub(r"<\?xml[^>]*\?>\s*", "", text)
+    text = re.sub(r"<!DOCTYPE[^>]*>\s*", "", text, flags=re.S)
+    return text.strip()
+
+
+def _stride(n: int, max_points: int) -> int:
+    return max(1, -(-n // max_points))
+
+
+def _spans(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) index pairs of the runs of True in a 1-D mask."""
+    from ..gaps import runs
+
+    return [(s, s + n) for s, n in runs(mask)]
+
+
+def _shade(ax, frames: np.ndarray, mask: np.ndarray, colour: str, alpha: float, label: str | None = None) -> None:
+    """Shade the frames of the runs of ``mask`` (shape (n,)) on ``ax``; each run spans half a frame either side."""
+    for i, (start, stop) in enumerate(_spans(mask)):
+        ax.axvspan(frames[start] - 0.5, frames[stop - 1] + 0.5, color=colour, alpha=alpha, lw=0,
+                   label=label if i == 0 else None)
+
+
+def trajectory_svg(frames: np.ndarray, observed: np.ndarray, output: np.ndarray, filled: np.ndarray,
+                   unfilled: np.ndarray, std: np.ndarray | None, *, label: str, units: str,
+                   max_points: int = 2000) -> str:
+    """x, y, z of one marker over time: input observed in black, filled samples in orange on shaded stretches,
+    a +-2 std band where ``std`` is given, still-missing stretches in grey.
+
+    frames : (n,) frame numbers; observed / output : (n, 3) input and output positions (NaN = missing);
+    filled / unfilled : (n,) bool; std : (n,) or None.
+    """
+    with _rc() as Figure:
+        fig = Figure(figsize=(9.0, 4.6))
+        axes = fig.subplots(3, 1, sharex=True)
+        step = _stride(len(frames), max_points)
+        # Filled curves at full resolution inside the gaps (they are what the reader checks), decimated elsewhere.
+        # Join the filled curve to its observed neighbours so short gaps are visible as a line, not a dot.
+        edge = filled | np.r_[filled[1:], False] | np.r_[False, filled[:-1]]
+        filled_curve = np.where(edge[:, None], output, np.nan)
+        band = None
+        if std is not None:
+            s = np.where(filled, std, np.nan)
+            if np.isfinite(s).any():
+                band = s
+        for k, ax in enumerate(axes):
+            _shade(ax, frames, filled, FILLED, 0.10, "filled stretch" if k == 0 else None)
+            _shade(ax, frames, unfilled, UNFILLED, 0.25, "left unfilled" if k == 0 else None)
+            if band is not None:
+                ax.fill_between(frames, output[:, k] - 2 * band, output[:, k] + 2 * band, color=BAND, alpha=0.35,
+                                lw=0, label="filled \u00b1 2 std" if k == 0 else None)
+            ax.plot(frames[::step], observed[::step, k], color=OBSERVED, lw=0.9, label="input" if k == 0 else None)
+            ax.plot(frames, filled_curve[:, k], color=FILLED, lw=1.3, label="filled" if k == 0 else None)
+            ax.set_ylabel(f"{'xyz'[k]} ({units})")
+            ax.margins(x=0)
+        axes[-1].set_xlabel("frame")
+        axes[0].set_title(label, loc="left", fontsize=10, fontweight="bold")
+        axes[0].legend(loc="upper right", fontsize=7, ncol=4, frameon=False, bbox_to_anchor=(1.0, 1.35))
+        return svg_of(fig)
+
+
+def bone_svg(frames: np.ndarray, before: np.ndarray, after: np.ndarray, reference: float, filled: np.ndarray, *,
+             name: str, units: str, max_points: int = 2000) -> str:
+    """Length of one bone over time: in the input (breaks at gaps) and in the output, against its reference length
+    (the BoLeRO paper's Figures 1 and 3).  frames, before, after : (n,); filled : (n,) bool (either end filled)."""
+    with _rc() as Figure:
+        fig = Figure(figsize=(9.0, 2.4))
+        ax = fig.subplots()
+        step = _stride(len(frames), max_points)
+        _shade(ax, frames, filled, FILLED, 0.10, "filled stretch")
+        ax.plot(frames[::step], after[::step], color=FILLED, lw=1.1, label="after fill")
+        ax.plot(frames[::step], before[::step], color=OBSERVED, lw=1.1, label="input")
+        if np.isfinite(reference):
+            ax.axhline(reference, color=REFERENCE, lw=1.0, ls="--", label=f"reference {reference:.4g} {units}")
+        ax.set_ylabel(f"length ({units})")
+        ax.set_xlabel("frame")
+        ax.margins(x=0)
+        ax.set_title(name, loc="left", fontsize=10, fontweight="bold")
+        ax.legend(loc="upper right", fontsize=7, ncol=4, frameon=False, bbox_to_anchor=(1.0, 1.3))
+        return svg_of(fig)
+
+
+def objective_svg(objective: Sequence[float | None]) -> str:
+    """The objective per iteration (e.g. DynaMMo's negative expected log-likelihood); non-finite values skipped."""
+    values = np.array([np.nan if v is None else float(v) for v in objective], dtype=float)
+    with _rc() as Figure:
+        fig = Figure(figsize=(6.0, 2.6))
+        ax = fig.subplots()
+        ax.plot(np.arange(1, len(values) + 1), values, color=REFERENCE, lw=1.2, marker="." if len(values) < 60 else None)
+        ax.set_xlabel("iteration")
+        ax.set_ylabel("objective")
+        return svg_of(fig)
+
+
+def gap_map_svg(status: np.ndarray, labels: Sequence[str], first_frame: int, *, max_columns: int = 1500) -> str:
+    """Overview of the whole capture: one row per marker, one column per frame, coloured by what the fill did.
+
+    status : (n_frames, n_markers) int, 0 observed, 1 filled, 2 left unfilled, 3 rejected outlier then filled,
+    4 rejected and left unfilled.  Columns are max-pooled (the worst status wins) down to ``max_columns``.
+    """
+    from matplotlib.colors import ListedColormap
+    from matplotlib.patches import Patch
+
+    n_frames, n_markers = status.shape
+    step = _stride(n_frames, max_columns)
+    if step > 1:
+        pad = (-n_frames) % step
+        padded = np.pad(status, ((0, pad), (0, 0)))
+        # Worst status per block: unfilled beats rejected beats filled beats observed.
+        rank = np.array([0, 1, 4, 2, 3])[padded]
+        pooled = rank.reshape(-1, step, n_markers).max(axis=1)
+        status = np.array([0, 1, 3, 4, 2])[pooled]
+    colours = ["#F2F2F2", FILLED, UNFILLED, REJECTED, "#7A3B69"]
+    cmap = ListedColormap(colours)
+    with _rc() as Figure:
+        height = min(0.16 * n_markers + 1.2, 14.0)
+        fig = Figure(figsize=(9.0, height))
+        ax = fig.subplots()
+        ax.imshow(status.T, aspect="auto", interpolation="nearest", cmap=cmap, vmin=-0.5, vmax=4.5,
+                  extent=(first_frame - 0.5, first_frame + n_frames - 0.5, n_markers - 0.5, -0.5))
+        ax.grid(False)
+        if n_markers <= 80:
+            ax.set_yticks(range(n_markers))
+            ax.set_yticklabels(labels, fontsize=6 if n_markers > 40 else 7)
+        else:
+            ax.set_ylabel("marker")
+        ax.set_xlabel("frame")
+        handles = [Patch(color=c, label=t) for c, t in
+                   zip(colours, ["observed", "filled", "left unfilled", "outlier, filled", "outlier, unfilled"])]
+        present = sorted(set(np.unique(status).tolist()) | {0})
+        ax.legend(handles=[handles[i] for i in present], loc="lower left", bbox_to_anchor=(0, 1.0), ncol=5,
+                  fontsize=7, frameon=False)
+        return svg_of(fig)

@@ -1,0 +1,224 @@
+"""Fill reports: the JSON validates against its documented schema; the HTML page is self-contained and complete."""
+
+from __future__ import annotations
+
+import json
+from html.parser import HTMLParser
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from mocapfill.errors import MocapfillError
+from mocapfill.markers import MarkerData
+from mocapfill.methods.base import finish
+from mocapfill.report import build_fill_report, load_schema, write_report
+
+
+# A small JSON Schema validator for the keywords our schema uses (jsonschema is not a dependency).
+_TYPES = {
+    "object": lambda v: isinstance(v, dict),
+    "array": lambda v: isinstance(v, list),
+    "string": lambda v: isinstance(v, str),
+    "integer": lambda v: isinstance(v, int) and not isinstance(v, bool),
+    "number": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
+    "boolean": lambda v: isinstance(v, bool),
+    "null": lambda v: v is None,
+}
+
+
+def validate(value, schema, where="$"):
+    """Raise AssertionError naming the first place where ``value`` breaks ``schema``."""
+    known = {"$schema", "$id", "title", "description", "type", "required", "properties", "additionalProperties",
+             "items", "enum", "const", "minimum", "maximum", "minItems", "maxItems"}
+    assert set(schema) <= known, f"validator does not know {set(schema) - known}"
+    if "type" in schema:
+        types = schema["type"] if isinstance(schema["type"], list) else [schema["type"]]
+        assert any(_TYPES[t](value) for t in types), f"{where}: {value!r} is not {types}"
+    if "const" in schema:
+        assert value == schema["const"], f"{where}: {value!r} != {schema['const']!r}"
+    if "enum" in schema:
+        assert value in schema["enum"], f"{where}: {value!r} not in {schema['enum']}"
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        if "minimum" in schema:
+            assert value >= schema["minimum"], f"{where}: {value} < {schema['minimum']}"
+        if "maximum" in schema:
+            assert value <= schema["maximum"], f"{where}: {value} > {schema['maximum']}"
+    if isinstance(value, dict):
+        for key in schema.get("required", []):
+            assert key in value, f"{where}: missing {key!r}"
+        props = schema.get("properties", {})
+        for key, item in value.items():
+            if key in props:
+                validate(item, props[key], f"{where}.{key}")
+            elif schema.get("additionalProperties", True) is False:
+                raise AssertionError(f"{where}: unexpected key {key!r}")
+    if isinstance(value, list):
+        if "minItems" in schema:
+            assert len(value) >= schema["minItems"], where
+        if "maxItems" in schema:
+            assert len(value) <= schema["maxItems"], where
+        if "items" in schema:
+            for i, item in enumerate(value):
+                validate(item, schema["items"], f"{where}[{i}]")
+
+
+def _clip(n_frames=120, n_markers=6, seed=0):
+    """A smooth synthetic capture, positions (n_frames, n_markers, 3) in mm, first frame 10."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n_frames)[:, None, None] / 60.0
+    base = rng.normal(0, 200, (1, n_markers, 3))
+    pos = base + 50 * np.sin(2 * np.pi * 0.7 * t + rng.uniform(0, 6, (1, n_markers, 3)))
+    return MarkerData(pos, [f"M{i}" for i in range(n_markers)], 60.0, "mm", first_frame=10, path="clip.c3d")
+
+
+def _fill(data, leave=()):
+    """A fill of ``data`` (linear interpolation written here, not a registered method) leaving ``leave`` markers'
+    gaps unfilled; std given, objective of three iterations, per-gap methods in info."""
+    pos = data.positions
+    est = pos.copy()
+    t = np.arange(data.n_frames)
+    for m in range(data.n_markers):
+        ok = ~np.isnan(pos[:, m, 0])
+        for k in range(3):
+            est[:, m, k] = np.interp(t, t[ok], pos[ok, m, k])
+        if m in leave:
+            est[~ok, m] = np.nan
+    std = np.full(pos.shape[:2], 2.0)
+    return finish(pos, est, std=std, n_iter=3, converged=False, objective=[10.0, 5.0, float("nan")],
+                  info={"gap_methods": [{"marker": "M1", "start": 20, "length": 15, "method": "dynammo"},
+                                        {"marker": 2, "first_frame": 60, "method": "pca"}],
+                        "hidden": 16})
+
+
+@pytest.fixture
+def case():
+    clean = _clip()
+    pos = clean.positions.copy()
+    pos[20:35, 1] = np.nan  # interior gap
+    pos[50:58, 2] = np.nan  # interior gap
+    pos[0:5, 3] = np.nan  # gap at the start, left unfilled below
+    rejected = np.zeros(pos.shape[:2], bool)
+    rejected[70:72, 4] = True
+    pos[rejected] = np.nan
+    data = clean.with_positions(pos)
+    result = _fill(data, leave=(3,))
+    bones = SimpleNamespace(pairs=np.array([[0, 1], [1, 2], [4, 5], [0, 5]]),
+                            lengths=np.array([100.0, 120.0, 90.0, 80.0]))
+    report = build_fill_report(data, result, method="auto", settings={"hidden": 16, "seed": np.int64(3)},
+                               seconds=0.25, input_path="clip.c3d", output_path="out.c3d", bones=bones,
+                               rejected=rejected, smoothed=True)
+    return SimpleNamespace(data=data, result=result, bones=bones, report=report, rejected=rejected)
+
+
+def test_json_report_validates_and_holds_the_facts(case, tmp_path):
+    path = tmp_path / "r.json"
+    write_report(case.report, path, data=case.data, result=case.result, bones=case.bones)
+    doc = json.loads(path.read_text())
+    validate(doc, load_schema())
+    s = doc["summary"]
+    assert (s["frames"], s["markers"], s["method"], s["smoothed"]) == (120, 6, "auto", True)
+    assert s["missing_samples"] == 15 + 8 + 5 + 2 and s["filled_samples"] == 25
+    assert s["convergence"] == {"n_iter": 3, "converged": False, "objective": [10.0, 5.0, None]}
+    assert s["settings"] == {"hidden": 16, "seed": 3}
+    by_marker = {g["marker"]: g for g in doc["gaps"]}
+    assert by_marker["M1"]["first_frame"] == 30 and by_marker["M1"]["length"] == 15  # file numbering
+    assert by_marker["M1"]["method"] == "dynammo" and by_marker["M2"]["method"] == "pca"
+    assert by_marker["M1"]["mean_std"] == 2.0
+    assert by_marker["M3"]["status"] == "unfilled" and by_marker["M3"]["at_start"]
+    assert by_marker["M4"]["rejected_samples"] == 2
+    assert doc["unfilled"] == [{"marker": "M3", "first_frame": 10, "length": 5}]
+    assert doc["rejected"] == [{"marker": "M4", "frame": 80}, {"marker": "M4", "frame": 81}]
+    assert s["methods_used"] == ["dynammo", "pca"]
+    touching = {tuple(b["markers"]) for b in doc["bones"]["touching_filled"]}
+    assert touching == {("M0", "M1"), ("M1", "M2"), ("M4", "M5")}
+
+
+def test_json_report_without_bones_std_or_gaps_validates():
+    data = _clip()
+    result = finish(data.positions, data.positions)
+    report = build_fill_report(data, result, method="linear", settings=None, seconds=0.0, input_path=None,
+                               output_path=None)
+    validate(json.loads(json.dumps(report, allow_nan=False)), load_schema())
+    assert report["gaps"] == [] and report["bones"] is None and report["summary"]["percent_filled"] == 100.0
+
+
+class _Collector(HTMLParser):
+    def __init__(self):
+        super().__init__()
+        self.figures = []
+        self.external = []
+        self.svgs = 0
+
+    def handle_starttag(self, tag, attrs):
+        attrs = dict(attrs)
+        if tag == "figure":
+            self.figures.append((attrs.get("class", ""), attrs.get("data-name")))
+        if tag == "svg":
+            self.svgs += 1
+        for key in ("src", "href"):
+            value = attrs.get(key) or ""
+            if value and not value.startswith("#") and tag != "svg":
+                self.external.append(value)
+
+
+def test_html_report_is_self_contained_with_one_plot_per_filled_marker(case, tmp_path):
+    pytest.importorskip("matplotlib")
+    path = tmp_path / "r.html"
+    write_report(case.report, path, data=case.data, result=case.result, bones=case.bones)
+    text = path.read_text()
+    parser = _Collector()
+    parser.feed(text)
+    parser.close()
+    markers = [name for cls, name in parser.figures if "marker-plot" in cls]
+    assert markers == ["M1", "M2", "M4"]  # M3 was left unfilled
+    assert len([1 for cls, _ in parser.figures if "bone-plot" in cls]) == 3
+    assert any("objective-plot" in cls for cls, _ in parser.figures)
+    assert parser.svgs == len(parser.figures)
+    assert not [u for u in parser.external if u.startswith(("http:", "https:", "//"))]
+    assert "<script" not in text and "NOT converged" in text and "still missing" in text
+
+
+def test_html_report_caps_plots_and_says_what_was_left_out(case, tmp_path):
+    pytest.importorskip("matplotlib")
+    path = tmp_path / "r.html"
+    write_report(case.report, path, data=case.data, result=case.result, bones=case.bones, max_markers=2,
+                 max_bones=1)
+    parser = _Collector()
+    parser.feed(path.read_text())
+    markers = [name for cls, name in parser.figures if "marker-plot" in cls]
+    assert markers == ["M1", "M2"]  # the two with the most filled samples
+    assert "1 more not plotted: M4" in path.read_text()
+    assert len([1 for cls, _ in parser.figures if "bone-plot" in cls]) == 1
+    assert "2 more bones not plotted" in path.read_text()
+
+
+def test_html_report_without_matplotlib_is_a_one_line_error(case, tmp_path, monkeypatch):
+    import builtins
+
+    real_import = builtins.__import__
+
+    def fake_import(name, *args, **kwargs):
+        if name == "matplotlib" or name.startswith("matplotlib."):
+            raise ImportError(name)
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", fake_import)
+    with pytest.raises(MocapfillError, match=r"HTML reports need matplotlib: pip install 'mocapfill\[report\]'"):
+        write_report(case.report, tmp_path / "r.html", data=case.data, result=case.result)
+    assert not (tmp_path / "r.html").exists()
+    write_report(case.report, tmp_path / "r.json", data=case.data, result=case.result)  # JSON never needs it
+
+
+def test_unknown_report_extension_is_an_error(case, tmp_path):
+    with pytest.raises(MocapfillError, match=r"r\.txt.*\.json or \.html"):
+        write_report(case.report, tmp_path / "r.txt", data=case.data, result=case.result)
+
+
+def test_importing_report_leaves_matplotlib_alone():
+    import subprocess
+    import sys
+
+    code = "import sys, mocapfill.report; print('matplotlib' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"
