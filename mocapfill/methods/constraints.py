@@ -1,0 +1,468 @@
+"""Per-frame bone-length solvers for BoLeRO, vectorised across frames.
+
+Both solvers work on one frame at a time in principle: the unknowns are the coordinates of the frame's missing
+markers ``y`` (k markers, 3k numbers), the target is the model's estimate ``e`` = G E[z_t] at those markers, and the
+active bones are the bones with at least one missing endpoint (the other endpoint, when observed, is fixed at its
+observed position).  Frames that share the same missing pattern share the same system structure, so they are grouped
+and solved together as stacks of small dense systems ``(n_frames_in_group, p, p)`` with :func:`numpy.linalg.solve`.
+
+Every bone residual is written in length units, ``r_b = (|x_u - x_v|^2 - L_b^2) / (2 L_b)``, which equals
+``|x_u - x_v| - L_b`` to first order and is smooth everywhere (the plain distance is not differentiable at 0); its
+gradient ``(x_u - x_v) / L_b`` is dimensionless.
+
+- :func:`solve_hard`: ``min |y - e|^2  s.t.  r(y) = 0`` (BoLeRO-HC).  Phase 1 (restoration) runs Levenberg-Marquardt
+  on ``|r|^2`` from ``e``; frames where the constraints cannot all hold keep that least-squares point (its small
+  damped steps leave the under-determined directions near ``e``).  Phase 2 runs damped Newton on the Lagrangian's
+  KKT system from the restored point, backtracking on the KKT residual, and keeps the result only if it is feasible
+  and nearer to ``e`` than the restored point.
+- :func:`solve_soft`: ``min |y - e|^2 + w sum_b r_b^2`` (BoLeRO-SC with lambda_b = w / (4 sigma^2 L_b^2), see
+  :mod:`mocapfill.methods.bolero`).  Newton with the negative-curvature part of the Hessian dropped (always positive
+  definite) and an Armijo line search.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Iterator
+
+import numpy as np
+
+#: Relative bone residual |r_b| / L_b under which a frame counts as satisfying its hard constraints.
+FEASIBLE_RTOL = 1e-9
+
+
+@dataclass
+class SolveStats:
+    """What one call of a solver did (JSON-ready through :meth:`as_dict`).
+
+    Violations are mean absolute bone-length errors ``| |x_u - x_v| - L_b |`` in data units over the active
+    (bone, frame) pairs, before (at the estimate) and after the solve; ``max_rel_after`` is the largest relative
+    error after.  ``iterations`` is the largest iteration count of any frame group (phase 1 + phase 2 for the hard
+    solver).
+    """
+
+    n_frames: int = 0
+    n_groups: int = 0
+    n_constraints: int = 0
+    iterations: int = 0
+    violation_before: float = 0.0
+    violation_after: float = 0.0
+    max_rel_after: float = 0.0
+    n_infeasible: int = 0
+    _sum_before: float = field(default=0.0, repr=False)
+    _sum_after: float = field(default=0.0, repr=False)
+
+    def add(self, before: np.ndarray, after: np.ndarray, lengths: np.ndarray, iterations: int) -> None:
+        """Accumulate one group: ``before``/``after`` are |d| - L of shape (n, m), ``lengths`` (m,)."""
+        self.n_frames += before.shape[0]
+        self.n_groups += 1
+        self.n_constraints += before.size
+        self.iterations = max(self.iterations, int(iterations))
+        self._sum_before += float(np.abs(before).sum())
+        self._sum_after += float(np.abs(after).sum())
+        if after.size:
+            self.max_rel_after = max(self.max_rel_after, float((np.abs(after) / lengths).max()))
+        if self.n_constraints:
+            self.violation_before = self._sum_before / self.n_constraints
+            self.violation_after = self._sum_after / self.n_constraints
+
+    def as_dict(self) -> dict:
+        return {
+            "frames": self.n_frames,
+            "groups": self.n_groups,
+            "constraints": self.n_constraints,
+            "iterations": self.iterations,
+            "violation_before": self.violation_before,
+            "violation_after": self.violation_after,
+            "max_rel_violation_after": self.max_rel_after,
+            "infeasible_frames": self.n_infeasible,
+        }
+
+
+class _Group:
+    """The frames sharing one missing pattern, with the structure of their per-frame systems.
+
+    Attributes: ``frames`` (n,), ``var`` (k,) the missing markers, ``bones`` (m,) indices of the active bones,
+    ``lengths`` (m,), ``S`` (m, k) incidence of bones on unknown markers (+1 at u, -1 at v, 0 if fixed),
+    ``iu``/``iv`` (m,) endpoint indices into Z = [y, fixed] of shape (n, k + q, 3), ``fixed`` (n, q, 3).
+    """
+
+    def __init__(self, frames, var, bones, pairs, lengths, observed):
+        self.frames = frames
+        self.var = var
+        self.bones = bones
+        self.lengths = lengths[bones]
+        ends = pairs[bones]  # (m, 2)
+        k = var.size
+        loc = {int(mk): i for i, mk in enumerate(var)}
+        fixed = sorted({int(mk) for mk in ends.ravel() if int(mk) not in loc})
+        for i, mk in enumerate(fixed):
+            loc[mk] = k + i
+        self.iu = np.array([loc[int(a)] for a in ends[:, 0]], dtype=np.intp)
+        self.iv = np.array([loc[int(b)] for b in ends[:, 1]], dtype=np.intp)
+        m = bones.size
+        self.S = np.zeros((m, k))
+        rows = np.arange(m)
+        self.S[rows[self.iu < k], self.iu[self.iu < k]] = 1.0
+        self.S[rows[self.iv < k], self.iv[self.iv < k]] = -1.0
+        self.fixed = observed[np.ix_(frames, np.array(fixed, dtype=np.intp), np.arange(3))] if fixed else \
+            np.zeros((frames.size, 0, 3))
+
+    @property
+    def k(self) -> int:
+        return self.var.size
+
+    def diffs(self, y: np.ndarray) -> np.ndarray:
+        """Bone vectors x_u - x_v, shape (n, m, 3), for unknowns ``y`` of shape (n, k, 3)."""
+        z = np.concatenate([y, self.fixed[: y.shape[0]]], axis=1) if self.fixed.shape[1] else y
+        return z[:, self.iu] - z[:, self.iv]
+
+    def residual(self, d: np.ndarray) -> np.ndarray:
+        """r_b = (|d|^2 - L^2) / (2 L), shape (n, m)."""
+        return ((d * d).sum(axis=2) - self.lengths**2) / (2.0 * self.lengths)
+
+    def jacobian(self, d: np.ndarray) -> np.ndarray:
+        """dr/dy, shape (n, m, 3k): row b holds d_b / L_b at marker u and -d_b / L_b at marker v."""
+        n, m, _ = d.shape
+        jac = np.einsum("bi,nbc->nbic", self.S / self.lengths[:, None], d)
+        return jac.reshape(n, m, 3 * self.k)
+
+    def curvature(self, coef: np.ndarray) -> np.ndarray:
+        """sum_b coef_b * Hessian(r_b) = kron(S^T diag(coef / L) S, I3), shape (n, 3k, 3k), for coef (n, m)."""
+        c = np.einsum("bi,nb,bj->nij", self.S, coef / self.lengths, self.S)
+        n, k = c.shape[0], self.k
+        return (c[:, :, None, :, None] * np.eye(3)[None, None, :, None, :]).reshape(n, 3 * k, 3 * k)
+
+
+def _groups(missing: np.ndarray, pairs: np.ndarray, lengths: np.ndarray, observed: np.ndarray,
+            frames: np.ndarray | None = None) -> Iterator[_Group]:
+    """Yield one :class:`_Group` per distinct missing pattern that has at least one active bone."""
+    if pairs.size == 0:
+        return
+    cand = np.flatnonzero(missing.any(axis=1)) if frames is None else np.asarray(frames, dtype=np.intp)
+    if cand.size == 0:
+        return
+    patterns, inverse = np.unique(missing[cand], axis=0, return_inverse=True)
+    inverse = inverse.ravel()
+    for g, pattern in enumerate(patterns):
+        touches = pattern[pairs[:, 0]] | pattern[pairs[:, 1]]
+        if not touches.any():
+            continue
+        yield _Group(cand[inverse == g], np.flatnonzero(pattern), np.flatnonzero(touches), pairs, lengths,
+                     observed)
+
+
+def _bone_error(group: _Group, y: np.ndarray) -> np.ndarray:
+    """| x_u - x_v | - L, shape (n, m)."""
+    return np.linalg.norm(group.diffs(y), axis=2) - group.lengths
+
+
+def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve the stack a (n, p, p) x = b (n, p); a frame whose system is singular gets a least-squares step."""
+    try:
+        return np.linalg.solve(a, b[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        out = np.empty_like(b)
+        for i in range(a.shape[0]):
+            out[i] = np.linalg.lstsq(a[i], b[i], rcond=None)[0]
+        return out
+
+
+def _prepare(estimate, positions, missing, pairs, lengths):
+    estimate = np.asarray(estimate, dtype=np.float64)
+    positions = np.asarray(positions, dtype=np.float64)
+    missing = np.asarray(missing, dtype=bool)
+    pairs = np.asarray(pairs, dtype=np.intp).reshape(-1, 2)
+    lengths = np.asarray(lengths, dtype=np.float64).ravel()
+    if estimate.shape != positions.shape or missing.shape != positions.shape[:2]:
+        raise ValueError("estimate, positions and missing must agree: (n_frames, n_markers, 3) and (n_frames, n_markers)")
+    keep = np.isfinite(lengths) & (lengths > 0)
+    return estimate, positions, missing, pairs[keep], lengths[keep]
+
+
+# ----------------------------------------------------------------------------------------------- hard constraints
+def _restore(group: _Group, y: np.ndarray, *, max_iter: int, tol: float) -> tuple[np.ndarray, int]:
+    """Levenberg-Marquardt on |r(y)|^2 from ``y`` (n, k, 3); returns the least-squares point and iterations."""
+    n, k3 = y.shape[0], 3 * group.k
+    mu = np.full(n, 1e-6)
+    d = group.diffs(y)
+    r = group.residual(d)
+    cost = (r * r).sum(axis=1)
+    eye = np.eye(k3)
+    it = 0
+    for it in range(1, max_iter + 1):
+        jac = group.jacobian(d)
+        grad = np.einsum("nbp,nb->np", jac, r)
+        done = (np.abs(r) <= tol * group.lengths).all(axis=1) | (np.linalg.norm(grad, axis=1) <= tol * 1e-3 *
+                                                                  group.lengths.min())
+        if done.all():
+            break
+        jtj = np.einsum("nbp,nbq->npq", jac, jac)
+        # J is dimensionless, so mu is too; plain mu*I (not Marquardt's diag(J^T J)) also damps the directions no
+        # bone constrains, which keeps them at the estimate.
+        step = _solve(jtj + mu[:, None, None] * eye, -grad)
+        y_new = y + step.reshape(y.shape)
+        d_new = group.diffs(y_new)
+        r_new = group.residual(d_new)
+        cost_new = (r_new * r_new).sum(axis=1)
+        ok = (cost_new < cost) & ~done
+        y = np.where(ok[:, None, None], y_new, y)
+        d = np.where(ok[:, None, None], d_new, d)
+        r = np.where(ok[:, None], r_new, r)
+        cost = np.where(ok, cost_new, cost)
+        mu = np.where(ok, np.maximum(mu / 10.0, 1e-12), np.minimum(mu * 10.0, 1e8))
+    return y, it
+
+
+def _kkt_newton(group: _Group, y: np.ndarray, target: np.ndarray, *, max_iter: int, tol: float
+                ) -> tuple[np.ndarray, int]:
+    """Damped Newton on the KKT system of min |y - e|^2 / 2 s.t. r(y) = 0, from a (nearly) feasible ``y``."""
+    n, k3 = y.shape[0], 3 * group.k
+    m = group.bones.size
+    scale = float(group.lengths.min())
+    delta = 1e-12  # regularises the (2,2) block so redundant constraints do not make the KKT matrix singular
+    eye_y = np.eye(k3)
+    d = group.diffs(y)
+    jac = group.jacobian(d)
+    dev = (y - target).reshape(n, k3)
+    # Least-squares multipliers: the best eta with y - e + J^T eta = 0.
+    jjt = np.einsum("nbp,ncp->nbc", jac, jac) + delta * np.eye(m)
+    eta = _solve(jjt, -np.einsum("nbp,np->nb", jac, dev))
+
+    def kkt_residual(y_, eta_):
+        d_ = group.diffs(y_)
+        j_ = group.jacobian(d_)
+        g_ = (y_ - target).reshape(n, k3) + np.einsum("nbp,nb->np", j_, eta_)
+        r_ = group.residual(d_)
+        return d_, j_, g_, r_, (g_ * g_).sum(axis=1) + (r_ * r_).sum(axis=1)
+
+    d, jac, g, r, merit = kkt_residual(y, eta)
+    it = 0
+    for it in range(1, max_iter + 1):
+        done = (np.abs(g).max(axis=1) <= tol * scale) & (np.abs(r) <= tol * group.lengths).all(axis=1)
+        if done.all():
+            break
+        kkt = np.zeros((n, k3 + m, k3 + m))
+        kkt[:, :k3, :k3] = eye_y + group.curvature(eta)
+        kkt[:, :k3, k3:] = np.transpose(jac, (0, 2, 1))
+        kkt[:, k3:, :k3] = jac
+        kkt[:, k3:, k3:] = -delta * np.eye(m)
+        step = _solve(kkt, -np.concatenate([g, r], axis=1))
+        dy, deta = step[:, :k3].reshape(y.shape), step[:, k3:]
+        alpha = np.ones(n)
+        accepted = done.copy()
+        y_best, eta_best = y.copy(), eta.copy()
+        for _ in range(30):  # backtracking on the KKT residual, frame by frame
+            y_try = y + alpha[:, None, None] * dy
+            eta_try = eta + alpha[:, None] * deta
+            _, _, _, _, merit_try = kkt_residual(y_try, eta_try)
+            ok = ~accepted & (merit_try < (1.0 - 1e-4 * alpha) * merit)
+            y_best[ok], eta_best[ok] = y_try[ok], eta_try[ok]
+            accepted |= ok
+            if accepted.all():
+                break
+            alpha = np.where(accepted, alpha, alpha * 0.5)
+        y, eta = y_best, eta_best
+        d, jac, g, r, merit = kkt_residual(y, eta)
+        if not (accepted & ~done).any():
+            break
+    return y, it
+
+
+def solve_hard(
+    estimate: np.ndarray,
+    positions: np.ndarray,
+    missing: np.ndarray,
+    pairs: np.ndarray,
+    lengths: np.ndarray,
+    *,
+    frames: np.ndarray | None = None,
+    max_iter: int = 50,
+    tol: float = 1e-12,
+) -> tuple[np.ndarray, SolveStats]:
+    """Move every missing sample to the nearest point (Euclidean) that meets its bones exactly.
+
+    Parameters
+    ----------
+    estimate : ndarray, shape (n_frames, n_markers, 3)
+        The target, e.g. G E[z_t] in data units; only its missing samples are used.
+    positions : ndarray, shape (n_frames, n_markers, 3)
+        The data; observed samples are the fixed partners of bones.
+    missing : ndarray of bool, shape (n_frames, n_markers)
+    pairs : ndarray of int, shape (B, 2); lengths : ndarray, shape (B,)
+        The bones; a bone is active in a frame when one of its markers is missing there.
+    frames : ndarray of int, optional
+        Restrict the solve to these frames (default: every frame with a missing marker).
+    max_iter : int
+        Cap for each phase (restoration, then Newton on the KKT system).
+    tol : float
+        Relative tolerance on bone residuals |r_b| / L_b and on the KKT gradient.
+
+    Returns
+    -------
+    out : ndarray, shape (n_frames, n_markers, 3)
+        The data completed: observed samples from ``positions``, missing samples from ``estimate``, those of
+        constrained frames replaced by the solution; frames whose bones cannot all hold
+        (over-determined or inconsistent) get the least-squares point of the bone residuals nearest the estimate.
+    stats : SolveStats
+        ``n_infeasible`` counts those frames.
+    """
+    estimate, positions, missing, pairs, lengths = _prepare(estimate, positions, missing, pairs, lengths)
+    out = np.where(missing[:, :, None], estimate, positions)
+    stats = SolveStats()
+    for group in _groups(missing, pairs, lengths, positions, frames):
+        target = estimate[np.ix_(group.frames, group.var, np.arange(3))]
+        if not np.isfinite(target).all():
+            continue
+        before = _bone_error(group, target)
+        # Penalty continuation: the soft problem's minimiser moves from the estimate to the constrained optimum
+        # as the weight grows, following the branch nearest the estimate (Newton on the Lagrangian from a poor
+        # start can wander to a farther critical point).
+        y, iters = target.copy(), 0
+        for weight in 10.0 ** np.arange(0, 9, 2):
+            y, it = _soft_newton(group, target, weight, start=y, max_iter=15, tol=1e-6)
+            iters += it
+        y1, it1 = _restore(group, y, max_iter=max_iter, tol=tol)
+        iters += it1
+        feasible = (np.abs(group.residual(group.diffs(y1))) <= FEASIBLE_RTOL * group.lengths).all(axis=1)
+        y = y1
+        if feasible.any():
+            sub = np.flatnonzero(feasible)
+            sub_group = _subgroup(group, sub)
+            # Newton on the KKT system from there, with the penalty's multiplier estimate, converges in a few
+            # steps to the exact constrained optimum; a final restoration step polishes to rounding.
+            y2, it2 = _kkt_newton(sub_group, y1[sub], target[sub], max_iter=max_iter, tol=tol)
+            y2, _ = _restore(sub_group, y2, max_iter=5, tol=tol)
+            iters += it2
+            r2 = sub_group.residual(sub_group.diffs(y2))
+            obj1 = ((y1[sub] - target[sub]) ** 2).sum(axis=(1, 2))
+            obj2 = ((y2 - target[sub]) ** 2).sum(axis=(1, 2))
+            # Near the optimum the objective is flat to rounding, so only a clearly worse point is refused.
+            nearer = obj2 <= obj1 * (1.0 + 1e-8) + (1e-9 * group.lengths.min()) ** 2
+            good = (np.abs(r2) <= FEASIBLE_RTOL * sub_group.lengths).all(axis=1) & nearer
+            y = y1.copy()
+            y[sub[good]] = y2[good]
+        stats.n_infeasible += int((~feasible).sum())
+        out[np.ix_(group.frames, group.var, np.arange(3))] = y
+        stats.add(before, _bone_error(group, y), group.lengths, iters)
+    return out, stats
+
+
+def _subgroup(group: _Group, rows: np.ndarray) -> _Group:
+    """The same system restricted to some of its frames."""
+    sub = object.__new__(_Group)
+    sub.__dict__.update(group.__dict__)
+    sub.frames = group.frames[rows]
+    sub.fixed = group.fixed[rows]
+    return sub
+
+
+# ----------------------------------------------------------------------------------------------- soft constraints
+def solve_soft(
+    estimate: np.ndarray,
+    positions: np.ndarray,
+    missing: np.ndarray,
+    pairs: np.ndarray,
+    lengths: np.ndarray,
+    *,
+    weight: float,
+    frames: np.ndarray | None = None,
+    max_iter: int = 30,
+    tol: float = 1e-10,
+) -> tuple[np.ndarray, SolveStats]:
+    """Minimise |y - e|^2 + weight * sum_b r_b(y)^2 over each frame's missing coordinates.
+
+    With r_b = (|d_b|^2 - L_b^2) / (2 L_b) this is the paper's per-frame objective (Eq. 11) multiplied by sigma^2,
+    with lambda_b = weight / (4 sigma^2 L_b^2); the minimiser does not depend on sigma^2, the units or the number
+    of markers.
+
+    Parameters
+    ----------
+    estimate, positions : ndarray, shape (n_frames, n_markers, 3)
+        Target (e.g. G E[z_t]) and data (observed samples are the bones' fixed partners).
+    missing : ndarray of bool, shape (n_frames, n_markers)
+    pairs : ndarray of int, shape (B, 2); lengths : ndarray, shape (B,)
+    weight : float
+        Dimensionless penalty weight w >= 0 (0 returns the estimate).
+    frames : ndarray of int, optional
+        Restrict the solve to these frames.
+    max_iter : int
+        Newton iterations per frame group.
+    tol : float
+        Stop when every frame's step is below tol times the shortest active bone.
+
+    Returns
+    -------
+    out : ndarray, shape (n_frames, n_markers, 3)
+        Observed samples from ``positions``, missing ones from ``estimate`` or, in constrained frames, the
+        minimiser.
+    stats : SolveStats
+    """
+    estimate, positions, missing, pairs, lengths = _prepare(estimate, positions, missing, pairs, lengths)
+    out = np.where(missing[:, :, None], estimate, positions)
+    stats = SolveStats()
+    if weight <= 0:
+        return out, stats
+    for group in _groups(missing, pairs, lengths, positions, frames):
+        target = estimate[np.ix_(group.frames, group.var, np.arange(3))]
+        if not np.isfinite(target).all():
+            continue
+        y, it = _soft_newton(group, target, weight, max_iter=max_iter, tol=tol)
+        out[np.ix_(group.frames, group.var, np.arange(3))] = y
+        stats.add(_bone_error(group, target), _bone_error(group, y), group.lengths, it)
+    return out, stats
+
+
+def _soft_newton(group: _Group, target: np.ndarray, weight: float, *, max_iter: int, tol: float,
+                 start: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+    """Newton with the Hessian's compressed-bone (negative-curvature) terms dropped, plus Armijo backtracking.
+
+    ``target`` (n, k, 3) is the estimate, ``start`` (n, k, 3) the first iterate (default: the estimate).
+    """
+    n, k3 = target.shape[0], 3 * group.k
+    eye = np.eye(k3)
+    scale = float(group.lengths.min())
+    y = (target if start is None else start).copy()
+
+    def objective(y_):
+        d_ = group.diffs(y_)
+        r_ = group.residual(d_)
+        return d_, r_, ((y_ - target) ** 2).sum(axis=(1, 2)) + weight * (r_ * r_).sum(axis=1)
+
+    d, r, f = objective(y)
+    active = np.ones(n, dtype=bool)
+    it = 0
+    for it in range(1, max_iter + 1):
+        jac = group.jacobian(d)
+        grad = (y - target).reshape(n, k3) + weight * np.einsum("nbp,nb->np", jac, r)
+        # Gauss-Newton part plus the positive (stretched-bone) second-order terms: positive definite by design.
+        hess = eye + weight * (np.einsum("nbp,nbq->npq", jac, jac) + group.curvature(np.maximum(r, 0.0)))
+        step = _solve(hess, -grad)
+        slope = (grad * step).sum(axis=1)
+        alpha = np.ones(n)
+        accepted = ~active
+        y_next = y.copy()
+        for _ in range(30):
+            y_try = y + alpha[:, None, None] * step.reshape(y.shape)
+            _, _, f_try = objective(y_try)
+            ok = ~accepted & (f_try <= f + 1e-4 * alpha * slope)
+            y_next[ok] = y_try[ok]
+            accepted |= ok
+            if accepted.all():
+                break
+            alpha = np.where(accepted, alpha, alpha * 0.5)
+        moved = np.linalg.norm(alpha[:, None] * step, axis=1)
+        y = y_next
+        d, r, f = objective(y)
+        active &= moved > tol * scale
+        if not active.any():
+            break
+    return y, it
+
+
+def bone_errors(positions: np.ndarray, pairs: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """|x_u - x_v| - L per frame and bone, shape (n_frames, B) (NaN where a marker is missing)."""
+    positions = np.asarray(positions, dtype=np.float64)
+    pairs = np.asarray(pairs, dtype=np.intp).reshape(-1, 2)
+    d = positions[:, pairs[:, 0]] - positions[:, pairs[:, 1]]
+    return np.linalg.norm(d, axis=2) - np.asarray(lengths, dtype=np.float64)
