@@ -1,0 +1,82 @@
+"""Benchmark: pair_distance_stats on 200 markers x 72,000 frames (19,900 pairs): wall time and peak memory.
+
+Usage::
+
+    python benchmarks/bench_distances.py [--markers 200] [--frames 72000] [--missing 0.05]
+
+Each measurement runs in a fresh subprocess, so the peak resident set size (``ru_maxrss`` of the child) is that of
+one call (including the input array itself and the interpreter, about 30 MB), not of this driver.  The synthetic
+capture is 200 markers moving as a smooth random walk around a body with ``--missing`` of the samples set to NaN
+in runs (as real gaps are), so that pairs have different counts of common frames (the costly case for exact
+percentiles).  Target: <= 1.5 GB and <= 60 s on the project's 2-core machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+
+CHILD = r"""
+import json, resource, sys, time
+import numpy as np
+from mocapfill.distances import pair_distance_stats
+positions = np.load(sys.argv[1])
+rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+t0 = time.perf_counter()
+stats = pair_distance_stats(positions)
+seconds = time.perf_counter() - t0
+rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(json.dumps({"seconds": seconds, "peak_rss_mb": rss / 1024, "rss_after_input_mb": rss_before / 1024,
+                  "input_mb": positions.nbytes / 2**20, "pairs": int(len(stats.pairs)),
+                  "min_count": int(stats.count.min()), "max_count": int(stats.count.max())}))
+"""
+
+
+def synthetic(n_markers: int, n_frames: int, missing: float, seed: int):
+    """A (n_frames, n_markers, 3) capture in mm: a body's smooth random walk, per-marker offsets, gaps in runs."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    positions = np.empty((n_frames, n_markers, 3))
+    body = np.cumsum(rng.normal(0, 1.0, (n_frames, 3)), axis=0)
+    for m in range(n_markers):
+        positions[:, m] = body + rng.normal(0, 300.0, 3) + np.cumsum(rng.normal(0, 0.05, (n_frames, 3)), axis=0)
+        lost = 0
+        while lost < missing * n_frames:  # runs of 10-200 missing frames, as real gaps come
+            length = int(rng.integers(10, 200))
+            start = int(rng.integers(0, max(1, n_frames - length)))
+            positions[start:start + length, m] = np.nan
+            lost += length
+    return positions
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--markers", type=int, default=200)
+    parser.add_argument("--frames", type=int, default=72_000)
+    parser.add_argument("--missing", type=float, default=0.05, help="fraction of samples missing (default 0.05)")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    print(f"machine: {platform.machine()} {platform.processor() or ''} {os.cpu_count()} cpus, "
+          f"python {platform.python_version()}, {platform.system()} {platform.release()}")
+    import numpy
+    print(f"numpy {numpy.__version__}")
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "positions.npy")
+        numpy.save(path, synthetic(args.markers, args.frames, args.missing, args.seed))
+        out = subprocess.run([sys.executable, "-c", CHILD, path], capture_output=True, text=True, check=True)
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    print(f"pair_distance_stats: {args.markers} markers x {args.frames} frames ({result['pairs']} pairs, "
+          f"{args.missing:.0%} missing, common frames per pair {result['min_count']}-{result['max_count']})")
+    print(f"  wall time     {result['seconds']:.1f} s")
+    print(f"  peak RSS      {result['peak_rss_mb']:.0f} MB (input array {result['input_mb']:.0f} MB, "
+          f"process before the call {result['rss_after_input_mb']:.0f} MB)")
+
+
+if __name__ == "__main__":
+    main()
