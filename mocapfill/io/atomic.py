@@ -64,7 +64,8 @@ def atomic_write(path, mode: str = "wb", *, encoding: str | None = "utf-8", newl
     if target.is_dir():
         raise InputError(f"{path}: is a directory, cannot write a file there")
     if not directory.is_dir():
-        raise InputError(f"{path}: cannot write: directory {str(directory)!r} does not exist")
+        why = "is not a directory" if directory.exists() else "does not exist"
+        raise InputError(f"{path}: cannot write: {str(directory)!r} {why}")
     try:
         fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=directory)
     except OSError as exc:

@@ -67,6 +67,8 @@ def read_trc(text: str, name: str) -> MarkerData:
         if not line.strip():
             continue
         row = split(line)
+        if not any(row):
+            continue  # the blank line after the header, written with delimiters by comma-separated exporters
         while len(row) > 2 and not row[-1]:
             row.pop()  # rows stop early (or carry trailing tabs) when their last markers are missing
         raw_rows.append((number, row))
