@@ -1,0 +1,156 @@
+"""Every input / output error: one line `Error: <file>: <problem>`, exit status 1, no traceback."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+from click.testing import CliRunner
+
+from mocapfill.errors import InputError
+from mocapfill.io import atomic_write, check_output_path
+from mocapfill.cli import cli
+
+
+def _info_error(path) -> str:
+    result = CliRunner().invoke(cli, ["info", str(path)])
+    assert result.exit_code == 1, result.output
+    assert "Traceback" not in result.output
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith(f"Error: {path}: ")
+    return lines[0]
+
+
+def test_missing_file(tmp_path):
+    assert _info_error(tmp_path / "nope.c3d").endswith(": no such file")
+
+
+def test_directory_instead_of_file(tmp_path):
+    (tmp_path / "d.c3d").mkdir()
+    assert "is a directory" in _info_error(tmp_path / "d.c3d")
+
+
+@pytest.mark.skipif(os.name != "posix" or os.geteuid() == 0, reason="root reads any file")
+def test_unreadable_file(tmp_path):
+    path = tmp_path / "secret.c3d"
+    path.write_bytes(b"\0" * 1024)
+    path.chmod(0)
+    try:
+        assert "cannot read: Permission denied" in _info_error(path)
+    finally:
+        path.chmod(0o600)
+
+
+def test_unknown_extension(tmp_path):
+    path = tmp_path / "capture.xyz"
+    path.write_text("1,2,3\n")
+    assert "unknown file extension '.xyz'" in _info_error(path)
+    path = tmp_path / "capture"
+    path.write_text("1,2,3\n")
+    assert "no file extension" in _info_error(path)
+
+
+def test_truncated_c3d(sample_data, tmp_path):
+    path = tmp_path / "cut.c3d"
+    raw = (sample_data / "85_02.c3d").read_bytes()
+    path.write_bytes(raw[:-20000])
+    assert "truncated C3D: the data section holds" in _info_error(path)
+
+
+def test_corrupt_c3d(tmp_path):
+    path = tmp_path / "junk.c3d"
+    path.write_bytes(os.urandom(10) + b"\x00" * 3000)
+    assert "not a C3D file" in _info_error(path)
+
+
+def test_ragged_csv(tmp_path):
+    path = tmp_path / "r.csv"
+    path.write_text("time,A_x,A_y,A_z\n0,1,2,3\n0.1,1,2,3,4\n")
+    assert "line 3 has 5 fields, the header has 4 (ragged CSV)" in _info_error(path)
+
+
+def test_non_numeric_csv(tmp_path):
+    path = tmp_path / "n.csv"
+    path.write_text("time,A_x,A_y,A_z\n0,1,2,3\n0.1,1,two,3\n")
+    assert "'two' in column 'A_y' is not a number" in _info_error(path)
+
+
+def test_duplicate_csv_columns(tmp_path):
+    path = tmp_path / "d.csv"
+    path.write_text("time,A_x,A_y,A_y,A_z\n0,1,2,3,4\n")
+    assert "column 'A_y' appears more than once" in _info_error(path)
+
+
+def test_binary_file_with_a_text_extension(sample_data, tmp_path):
+    path = tmp_path / "b.csv"
+    path.write_bytes((sample_data / "85_02.c3d").read_bytes())
+    assert "binary content" in _info_error(path)
+
+
+# --- output paths (exercised through `fill` by its owner; tested here directly) ----------------------------------
+
+def test_output_equal_to_input(tmp_path):
+    src = tmp_path / "a.c3d"
+    src.write_bytes(b"x")
+    with pytest.raises(InputError, match=r"a\.c3d: output is the same file as the input"):
+        check_output_path(src, src)
+    with pytest.raises(InputError, match="same file"):
+        check_output_path(tmp_path / "sub" / ".." / "a.c3d", "other.csv", src)
+    link = tmp_path / "link.c3d"
+    link.symlink_to(src)
+    with pytest.raises(InputError, match="same file"):
+        check_output_path(link, src)
+    check_output_path(tmp_path / "b.c3d", src)  # different: fine
+    check_output_path("-", "-")  # stdout never clashes with stdin
+    check_output_path(None, src)
+
+
+def test_unwritable_output_directory(tmp_path):
+    with pytest.raises(InputError, match=r"missing/out\.c3d: cannot write: .* does not exist"):
+        with atomic_write(tmp_path / "missing" / "out.c3d") as fh:
+            fh.write(b"x")
+    (tmp_path / "file").write_text("")
+    with pytest.raises(InputError, match="is not a directory"):
+        with atomic_write(tmp_path / "file" / "out.c3d"):
+            pass
+    with pytest.raises(InputError, match="is a directory"):
+        with atomic_write(tmp_path):
+            pass
+
+
+@pytest.mark.skipif(os.name != "posix" or os.geteuid() == 0, reason="root writes anywhere")
+def test_read_only_directory(tmp_path):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        with pytest.raises(InputError, match="cannot write: Permission denied"):
+            with atomic_write(ro / "out.c3d"):
+                pass
+    finally:
+        ro.chmod(0o700)
+
+
+def test_failed_write_leaves_no_file_and_keeps_the_old_one(tmp_path):
+    target = tmp_path / "out.csv"
+    target.write_text("old content")
+    with pytest.raises(RuntimeError):
+        with atomic_write(target, "w") as fh:
+            fh.write("half of the new")
+            raise RuntimeError("boom")
+    assert target.read_text() == "old content"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.csv"]
+    with atomic_write(target, "w") as fh:
+        fh.write("new")
+    assert target.read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.csv"]
+
+
+def test_atomic_write_keeps_permissions(tmp_path):
+    target = tmp_path / "out.c3d"
+    target.write_bytes(b"")
+    target.chmod(0o640)
+    with atomic_write(target) as fh:
+        fh.write(b"data")
+    assert (target.stat().st_mode & 0o777) == 0o640
