@@ -54,11 +54,15 @@ def parse_numbers(rows: list[list[str]], name: str, first_line: int, columns: li
     """
     if not rows:
         return np.zeros((0, len(columns)))
-    table = np.array(rows, dtype=object)
-    blank = np.isin(table, list(_MISSING_TOKENS))
-    cleaned = np.where(blank, "nan", table).astype(str)
+    nan = float("nan")
     try:
-        return np.char.strip(cleaned).astype(np.float64)
+        # Fast path: float() takes surrounding spaces and "nan"; empty cells are missing.
+        return np.array([[float(c) if c else nan for c in row] for row in rows], dtype=np.float64)
+    except ValueError:
+        pass
+    try:
+        return np.array([[nan if c.strip() in _MISSING_TOKENS else float(c) for c in row] for row in rows],
+                        dtype=np.float64)
     except ValueError:
         pass
     for i, row in enumerate(rows):
