@@ -314,3 +314,18 @@ def test_zero_rate_is_corrupt(tmp_path):
     bad.write_bytes(c3d_bytes(data))  # header rate and POINT:RATE both 0
     with pytest.raises(FormatError, match=r"norate\.c3d: corrupt C3D: no valid frame rate"):
         mocapfill.read(bad)
+
+
+def test_more_than_65535_frames(tmp_path):
+    n = 70000
+    pos = np.zeros((n, 1, 3))
+    pos[:, 0, 0] = np.arange(n, dtype=np.float64) + 1  # never the all-zero "missing" point
+    data = MarkerData(pos, ["A"], 1000.0)
+    raw = c3d_bytes(data)
+    back = read_c3d(raw, "long.c3d")  # the frame count comes from TRIAL:ACTUAL_START/END_FIELD
+    assert back.n_frames == n and np.array_equal(back.positions, pos)
+    # Without the TRIAL fields the header's capped 65535 gives way to the size of the data section.
+    hidden = raw.replace(b"ACTUAL_END_FIELD", b"ACTUAL_END_FIELX")
+    with pytest.warns(DataWarning, match="frame count taken from the size of the data section"):
+        back = read_c3d(hidden, "long.c3d")
+    assert back.n_frames == n and np.array_equal(back.positions, pos)

@@ -176,7 +176,7 @@ def _plausible_entry(raw: bytes, pos: int, end: int) -> bool:
     return len(name) == n_chars and all(c in _NAME_CHARS for c in name)
 
 
-def _parse_parameters(raw: bytes, start: int, end: int, processor: int, name: str, notes: list[str]):
+def _parse_parameters(raw: bytes, start: int, end: int, processor: int, notes: list[str]):
     """Walk the group / parameter chain between byte ``start`` (after the 4-byte block header) and ``end``."""
     i16 = "<h" if processor != MIPS else ">h"
     group_names: dict[int, str] = {}
@@ -275,7 +275,7 @@ def parse(raw: bytes, name: str) -> C3DFile:
                              > param_block else 0))
     if pend <= pstart + 4:
         pend = len(raw)
-    params, groups = _parse_parameters(raw, pstart + 4, pend, processor, name, notes)
+    params, groups = _parse_parameters(raw, pstart + 4, pend, processor, notes)
     f = C3DFile(raw, processor, params, groups, 0, 0, 1, 0.0, 0.0, False, 0, 0, notes)
 
     n_points = f.number("POINT", "USED", None)
@@ -350,7 +350,18 @@ def parse(raw: bytes, name: str) -> C3DFile:
             held = available // frame_bytes if frame_bytes else 0
             raise FormatError(f"{name}: truncated C3D: the data section holds {held} of {n_frames} frames")
         chosen = (scale < 0, header_analog)
-        notes.append(f"the data section is longer than {n_frames} frames need; the extra bytes are kept as they are")
+        frame_bytes = (4 * n_points + header_analog) * (4 if scale < 0 else 2)
+        if frame_bytes and (n_frames == 0 or header_last == 0xFFFF):
+            # The 16-bit header frame count was capped (long captures) and nothing else gave the real count.
+            # The section is padded with zeros to a whole block; a frame of real data rarely ends in a whole
+            # frame of zero bytes, so the data ends at the frame holding the last non-zero byte.
+            tail = raw[data_offset:]
+            used = len(tail.rstrip(b"\x00"))
+            n_frames = -(-used // frame_bytes)
+            notes.append(f"frame count taken from the size of the data section ({n_frames} frames)")
+        else:
+            notes.append(f"the data section is longer than {n_frames} frames need; the extra bytes are kept as "
+                         "they are")
     if chosen[0] != (scale < 0):
         notes.append("the storage (integer / float) disagrees with the sign of the scale; the data size decided")
     if chosen[1] != header_analog:
