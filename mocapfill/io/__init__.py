@@ -10,7 +10,6 @@ format uses the format the data was read from.
 
 from __future__ import annotations
 
-import io as _io
 import os
 import sys
 from pathlib import Path
