@@ -154,3 +154,16 @@ def test_atomic_write_keeps_permissions(tmp_path):
     with atomic_write(target) as fh:
         fh.write(b"data")
     assert (target.stat().st_mode & 0o777) == 0o640
+
+
+def test_write_refuses_to_overwrite_the_input(sample_data, tmp_path):
+    import shutil
+
+    import mocapfill
+
+    src = tmp_path / "in.c3d"
+    shutil.copy(sample_data / "85_02.c3d", src)
+    data = mocapfill.read(src)
+    with pytest.raises(InputError, match=r"in\.c3d: output is the same file as the input"):
+        mocapfill.write(data, src)
+    assert src.read_bytes() == (sample_data / "85_02.c3d").read_bytes()

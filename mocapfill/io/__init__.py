@@ -146,7 +146,8 @@ def write(data: MarkerData, path_or_stream: PathOrStream, format: str | None = N
 
     Raises
     ------
-    InputError (unwritable directory, ...), FormatError (unknown extension, data the format cannot hold).
+    InputError (unwritable directory, the path of the file ``data`` was read from, ...), FormatError (unknown
+    extension, data the format cannot hold).
     """
     name = _name_of(path_or_stream)
     stream = is_std_stream(path_or_stream) or not isinstance(path_or_stream, (str, os.PathLike))
@@ -158,6 +159,8 @@ def write(data: MarkerData, path_or_stream: PathOrStream, format: str | None = N
         fmt = "csv"
     if fmt not in WRITE_FORMATS:
         raise FormatError(f"{name}: cannot write format {fmt!r} (expected one of {', '.join(WRITE_FORMATS)})")
+    if not stream:
+        check_output_path(path_or_stream, data.path)  # never overwrite the file the data came from
     if fmt == "c3d":
         from .c3d import c3d_bytes
         payload = c3d_bytes(data, name)
