@@ -1,3 +1,229 @@
-"""`mocapfill evaluate` (placeholder until its issue lands)."""
+"""`mocapfill evaluate CLEAN_FILE`: hide known samples, fill them with each method, score against the truth.
+
+People's output (progress, tables) goes to stderr; ``--json`` / ``--csv`` put every trial on stdout.
+"""
 
 from __future__ import annotations
+
+import json
+import sys
+import warnings
+
+import click
+from rich.table import Table
+
+from ..errors import DataWarning, MocapfillError
+from . import cli
+from .common import FORMATS, console, quiet_option
+
+PROTOCOL_CHOICES = ("marker", "limb", "blackout", "random")
+
+
+def _parse_value(text: str):
+    """An option value from the command line: int, float, true/false/none, else the string."""
+    low = text.lower()
+    if low in ("true", "yes", "on"):
+        return True
+    if low in ("false", "no", "off"):
+        return False
+    if low in ("none", "null"):
+        return None
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            pass
+    return text
+
+
+def _parse_options(pairs: tuple[str, ...]) -> dict:
+    out = {}
+    for item in pairs:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise click.BadParameter(f"{item!r} is not KEY=VALUE", param_hint="'--option'")
+        out[key.strip().replace("-", "_")] = _parse_value(value.strip())
+    return out
+
+
+def _default_methods() -> tuple[list[str], list[str]]:
+    """Every registered method that can be loaded in this build, and those that cannot."""
+    from ..methods import METHODS
+
+    ok, missing = [], []
+    for name, spec in METHODS.items():
+        try:
+            spec.load()
+        except (ImportError, AttributeError):
+            missing.append(name)
+        else:
+            ok.append(name)
+    return ok, missing
+
+
+def _fmt(value) -> str:
+    """A number for a table cell: no exponents, three significant digits below 100."""
+    if value is None:
+        return "\u2013"
+    if abs(value) >= 100:
+        return f"{value:,.0f}"
+    return f"{value:.3g}" if abs(value) >= 0.001 else f"{value:.1e}"
+
+
+def _show(result, quiet: bool) -> None:
+    out = console(quiet)
+    data = result.data
+    units = data.units
+    summary = result.summary()
+    settings = result.settings
+    gap = ""
+    if "gap_min_frames" in settings:
+        gap = f", gaps of {settings['gap_min_frames']}-{settings['gap_max_frames']} frames"
+    out.print(f"[bold]{data.path}[/bold]: {data.n_markers} markers, {data.n_frames} frames at {data.rate:g} Hz; "
+              f"protocol {result.protocol}, {len(result.trials)} trials{gap}, seed {result.seed}", highlight=False)
+
+    table = Table(title=f"errors over the hidden samples, in {units} (MSE in {units}\u00b2, Eq. 13)",
+                  title_justify="left")
+    table.add_column("method")
+    for head in ("RMSE mean", "RMSE median", "max error", "MSE", "bone error", "seconds"):
+        table.add_column(head, justify="right")
+    any_problem = any(summary[m]["failures"] or summary[m]["unfilled"] or summary[m]["not_converged"]
+                      for m in result.methods)
+    if any_problem:
+        table.add_column("problems")
+    ranking = result.ranking("rmse", "mean")
+    for method in ranking:
+        row = summary[method]
+        cells = [_fmt(row["rmse"]["mean"]), _fmt(row["rmse"]["median"]), _fmt(row["max_error"]["mean"]),
+                 _fmt(row["mse"]["mean"]), _fmt(row["bone_error"]["mean"]), _fmt(row["seconds"]["mean"])]
+        problems = []
+        if row["failures"]:
+            problems.append(f"{row['failures']} failed")
+        if row["unfilled"]:
+            problems.append(f"{row['unfilled']} samples unfilled")
+        if row["not_converged"]:
+            problems.append(f"{row['not_converged']} not converged")
+        style = "bold green" if method == ranking[0] and len(ranking) > 1 else None
+        if any_problem:
+            cells.append(", ".join(problems))
+        table.add_row(method, *cells, style=style)
+    out.print(table)
+
+    if len(result.methods) > 1:
+        rates = result.win_rates("rmse")
+        wins = Table(title="win rate by RMSE: row beats column",
+                     title_justify="left")
+        wins.add_column("")
+        for method in ranking:
+            wins.add_column(method, justify="right")
+        for a in ranking:
+            wins.add_row(a, *["" if a == b else ("\u2013" if rates[a][b] is None else f"{100 * rates[a][b]:.0f} %")
+                              for b in ranking])
+        out.print(wins)
+    detected = [s.detected for s in result.scores if s.detected is not None]
+    if detected:
+        out.print(f"outlier rejection caught {100 * sum(detected) / len(detected):.0f} % of the shifted samples "
+                  f"(mean over trials)")
+    errors = sorted({f"{s.method}: {s.error}" for s in result.scores if s.error})
+    for message in errors[:10]:
+        out.print(f"[yellow]failure[/yellow] {message}", highlight=False)
+    out.print(f"best by mean RMSE: [bold]{ranking[0]}[/bold]")
+
+
+@cli.command("evaluate")
+@click.argument("clean_file", type=str)
+@click.option("-m", "--methods", default=None, metavar="A,B,...",
+              help="Methods to compare, comma-separated (default: every available method).")
+@click.option("-p", "--protocol", type=click.Choice(PROTOCOL_CHOICES), default="marker", show_default=True,
+              help="marker: one marker, one gap; limb: neighbouring markers share a gap; blackout: every marker, "
+                   "a short span; random: random gaps and shifted markers (Holden's corruption).")
+@click.option("-n", "--trials", type=click.IntRange(min=1), default=10, show_default=True, help="Number of trials.")
+@click.option("-s", "--seed", type=int, default=None, help="Seed of the occlusions and of the methods "
+                                                          "(default: drawn, and printed so a run can be repeated).")
+@click.option("--gap-min", default=None, metavar="LEN",
+              help="Shortest gap: frames (40), seconds (0.5s) or percent of the clip (10%). Default per protocol: "
+                   "marker/limb 10%, blackout 0.05s, random 0.05s.")
+@click.option("--gap-max", default=None, metavar="LEN",
+              help="Longest gap (same forms). Default: marker/limb 50%, blackout 0.25s, random 0.5s.")
+@click.option("--limb-size", type=click.IntRange(min=2), default=2, show_default=True,
+              help="Markers hidden together by the limb protocol.")
+@click.option("--occlusions", "occlusions", type=str, default=None, metavar="SPEC.json",
+              help="Replay exactly the trials of this spec file (see docs/occlusions.md) instead of drawing them; "
+                   "the --json output of an earlier run works too.")
+@click.option("--save-occlusions", type=str, default=None, metavar="SPEC.json",
+              help="Write the trials of this run as a spec file for --occlusions.")
+@click.option("-j", "--jobs", type=int, default=1, show_default=True,
+              help="Trials run in parallel in this many processes (0 = every CPU); the numbers do not change.")
+@click.option("-o", "--option", "option_pairs", multiple=True, metavar="KEY=VALUE",
+              help="A fill option for every method that takes it (repeatable), e.g. -o max_iter=50 -o hidden=12.")
+@click.option("--reject-outliers", is_flag=True,
+              help="Run outlier rejection on each corrupted clip before filling (see the random protocol).")
+@click.option("--json", "as_json", is_flag=True, help="Print every trial as JSON on stdout.")
+@click.option("--csv", "as_csv", is_flag=True, help="Print every trial as CSV on stdout.")
+@click.option("--input-format", type=click.Choice(FORMATS + ("vicon-csv",)), default=None,
+              help="Format of CLEAN_FILE (default: from its extension).")
+@quiet_option
+def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, seed: int | None,
+             gap_min: str | None, gap_max: str | None, limb_size: int, occlusions: str | None,
+             save_occlusions: str | None, jobs: int, option_pairs: tuple[str, ...], reject_outliers: bool,
+             as_json: bool, as_csv: bool, input_format: str | None, quiet: bool) -> None:
+    """Score fill methods on CLEAN_FILE: hide samples it has, fill them with each method, compare with the truth.
+
+    Metrics per trial and method, over the hidden samples, in the file's units: RMSE and max error of the 3-D
+    position, the BoLeRO paper's MSE (Eq. 13, per coordinate), the mean absolute bone-length error on the hidden
+    frames (bones estimated from the occluded input), and seconds.  The table on stderr gives the mean and median
+    per method and how often each method beats each other one.
+    """
+    from ..evaluate import evaluate as run_evaluation
+    from ..evaluate import save_spec
+    from ..io import read
+    from ..methods import get_method
+
+    if as_json and as_csv:
+        raise click.UsageError("choose one of --json and --csv")
+    options = _parse_options(option_pairs)
+    out = console(quiet)
+    if methods is None:
+        names, unavailable = _default_methods()
+        if unavailable:
+            out.print(f"not available in this build, skipped: {', '.join(unavailable)}", highlight=False)
+    else:
+        names = [m.strip() for m in methods.split(",") if m.strip()]
+        if not names:
+            raise click.BadParameter("give at least one method", param_hint="'--methods'")
+        for name in names:
+            get_method(name)  # unknown names fail here, before the file is read
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DataWarning)
+        data = read(clean_file, format=input_format)
+    if data.missing.all():
+        raise MocapfillError(f"{clean_file}: every sample is missing; nothing to hide")
+
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    with Progress(TextColumn("evaluating"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=out, transient=True, disable=quiet) as bar:
+        task = bar.add_task("trials", total=None)
+
+        def progress(done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total)
+
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", UserWarning)
+            result = run_evaluation(data, names, protocol, trials=trials, seed=seed, occlusions=occlusions,
+                                    gap_min=gap_min, gap_max=gap_max, jobs=jobs, options=options,
+                                    reject_outliers=reject_outliers, progress=progress,
+                                    **({"limb_size": limb_size} if protocol == "limb" and not occlusions else {}))
+    for message in sorted({str(w.message) for w in caught}):
+        out.print(f"[yellow]warning[/yellow] {message}", highlight=False)
+    if save_occlusions:
+        source = {"file": clean_file, "protocol": result.protocol, "seed": result.seed,
+                  **{k: v for k, v in result.settings.items() if k.startswith("gap_")}}
+        save_spec(result.trials, data, save_occlusions, source=source)
+        out.print(f"occlusions written to {save_occlusions}", highlight=False)
+    _show(result, quiet)
+    if as_json:
+        sys.stdout.write(json.dumps(result.to_dict(), indent=1, allow_nan=False) + "\n")
+    elif as_csv:
+        sys.stdout.write(result.to_csv())
+    sys.stdout.flush()

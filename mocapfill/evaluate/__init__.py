@@ -1,0 +1,294 @@
+"""Evaluation: hide known samples of a clean capture, fill them with each method, score against the truth.
+
+Public API
+----------
+- :func:`evaluate` (data, methods, protocol, trials, seed, ...) -> :class:`EvaluationResult`
+- :func:`make_occlusions` (data, protocol, trials, seed, ...) -> list of :class:`Trial`: the protocols
+  (``marker``, ``limb``, ``blackout``, ``random``; see :mod:`mocapfill.evaluate.occlusions`)
+- :func:`load_spec` / :func:`save_spec` / :func:`trials_from_spec` / :func:`spec_of`: replayable occlusion specs
+  (see :mod:`mocapfill.evaluate.spec` and ``docs/occlusions.md``)
+- metrics in :mod:`mocapfill.evaluate.metrics` (RMSE, max error, the BoLeRO paper's MSE, bone-length error)
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+import warnings
+from dataclasses import asdict, dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from ..errors import MethodError, MocapfillError
+from ..markers import MarkerData
+from .metrics import bone_error, point_errors, score
+from .occlusions import (DEFAULT_GAPS, PROTOCOLS, Occlusion, Shift, Trial, gap_range, make_occlusions,
+                         parse_length, rigid_partners)
+from .runner import RunConfig, TrialScore, run_trial, run_trials
+from .spec import SPEC_FORMAT, load_spec, save_spec, spec_of, trials_from_spec
+
+__all__ = [
+    "evaluate", "EvaluationResult", "TrialScore", "METRICS", "make_occlusions", "Trial", "Occlusion", "Shift",
+    "PROTOCOLS", "DEFAULT_GAPS", "parse_length", "gap_range", "rigid_partners", "load_spec", "save_spec",
+    "spec_of", "trials_from_spec", "SPEC_FORMAT", "score", "point_errors", "bone_error", "run_trial", "run_trials",
+]
+
+#: Metrics per trial and method, all "lower is better".
+METRICS = ("rmse", "max_error", "mse", "bone_error", "seconds")
+
+EVALUATION_SCHEMA = "mocapfill-evaluation/1"
+
+
+def _nan_stat(values: np.ndarray, func) -> float | None:
+    values = values[np.isfinite(values)]
+    return float(func(values)) if values.size else None
+
+
+@dataclass
+class EvaluationResult:
+    """The scores of every method on every trial of one evaluation.
+
+    Attributes
+    ----------
+    methods : list of str
+    protocol : str
+        "marker", "limb", "blackout", "random" or "replay".
+    trials : list of Trial
+    scores : list of TrialScore
+        Trial-major, methods in ``methods`` order: ``scores[t * len(methods) + k]``.
+    seed : int
+        The seed the occlusions and method seeds came from (drawn from the OS when none was given).
+    data : MarkerData
+        The clean clip (positions (n_frames, n_markers, 3)); labels and frame numbering for the reports.
+    settings : dict
+        The options of the run (gap range in frames, method options, ...).
+    """
+
+    methods: list[str]
+    protocol: str
+    trials: list[Trial]
+    scores: list[TrialScore]
+    seed: int | None
+    data: MarkerData
+    settings: dict[str, Any] = field(default_factory=dict)
+
+    def values(self, metric: str = "rmse") -> np.ndarray:
+        """(n_trials, n_methods) float array of ``metric`` (NaN where a method failed or nothing was scored)."""
+        if metric not in METRICS:
+            raise MocapfillError(f"unknown metric {metric!r}; choose one of {', '.join(METRICS)}")
+        arr = np.array([getattr(s, metric) for s in self.scores], dtype=float)
+        return arr.reshape(len(self.trials), len(self.methods))
+
+    def summary(self) -> dict[str, dict[str, Any]]:
+        """Per method: ``{metric: {"mean": x, "median": x}}`` for every metric, plus ``failures`` (trials where
+        the method raised), ``unfilled`` (scored samples left missing, summed) and ``not_converged``."""
+        out: dict[str, dict[str, Any]] = {}
+        table = {m: self.values(m) for m in METRICS}
+        for k, method in enumerate(self.methods):
+            mine = [s for s in self.scores if s.method == method]
+            row: dict[str, Any] = {m: {"mean": _nan_stat(table[m][:, k], np.mean),
+                                       "median": _nan_stat(table[m][:, k], np.median)} for m in METRICS}
+            row["failures"] = sum(1 for s in mine if s.error)
+            row["unfilled"] = sum(s.unfilled for s in mine if not s.error)
+            row["not_converged"] = sum(1 for s in mine if not s.error and not s.converged)
+            out[method] = row
+        return out
+
+    def win_rates(self, metric: str = "rmse") -> dict[str, dict[str, float | None]]:
+        """``rates[a][b]``: the fraction of trials where method ``a`` scored lower ``metric`` than ``b`` (ties count
+        half; a number beats NaN; trials where both are NaN are left out).  None when no trial compares them."""
+        vals = self.values(metric)
+        rates: dict[str, dict[str, float | None]] = {}
+        for i, a in enumerate(self.methods):
+            rates[a] = {}
+            for j, b in enumerate(self.methods):
+                if i == j:
+                    continue
+                x, y = vals[:, i], vals[:, j]
+                fx, fy = np.isfinite(x), np.isfinite(y)
+                both = fx & fy
+                n = int((fx | fy).sum())
+                if n == 0:
+                    rates[a][b] = None
+                    continue
+                wins = (x[both] < y[both]).sum() + 0.5 * (x[both] == y[both]).sum() + (fx & ~fy).sum()
+                rates[a][b] = float(wins / n)
+        return rates
+
+    def ranking(self, metric: str = "rmse", statistic: str = "mean") -> list[str]:
+        """Methods ordered best first by the ``statistic`` ("mean" or "median") of ``metric``; failing methods last."""
+        summ = self.summary()
+        key = lambda m: (summ[m][metric][statistic] is None, summ[m][metric][statistic] or 0.0)  # noqa: E731
+        return sorted(self.methods, key=key)
+
+    def best(self, metric: str = "rmse", statistic: str = "mean") -> str:
+        """The method with the lowest ``statistic`` of ``metric``."""
+        return self.ranking(metric, statistic)[0]
+
+    def trial_records(self) -> list[dict[str, Any]]:
+        """Per trial: its occlusions/shifts in the spec layout and per-method scores (JSON-ready)."""
+        spec = spec_of(self.trials, self.data)
+        n = len(self.methods)
+        records = []
+        for t, trial_spec in enumerate(spec["trials"]):
+            scores = {}
+            for s in self.scores[t * n:(t + 1) * n]:
+                d = asdict(s)
+                d.pop("trial")
+                d.pop("method")
+                scores[s.method] = {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                                    for k, v in d.items()}
+            records.append({"trial": t + 1, **trial_spec, "scores": scores})
+        return records
+
+    def to_dict(self) -> dict[str, Any]:
+        """The whole evaluation as a JSON-ready dict; its ``trials`` replay with ``--occlusions``."""
+        d = self.data
+        return {
+            "schema": EVALUATION_SCHEMA,
+            "file": d.path,
+            "frames": d.n_frames,
+            "markers": d.n_markers,
+            "rate": d.rate,
+            "units": d.units,
+            "first_frame": d.first_frame,
+            "protocol": self.protocol,
+            "seed": self.seed,
+            "methods": list(self.methods),
+            "settings": self.settings,
+            "metrics": list(METRICS),
+            "summary": self.summary(),
+            "win_rates": {m: self.win_rates(m) for m in ("rmse", "bone_error")},
+            "trials": self.trial_records(),
+        }
+
+    def to_csv(self) -> str:
+        """One row per trial and method: the hidden markers, where, and every metric."""
+        labels = self.data.labels
+        first = self.data.first_frame
+        buf = io.StringIO()
+        writer = csv.writer(buf, lineterminator="\n")
+        writer.writerow(["trial", "method", "markers", "first_frame", "length", "n_scored", "rmse", "max_error",
+                         "mse", "bone_error", "seconds", "unfilled", "n_iter", "converged", "detected", "error"])
+        n = len(self.methods)
+        for t, trial in enumerate(self.trials):
+            occ = trial.occlusions
+            markers = ";".join(sorted({labels[m] for o in occ for m in o.markers}))
+            if len(occ) == 1:
+                where, length = str(first + occ[0].start), str(occ[0].length)
+            else:
+                where, length = "", str(sum(o.length * len(o.markers) for o in occ))
+            for s in self.scores[t * n:(t + 1) * n]:
+                row = [t + 1, s.method, markers, where, length, s.n_scored]
+                row += ["" if not math.isfinite(v) else f"{v:.6g}"
+                        for v in (s.rmse, s.max_error, s.mse, s.bone_error, s.seconds)]
+                row += [s.unfilled, s.n_iter, s.converged, "" if s.detected is None else f"{s.detected:.4g}",
+                        s.error or ""]
+                writer.writerow(row)
+        return buf.getvalue()
+
+
+def _check_methods(methods: Sequence[str], options: dict[str, dict[str, Any]]) -> None:
+    """Fail early, with a one-line message, on unknown or not-importable methods and ignored options."""
+    from ..methods import get_method
+
+    if not methods:
+        raise MethodError("no methods to evaluate")
+    if len(set(methods)) != len(methods):
+        raise MethodError(f"a method is listed twice: {', '.join(methods)}")
+    for name in methods:
+        spec = get_method(name)
+        try:
+            accepted = spec.parameters()
+        except (ImportError, AttributeError) as exc:
+            raise MethodError(f"method {name!r} is not available in this build ({exc})") from None
+        ignored = sorted(k for k in options.get(name, {}) if k not in accepted and k != "seed")
+        if ignored:
+            warnings.warn(f"method {name!r} ignores option(s): {', '.join(ignored)}", UserWarning, stacklevel=3)
+        if "seed" not in accepted:
+            options.setdefault(name, {})
+            options[name]["seed"] = None  # api.fill drops None options silently
+
+
+def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), protocol: str = "marker", *,
+             trials: int = 10, seed: int | None = None, occlusions: Sequence[Trial] | str | os.PathLike | dict | None
+             = None, gap_min=None, gap_max=None, jobs: int = 1, options: dict[str, Any] | None = None,
+             method_options: dict[str, dict[str, Any]] | None = None, reject_outliers: bool = False,
+             progress: Callable[[int, int], None] | None = None, **protocol_options: Any) -> EvaluationResult:
+    """Score ``methods`` on ``data`` by hiding known samples and filling them.
+
+    Parameters
+    ----------
+    data : MarkerData
+        A clean capture (few or no gaps), positions (n_frames, n_markers, 3).  Only observed samples are hidden;
+        the clip's own gaps are filled too but never scored.
+    methods : sequence of str
+        Names from :data:`mocapfill.methods.METHODS`.
+    protocol : str
+        "marker", "limb", "blackout" or "random" (see :func:`make_occlusions`); ignored when ``occlusions`` is given.
+    trials, seed, gap_min, gap_max, **protocol_options
+        Passed to :func:`make_occlusions` (``limb_size``, ``occlusion_rate``, ``shift_rate``, ``shift_scale``).
+        With ``seed=None`` a seed is drawn and recorded in the result so that the run can be repeated.
+    occlusions : list of Trial, spec path, or parsed spec, optional
+        Replay exactly these trials instead of drawing them (protocol "replay").
+    jobs : int
+        Worker processes (1 = in this process; <= 0 = every CPU).  Results do not depend on it.
+    options : dict, optional
+        Fill options for every method (``max_iter``, ``hidden``, ...); a method that does not take one ignores it.
+    method_options : dict of dict, optional
+        Per-method options, overriding ``options``.
+    reject_outliers : bool
+        Run :func:`mocapfill.outliers.reject_outliers` on each corrupted clip before filling (shifted samples it
+        finds become gaps); ``detected`` then reports the fraction of shifted samples it caught.
+    progress : callable(done, total), optional
+        Called after each trial.
+
+    Returns
+    -------
+    EvaluationResult
+    """
+    if not isinstance(data, MarkerData):
+        raise MocapfillError("evaluate needs a MarkerData (use mocapfill.read)")
+    methods = list(methods)
+    if seed is None:
+        seed = int(np.random.SeedSequence().entropy % (2 ** 63))
+    seed = int(seed)
+    per_method: dict[str, dict[str, Any]] = {}
+    for name in methods:
+        per_method[name] = {k: v for k, v in (options or {}).items() if v is not None}
+        per_method[name].update((method_options or {}).get(name, {}))
+    _check_methods(methods, per_method)
+    for name in methods:  # drop options a method does not take (already warned about once, above)
+        from ..methods import get_method
+
+        accepted = get_method(name).parameters()
+        per_method[name] = {k: v for k, v in per_method[name].items() if k in accepted or k == "seed"}
+    settings: dict[str, Any] = {"options": dict(options or {}), "method_options": dict(method_options or {}),
+                                "reject_outliers": bool(reject_outliers)}
+    if occlusions is not None:
+        protocol = "replay"
+        if isinstance(occlusions, (str, os.PathLike)):
+            settings["occlusions"] = os.fspath(occlusions)
+            trial_list = load_spec(occlusions, data)
+        elif isinstance(occlusions, (dict, list)) and (not occlusions or not isinstance(occlusions[0] if
+                                                       isinstance(occlusions, list) else None, Trial)):
+            trial_list = trials_from_spec(occlusions, data)
+        else:
+            trial_list = list(occlusions)
+    else:
+        if protocol not in PROTOCOLS:
+            raise MocapfillError(f"unknown protocol {protocol!r}; choose one of {', '.join(PROTOCOLS)}")
+        lo, hi = gap_range(protocol, data.n_frames, data.rate, gap_min, gap_max)
+        settings.update({"gap_min_frames": lo, "gap_max_frames": hi, **protocol_options})
+        trial_list = make_occlusions(data, protocol, trials=trials, seed=seed, gap_min=gap_min, gap_max=gap_max,
+                                     **protocol_options)
+    if not trial_list:
+        raise MocapfillError("no trials to run")
+    # Method seeds: one per trial, from a stream independent of the occlusions' streams.
+    seeds = [int(s.generate_state(1, np.uint32)[0]) for s in np.random.SeedSequence([seed, 1]).spawn(len(trial_list))]
+    config = RunConfig(tuple(methods), per_method, bool(reject_outliers))
+    scores = run_trials(data, trial_list, seeds, config, jobs=jobs, progress=progress)
+    return EvaluationResult(methods, protocol, trial_list, scores, seed, data, settings)

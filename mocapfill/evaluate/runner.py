@@ -1,0 +1,173 @@
+"""Running trials: corrupt the clean clip, fill it with each method, score against the truth.
+
+One trial is one task (:func:`run_trial`); :func:`run_trials` runs them in order or in worker processes.  Nothing
+random happens here: the occlusions are fixed beforehand and each trial passes its own precomputed ``seed`` to the
+methods, so that serial and parallel runs give the same numbers (only ``seconds`` differs).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import multiprocessing
+import os
+import time
+import warnings
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from ..errors import MocapfillError
+from ..markers import MarkerData
+from .metrics import score
+from .occlusions import Trial, rigid_partners
+
+
+@dataclass
+class TrialScore:
+    """One method on one trial.  Errors are in the clip's units; NaN where nothing could be scored."""
+
+    trial: int
+    method: str
+    rmse: float
+    max_error: float
+    mse: float
+    bone_error: float
+    seconds: float
+    n_scored: int
+    unfilled: int
+    n_iter: int = 0
+    converged: bool = True
+    detected: float | None = None  # fraction of shifted samples the outlier rejection removed (random protocol)
+    error: str | None = None  # the MocapfillError message when the method failed on this trial
+    warnings: list[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything a trial needs besides the clip and the trial itself (picklable)."""
+
+    methods: tuple[str, ...]
+    options: dict[str, dict[str, Any]]  # per method: the keyword options for mocapfill.api.fill
+    reject_outliers: bool = False
+
+
+def _bones(positions: np.ndarray, units: str, labels: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Bones (pairs (B, 2), lengths (B,)) estimated from the occluded input only.
+
+    Uses :func:`mocapfill.bones.estimate_bones`; if that module is missing or refuses, falls back to each marker's
+    two most rigid partners with their mean distance (pairs whose distance spread is under 5 % of the length).
+    """
+    try:
+        from ..bones import estimate_bones
+
+        bones = estimate_bones(positions, units=units, labels=labels)
+        return np.asarray(bones.pairs, dtype=int).reshape(-1, 2), np.asarray(bones.lengths, dtype=float)
+    except (ImportError, MocapfillError):
+        pass
+    from ..distances import pair_distance_stats
+
+    n_markers = positions.shape[1]
+    if n_markers < 2:
+        return np.zeros((0, 2), dtype=int), np.zeros(0)
+    partners = rigid_partners(positions, k=2)
+    pairs = np.unique(np.sort(np.stack([np.repeat(np.arange(n_markers), partners.shape[1]), partners.ravel()], 1),
+                              axis=1), axis=0)
+    stats = pair_distance_stats(positions, pairs, percentiles=())
+    keep = (stats.count > 1) & (stats.std < 0.05 * stats.mean)
+    return pairs[keep], stats.mean[keep]
+
+
+def run_trial(truth: MarkerData, index: int, trial: Trial, method_seed: int, config: RunConfig) -> list[TrialScore]:
+    """Corrupt ``truth`` (positions (n_frames, n_markers, 3)) with ``trial``, fill with every method, score."""
+    from ..api import fill
+
+    positions = truth.positions
+    corrupted, hidden, shifted = trial.apply(positions)
+    detected = None
+    if config.reject_outliers:
+        from ..outliers import reject_outliers
+
+        res = reject_outliers(corrupted, units=truth.units)
+        corrupted = np.asarray(res.positions, dtype=float)
+        rejected = np.asarray(res.rejected, dtype=bool)
+        if shifted.any():
+            detected = float((rejected & shifted).sum() / shifted.sum())
+    scored = hidden | shifted
+    pairs, lengths = _bones(corrupted, truth.units, truth.labels)
+    data = truth.with_positions(corrupted)
+    out = []
+    for method in config.methods:
+        opts = dict(config.options.get(method, {}))
+        opts.setdefault("seed", method_seed)
+        t0 = time.perf_counter()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                result = fill(data, method, **opts)
+            except MocapfillError as exc:
+                result, error = None, str(exc)
+            else:
+                error = None
+        seconds = time.perf_counter() - t0
+        messages = sorted({str(w.message) for w in caught})
+        if result is None:
+            out.append(TrialScore(index, method, *(float("nan"),) * 4, seconds, int(scored.sum()),
+                                  int(scored.sum()), 0, False, detected, error, messages))
+            continue
+        m = score(result.positions, positions, scored, hidden, pairs, lengths)
+        out.append(TrialScore(index, method, m["rmse"], m["max_error"], m["mse"], m["bone_error"], seconds,
+                              m["n_scored"], m["unfilled"], int(result.n_iter), bool(result.converged), detected,
+                              None, messages))
+    return out
+
+
+_WORKER: dict[str, Any] = {}
+
+
+def _init_worker(truth: MarkerData, config: RunConfig) -> None:
+    _WORKER["truth"], _WORKER["config"] = truth, config
+
+
+def _worker_task(index: int, trial: Trial, method_seed: int) -> list[TrialScore]:
+    return run_trial(_WORKER["truth"], index, trial, method_seed, _WORKER["config"])
+
+
+def run_trials(truth: MarkerData, trials: list[Trial], seeds: list[int], config: RunConfig, *, jobs: int = 1,
+               progress: Callable[[int, int], None] | None = None) -> list[TrialScore]:
+    """Run every trial; scores come back trial-major, methods in ``config.methods`` order, whatever ``jobs``.
+
+    ``jobs`` > 1 runs trials in that many worker processes (``spawn``: no state inherited from the caller);
+    ``jobs`` <= 0 uses every CPU.  ``progress(done, total)`` is called after each trial.
+    """
+    # The workers need the positions and labels only, not the format payload (a C3D's parameter section).
+    light = MarkerData(truth.positions, truth.labels, truth.rate, truth.units, truth.first_frame, path=truth.path)
+    total = len(trials)
+    if jobs <= 0:
+        jobs = os.cpu_count() or 1
+    jobs = min(jobs, total)
+    results: list[list[TrialScore] | None] = [None] * total
+    done = 0
+    if jobs <= 1:
+        for i, (trial, seed) in enumerate(zip(trials, seeds)):
+            results[i] = run_trial(light, i, trial, seed, config)
+            done += 1
+            if progress:
+                progress(done, total)
+    else:
+        ctx = multiprocessing.get_context("spawn")
+        with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_init_worker,
+                                    initargs=(light, config)) as pool:
+            futures = {pool.submit(_worker_task, i, trial, seed): i
+                       for i, (trial, seed) in enumerate(zip(trials, seeds))}
+            try:
+                for future in cf.as_completed(futures):
+                    results[futures[future]] = future.result()
+                    done += 1
+                    if progress:
+                        progress(done, total)
+            except BaseException:
+                for future in futures:
+                    future.cancel()
+                raise
+    return [s for chunk in results for s in chunk]  # type: ignore[union-attr]
