@@ -222,3 +222,37 @@ def test_importing_report_leaves_matplotlib_alone():
     code = "import sys, mocapfill.report; print('matplotlib' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"
+
+
+def test_reports_of_a_real_fill(sample_data, tmp_path):
+    pytest.importorskip("matplotlib")
+    import mocapfill
+    from mocapfill.api import fill
+
+    full = mocapfill.read(sample_data / "85_02.c3d")
+    clean = MarkerData(full.positions[:200].copy(), full.labels, full.rate, full.units, full.first_frame,
+                       path=str(sample_data / "85_02.c3d"))
+    pos = clean.positions.copy()
+    short = [label.split(":")[-1] for label in clean.labels]
+    for name, (a, b) in {"RKNE": (50, 90), "RSHN": (50, 90), "LELB": (10, 20)}.items():
+        pos[a:b, short.index(name)] = np.nan
+    data = clean.with_positions(pos)
+    result = fill(data, "spline")
+    try:
+        from mocapfill.bones import estimate_bones
+
+        bones = estimate_bones(pos, units=data.units, labels=data.labels)
+    except ImportError:  # pragma: no cover - the bones module lands separately
+        bones = None
+    report = build_fill_report(data, result, method="spline", settings={}, seconds=0.01, input_path=data.path,
+                               output_path=str(tmp_path / "out.c3d"), bones=bones)
+    write_report(report, tmp_path / "r.json", data=data, result=result, bones=bones)
+    validate(json.loads((tmp_path / "r.json").read_text()), load_schema())
+    write_report(report, tmp_path / "r.html", data=data, result=result, bones=bones, max_bones=4)
+    parser = _Collector()
+    parser.feed((tmp_path / "r.html").read_text())
+    markers = [name for cls, name in parser.figures if "marker-plot" in cls]
+    assert [m.split(":")[-1] for m in markers] == ["RKNE", "RSHN", "LELB"]  # file order
+    if bones is not None:
+        n_bones = len([1 for cls, _ in parser.figures if "bone-plot" in cls])
+        assert n_bones == min(4, len(report["bones"]["touching_filled"]))

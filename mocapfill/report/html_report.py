@@ -34,7 +34,7 @@ table.summary th { background: none; color: #555; font-weight: normal; white-spa
 .ok { border-left-color: #009E73; background: #eefaf5; }
 .note { color: #666; font-size: 0.85em; }
 figure { margin: 1.2em 0; }
-figure svg { max-width: 100%; height: auto; }
+figure svg { width: 100%; height: auto; }
 figcaption { font-size: 0.85em; color: #555; }
 .status-filled { color: #009E73; } .status-partial { color: #D55E00; } .status-unfilled { color: #B00020; }
 nav a { margin-right: 1em; font-size: 0.9em; }
@@ -242,11 +242,15 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
         parts.append('<p class="note">Black: the input; orange: filled samples on shaded stretches'
                      + ("; band: \u00b1 2 standard deviations" if std is not None else "")
                      + "; grey: still missing.</p>")
+    outliers = np.where(rejected[..., None], data.positions, np.nan)
     for m in keep:
+        window = plots.plot_window(filled[:, m] | unfilled[:, m])
         svg = plots.trajectory_svg(frames, observed[:, m], output[:, m], filled[:, m], unfilled[:, m],
-                                   None if std is None else std[:, m], label=labels[m], units=units)
+                                   None if std is None else std[:, m], label=labels[m], units=units,
+                                   outliers=outliers[:, m] if rejected[:, m].any() else None, window=window)
         n_gaps = sum(1 for g in gaps if g["marker"] == labels[m])
-        parts.append(_figure(svg, f"{_e(labels[m])}: {int(counts[m])} filled samples in {n_gaps} gap(s).",
+        shown = "" if window is None else f" Frames {frames[window[0]]}-{frames[window[1] - 1]} shown."
+        parts.append(_figure(svg, f"{_e(labels[m])}: {int(counts[m])} filled samples in {n_gaps} gap(s).{shown}",
                              "marker", labels[m]))
 
     # Bone lengths.
@@ -278,10 +282,12 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
             a, c = pairs[b]
             name = f"{labels[a]} \u2013 {labels[c]}"
             either = filled[:, a] | filled[:, c]
+            window = plots.plot_window(either)
             svg = plots.bone_svg(frames, dist(observed, a, c), dist(output, a, c), float(lengths[b]), either,
-                                 name=name, units=units)
-            parts.append(_figure(svg, f"Length of {_e(name)} in the input (breaks at gaps) and after the fill.",
-                                 "bone", name))
+                                 name=name, units=units, window=window)
+            shown = "" if window is None else f" Frames {frames[window[0]]}-{frames[window[1] - 1]} shown."
+            parts.append(_figure(svg, f"Length of {_e(name)} in the input (breaks at gaps) and after the fill."
+                                 + shown, "bone", name))
 
     parts.append('<h2 id="convergence">Convergence</h2>')
     objective = conv["objective"]

@@ -86,19 +86,26 @@ def _shade(ax, frames: np.ndarray, mask: np.ndarray, colour: str, alpha: float, 
 
 def trajectory_svg(frames: np.ndarray, observed: np.ndarray, output: np.ndarray, filled: np.ndarray,
                    unfilled: np.ndarray, std: np.ndarray | None, *, label: str, units: str,
+                   outliers: np.ndarray | None = None, window: tuple[int, int] | None = None,
                    max_points: int = 2000) -> str:
     """x, y, z of one marker over time: input observed in black, filled samples in orange on shaded stretches,
-    a +-2 std band where ``std`` is given, still-missing stretches in grey.
+    a +-2 std band where ``std`` is given, still-missing stretches in grey, rejected outliers as pink crosses.
 
     frames : (n,) frame numbers; observed / output : (n, 3) input and output positions (NaN = missing);
-    filled / unfilled : (n,) bool; std : (n,) or None.
+    filled / unfilled : (n,) bool; std : (n,) or None; outliers : (n, 3) rejected input samples (NaN elsewhere) or
+    None; window : (start, stop) indices to show (default the whole clip).
     """
+    if window is not None:
+        sl = slice(*window)
+        frames, observed, output, filled, unfilled = (a[sl] for a in (frames, observed, output, filled, unfilled))
+        std = None if std is None else std[sl]
+        outliers = None if outliers is None else outliers[sl]
     with _rc() as Figure:
         fig = Figure(figsize=(9.0, 4.6))
         axes = fig.subplots(3, 1, sharex=True)
         step = _stride(len(frames), max_points)
-        # Filled curves at full resolution inside the gaps (they are what the reader checks), decimated elsewhere.
-        # Join the filled curve to its observed neighbours so short gaps are visible as a line, not a dot.
+        # The filled curve is drawn at full resolution (it is what the reader checks) and joined to its observed
+        # neighbours so that a short gap shows as a line, not a dot; the input is decimated on long clips.
         edge = filled | np.r_[filled[1:], False] | np.r_[False, filled[:-1]]
         filled_curve = np.where(edge[:, None], output, np.nan)
         band = None
@@ -106,26 +113,51 @@ def trajectory_svg(frames: np.ndarray, observed: np.ndarray, output: np.ndarray,
             s = np.where(filled, std, np.nan)
             if np.isfinite(s).any():
                 band = s
+        has_outliers = outliers is not None and np.isfinite(outliers).any()
         for k, ax in enumerate(axes):
-            _shade(ax, frames, filled, FILLED, 0.10, "filled stretch" if k == 0 else None)
-            _shade(ax, frames, unfilled, UNFILLED, 0.25, "left unfilled" if k == 0 else None)
+            first = k == 0
+            _shade(ax, frames, filled, FILLED, 0.10, "filled stretch" if first else None)
+            _shade(ax, frames, unfilled, UNFILLED, 0.25, "left unfilled" if first else None)
             if band is not None:
                 ax.fill_between(frames, output[:, k] - 2 * band, output[:, k] + 2 * band, color=BAND, alpha=0.35,
-                                lw=0, label="filled \u00b1 2 std" if k == 0 else None)
-            ax.plot(frames[::step], observed[::step, k], color=OBSERVED, lw=0.9, label="input" if k == 0 else None)
-            ax.plot(frames, filled_curve[:, k], color=FILLED, lw=1.3, label="filled" if k == 0 else None)
+                                lw=0, label="filled \u00b1 2 std" if first else None)
+            ax.plot(frames[::step], observed[::step, k], color=OBSERVED, lw=0.9, label="input" if first else None)
+            ax.plot(frames, filled_curve[:, k], color=FILLED, lw=1.3, label="filled" if first else None)
+            if has_outliers:
+                ax.plot(frames, outliers[:, k], ls="none", marker="x", ms=4, color=REJECTED,
+                        label="rejected outlier" if first else None)
             ax.set_ylabel(f"{'xyz'[k]} ({units})")
             ax.margins(x=0)
         axes[-1].set_xlabel("frame")
         axes[0].set_title(label, loc="left", fontsize=10, fontweight="bold")
-        axes[0].legend(loc="upper right", fontsize=7, ncol=4, frameon=False, bbox_to_anchor=(1.0, 1.35))
+        axes[0].legend(loc="lower right", fontsize=7, ncol=5, frameon=False, bbox_to_anchor=(1.0, 1.0))
         return svg_of(fig)
 
 
+def plot_window(mask: np.ndarray, *, min_margin: int = 30, max_fraction: float = 0.6) -> tuple[int, int] | None:
+    """Frames to show for a marker whose filled samples are ``mask`` (n,) bool: the span of the filled stretches
+    with a margin of one longest-stretch (at least ``min_margin`` frames) each side, or None (the whole clip) when
+    that span covers more than ``max_fraction`` of the clip anyway."""
+    idx = np.flatnonzero(mask)
+    n = len(mask)
+    if not idx.size:
+        return None
+    longest = max(stop - start for start, stop in _spans(mask))
+    margin = max(min_margin, longest)
+    start, stop = max(0, idx[0] - margin), min(n, idx[-1] + 1 + margin)
+    if stop - start > max_fraction * n:
+        return None
+    return int(start), int(stop)
+
+
 def bone_svg(frames: np.ndarray, before: np.ndarray, after: np.ndarray, reference: float, filled: np.ndarray, *,
-             name: str, units: str, max_points: int = 2000) -> str:
+             name: str, units: str, window: tuple[int, int] | None = None, max_points: int = 2000) -> str:
     """Length of one bone over time: in the input (breaks at gaps) and in the output, against its reference length
-    (the BoLeRO paper's Figures 1 and 3).  frames, before, after : (n,); filled : (n,) bool (either end filled)."""
+    (the BoLeRO paper's Figures 1 and 3).  frames, before, after : (n,); filled : (n,) bool (either end filled);
+    window : (start, stop) indices to show (default the whole clip)."""
+    if window is not None:
+        sl = slice(*window)
+        frames, before, after, filled = frames[sl], before[sl], after[sl], filled[sl]
     with _rc() as Figure:
         fig = Figure(figsize=(9.0, 2.4))
         ax = fig.subplots()
@@ -139,7 +171,7 @@ def bone_svg(frames: np.ndarray, before: np.ndarray, after: np.ndarray, referenc
         ax.set_xlabel("frame")
         ax.margins(x=0)
         ax.set_title(name, loc="left", fontsize=10, fontweight="bold")
-        ax.legend(loc="upper right", fontsize=7, ncol=4, frameon=False, bbox_to_anchor=(1.0, 1.3))
+        ax.legend(loc="lower right", fontsize=7, ncol=4, frameon=False, bbox_to_anchor=(1.0, 1.0))
         return svg_of(fig)
 
 
