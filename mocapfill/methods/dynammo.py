@@ -1,0 +1,317 @@
+"""DynaMMo (Li et al. 2009): fill gaps with a linear dynamical system learned by EM with missing values.
+
+Algorithm (BoLeRO paper section 3.1 and Appendix A; the authors' code as described in IMPLEMENTATION-NOTES.md):
+
+1. Drop markers missing in every frame (they stay NaN).  Initialise the missing entries by per-coordinate linear
+   interpolation, holding the nearest observed value before the first and after the last observation (whole-body
+   blackouts are bridged the same way).
+2. Body frame (``body_frame=True``, with >= 3 markers): as in the authors' mocap experiments, each frame is moved
+   by a rigid transform into a body-fixed frame: translation = weighted centroid, rotation = weighted Kabsch fit to
+   a reference shape refined by three rounds of generalised Procrustes; observed markers have weight 1 and
+   interpolated ones 1e-6 (so they only matter in blackout frames); the missing entries are then interpolated
+   again, linearly in the body frame, which follows the body's turning.  The transform is fixed before EM and undone
+   at the end; being rigid it keeps the noise isotropic and inter-marker distances exact.  Without it an LDS must
+   explain global travel and turning linearly, which on real captures (CMU 85_02) makes it worse than linear
+   interpolation.  Then each coordinate column (marker x/y/z) is centred on its mean over observed frames and
+   everything is divided by ONE global scalar (the RMS of the centred observed values), so the isotropic noise
+   model stays isotropic; all results are returned in the data's units.
+3. Initialise the parameters from the data, deterministically: ``G`` = the first H principal directions of the
+   interpolated data, ``F`` = the least-squares transition of the principal scores, isotropic ``Gamma``,
+   ``Lambda`` and ``sigma2`` from the residuals.  Only when H exceeds the data's rank are the extra columns of ``G``
+   drawn from ``seed`` (small values).
+4. Repeat: E-step (Kalman filter + RTS smoother, :mod:`.lds`) on the completed data -> objective -> replace the
+   missing entries by ``G E[z_t]`` (or by ``project(...)``, BoLeRO's hook) -> stop if converged -> M-step.
+
+Objective and monotonicity: ``objective[k]`` is the negative log-likelihood ``-log p(X_k | Theta_k)`` of the
+*completed* data (observed + the imputation current at iteration k), per scalar entry, in the data's units (nats per
+coordinate; ``+ log(scale)`` converts from the internal scaling).  It is the EM free energy, and each of the three
+steps (E-step, imputation ``x_miss = G E[z]``, M-step) can only lower it, so without ``project`` the trace is
+non-increasing (up to rounding).  ``project`` replaces the imputation by something else (bone-length projection) and
+voids that guarantee.  Convergence: ``|objective[k] - objective[k-1]| <= tol * max(1, |objective[k-1]|)`` measured
+on the internal (unit-RMS) scale, where the objective is O(1); else ``ConvergenceWarning`` at ``max_iter``.
+
+Uncertainty: ``std`` of a filled sample is ``sqrt(mean_xyz diag(G_k Cov[z_t | observed] G_k^T) + sigma2)``, the
+predictive standard deviation of the marker's coordinates under the final model, in the data's units, where the
+posterior covariance treats the missing entries as *missing* (one extra covariance-only pass,
+:func:`.lds.missing_data_variance`) so it grows towards the middle of a long gap.  (The EM passes themselves treat
+the imputation as data, which would give every frame the same covariance.)
+
+Speed: see :mod:`.lds` (isotropic noise + Woodbury, steady-state covariances, vectorised mean passes).
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import Callable
+
+import numpy as np
+
+from ..errors import ConvergenceWarning, MethodError
+from . import lds
+from .base import FillResult, ProgressFn, check_positions, finish
+
+#: Defaults chosen by measurement (benchmarks/bench_dynammo.py, see benchmarks/README.md).
+DEFAULT_HIDDEN = 16
+DEFAULT_MAX_ITER = 200
+DEFAULT_TOL = 1e-5
+
+#: ``project(estimate, missing, sigma2, iteration) -> ndarray`` (see :func:`run_dynammo`).
+ProjectFn = Callable[[np.ndarray, np.ndarray, float, int], np.ndarray]
+
+
+def interpolate_columns(X: np.ndarray, miss: np.ndarray) -> np.ndarray:
+    """Linear interpolation per column with the nearest observed value held at both ends.
+
+    Parameters
+    ----------
+    X : (T, m) values (entries where ``miss`` is True are ignored).
+    miss : (T, m) bool.
+
+    Returns
+    -------
+    (T, m) copy with missing entries interpolated; a column with no observation becomes 0.
+    """
+    X = np.array(X, dtype=np.float64)
+    T = X.shape[0]
+    frames = np.arange(T)
+    for j in np.flatnonzero(miss.any(axis=0)):
+        ok = ~miss[:, j]
+        if not ok.any():
+            X[:, j] = 0.0
+            continue
+        X[~ok, j] = np.interp(frames[~ok], frames[ok], X[ok, j])
+    return X
+
+
+def fit_body_frame(positions: np.ndarray, weights: np.ndarray, *, rounds: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame rigid transforms into a body-fixed frame (weighted centroid + Kabsch rotation, Procrustes reference).
+
+    Parameters
+    ----------
+    positions : (T, M, 3) finite (interpolated) positions.
+    weights : (T, M) non-negative weights, each frame with a positive sum.
+
+    Returns
+    -------
+    R : (T, 3, 3) rotations and c : (T, 3) translations with ``positions[t, k] ~= R[t] @ local[k] + c[t]``;
+    the local coordinates of a frame are ``(positions[t] - c[t]) @ R[t]``.
+    """
+    w = weights / weights.sum(axis=1, keepdims=True)
+    c = np.einsum("tm,tmi->ti", w, positions)
+    Y = positions - c[:, None, :]
+    ref = Y[int(np.argmax(weights.sum(axis=1)))]  # the best-observed frame starts the reference shape
+    for _ in range(rounds):
+        cross = np.einsum("tm,tmi,mj->tij", w, Y, ref)  # sum_k w Y_k ref_k^T
+        U, _, Vt = np.linalg.svd(cross)
+        d = np.sign(np.linalg.det(U @ Vt))
+        d[d == 0] = 1.0
+        U[:, :, 2] *= d[:, None]  # proper rotations only
+        R = U @ Vt
+        ref = np.einsum("tmi,tij->mj", Y, R) / len(Y)
+    return R, c
+
+
+def choose_hidden(X: np.ndarray, energy: float) -> int:
+    """Smallest number of principal components of X (T, m) whose share of the total variance reaches ``energy``."""
+    if not 0 < energy <= 1:
+        raise MethodError(f"energy must be in (0, 1], got {energy}")
+    sv2 = np.linalg.svd(X, compute_uv=False) ** 2
+    if sv2.sum() <= 0:
+        return 1
+    return int(min(np.searchsorted(np.cumsum(sv2) / sv2.sum(), energy - 1e-12) + 1, len(sv2)))
+
+
+def initial_params(X: np.ndarray, hidden: int, rng: np.random.Generator, *, var_floor: float = 1e-6
+                   ) -> lds.LDSParams:
+    """Deterministic start for EM from the completed, scaled data ``X`` (T, m) (PCA + least squares).
+
+    Returns LDSParams with G (m, hidden), isotropic Gamma and Lambda, and sigma2 floored at ``var_floor``.
+    """
+    T, m = X.shape
+    H = hidden
+    # Principal directions from the m x m scatter matrix (cheap for tall X).
+    evals, evecs = np.linalg.eigh(X.T @ X)
+    order = np.argsort(evals)[::-1]
+    evals, evecs = evals[order], evecs[:, order]
+    r = int(min(H, m, max(T, 1), np.sum(evals > 1e-12 * max(evals[0], 1e-300))))
+    r = max(r, 1)
+    G = np.zeros((m, H))
+    G[:, :r] = evecs[:, :r]
+    if r < H:  # more hidden dimensions than the data's rank: small random directions, from the seed only
+        G[:, r:] = 1e-2 * rng.standard_normal((m, H - r)) / np.sqrt(m)
+    Z = X @ evecs[:, :r]
+    Zf = np.zeros((T, H))
+    Zf[:, :r] = Z
+    resid = X - Z @ evecs[:, :r].T
+    sigma2 = max(float(np.mean(resid ** 2)), var_floor)
+    F = np.eye(H)
+    lam = 1e-2
+    if T >= 2:
+        Z0, Z1 = Zf[:-1], Zf[1:]
+        S = Z0.T @ Z0 + 1e-9 * np.eye(H) * max(np.trace(Z0.T @ Z0), 1.0)
+        F = lds._chol_solve(S, Z0.T @ Z1).T
+        lam = max(float(np.mean((Z1 - Z0 @ F.T) ** 2)), var_floor)
+    eye = np.eye(H)
+    return lds.LDSParams(F, G, Zf[0].copy(), lam * eye, lam * eye, sigma2)
+
+
+def run_dynammo(
+    positions: np.ndarray,
+    *,
+    hidden: int = DEFAULT_HIDDEN,
+    max_iter: int = DEFAULT_MAX_ITER,
+    tol: float = DEFAULT_TOL,
+    seed: int | None = None,
+    progress: ProgressFn | None = None,
+    project: ProjectFn | None = None,
+    project_start: int = 1,
+    energy: float | None = None,
+    isotropic: bool = True,
+    uncertainty: bool = True,
+    body_frame: bool = True,
+) -> FillResult:
+    """The DynaMMo EM engine (reused by BoLeRO through ``project``).
+
+    Parameters
+    ----------
+    positions : ndarray (n_frames, n_markers, 3), NaN = missing.
+    hidden : int
+        Hidden dimension H (ignored when ``energy`` is given).
+    max_iter, tol : EM cap and the convergence tolerance on the objective (see the module docstring).
+    seed : int or None
+        Only used when H exceeds the rank of the data (random extra columns of G); otherwise the start is PCA.
+    progress : ``progress(iteration, max_iter, objective)`` called once per EM iteration.
+    project : ``project(estimate, missing, sigma2, iteration) -> ndarray``, optional
+        Called after each E-step from iteration ``project_start`` on (iterations count from 1) with ``estimate`` =
+        G E[z_t | all] in the data's units (n_frames, n_markers, 3) (NaN for markers missing throughout),
+        ``missing`` (n_frames, n_markers) bool (the input's missing mask), ``sigma2`` the isotropic observation-noise
+        variance in data units squared and ``iteration``; its return value (n_frames, n_markers, 3) at the missing
+        samples becomes the new imputation.  Without it the imputation is ``estimate``.
+    energy : float in (0, 1], optional
+        Choose H as the number of principal components of the interpolated data holding this share of variance.
+    isotropic : bool
+        Isotropic Gamma and Lambda (the authors' default); ``sigma2`` is always isotropic.
+    body_frame : bool
+        Model the data in a per-frame body-fixed frame (see the module docstring); needs >= 3 modelled markers.
+    uncertainty : bool
+        Compute ``std`` (one extra covariance pass); False gives ``std=None``.
+
+    Returns
+    -------
+    FillResult with ``positions`` (n_frames, n_markers, 3), ``std`` (n_frames, n_markers) (see module docstring),
+    ``n_iter``, ``converged``, ``objective`` (per-entry NLL of the completed data, data units), ``info`` with
+    ``hidden``, ``sigma2`` (data units^2), ``scale``, ``markers_modelled``, ``markers_all_missing``,
+    ``steady_state_frames`` (frames the filter needed to reach its steady state in the last E-step).
+    """
+    positions = check_positions(positions)
+    if max_iter < 1:
+        raise MethodError(f"max_iter must be at least 1, got {max_iter}")
+    if energy is None and (int(hidden) != hidden or hidden < 1):
+        raise MethodError(f"hidden must be a positive integer, got {hidden}")
+    if tol < 0:
+        raise MethodError(f"tol must be >= 0, got {tol}")
+    T, M, _ = positions.shape
+    missing = np.isnan(positions).any(axis=2)
+    keep = ~missing.all(axis=0) if T else np.zeros(M, bool)
+    info = {"markers_all_missing": [int(k) for k in np.flatnonzero(~keep)], "markers_modelled": int(keep.sum())}
+    if T == 0 or not keep.any() or not missing[:, keep].any():
+        std = np.zeros((T, M)) if uncertainty else None
+        return finish(positions, positions, std=std, n_iter=0, converged=True, objective=[], info=info)
+    rng = np.random.default_rng(seed)
+
+    Mk = int(keep.sum())
+    m = 3 * Mk
+    miss_k = missing[:, keep]
+    miss_cols = np.repeat(miss_k, 3, axis=1)
+    Y = interpolate_columns(positions[:, keep, :].reshape(T, m), miss_cols)
+    rot = shift = None
+    if body_frame and Mk >= 3:
+        rot, shift = fit_body_frame(Y.reshape(T, Mk, 3), np.where(miss_k, 1e-6, 1.0))
+        Y = np.einsum("tmi,tij->tmj", Y.reshape(T, Mk, 3) - shift[:, None, :], rot).reshape(T, m)
+        Y = interpolate_columns(Y, miss_cols)  # interpolating in the body frame follows the body's turning
+    Yobs = np.where(miss_cols, np.nan, Y)
+    centre = np.nanmean(Yobs, axis=0)
+    scale = float(np.sqrt(np.nanmean((Yobs - centre) ** 2)))
+    if not np.isfinite(scale) or scale <= 0:
+        scale = 1.0
+    X = (Y - centre) / scale
+
+    def to_data(Z: np.ndarray) -> np.ndarray:
+        """Internal (T, m) -> data units (T, Mk, 3)."""
+        out = (Z * scale + centre).reshape(T, Mk, 3)
+        if rot is not None:
+            out = np.einsum("tmj,tij->tmi", out, rot) + shift[:, None, :]
+        return out
+
+    def from_data(D: np.ndarray) -> np.ndarray:
+        """Data units (T, Mk, 3) -> internal (T, m)."""
+        if rot is not None:
+            D = np.einsum("tmi,tij->tmj", D - shift[:, None, :], rot)
+        return (D.reshape(T, m) - centre) / scale
+    H = choose_hidden(X, energy) if energy is not None else int(hidden)
+    params = initial_params(X, H, rng)
+    log_scale = float(np.log(scale))
+
+    objective: list[float] = []
+    converged = False
+    n_iter = 0
+    sm = None
+    for it in range(1, max_iter + 1):
+        n_iter = it
+        stats, sm, nll = lds.e_step(params, X)
+        obj = nll / (T * m)  # per entry, internal scale
+        objective.append(obj + log_scale)
+        if progress is not None:
+            progress(it, max_iter, obj + log_scale)
+        fitted = stats.Ez @ params.G.T  # (T, m) = G E[z_t]
+        if project is not None and it >= project_start:
+            est = np.full((T, M, 3), np.nan)
+            est[:, keep, :] = to_data(fitted)
+            out = np.asarray(project(est, missing, params.sigma2 * scale ** 2, it), dtype=np.float64)
+            if out.shape != (T, M, 3):
+                raise MethodError(f"project returned shape {out.shape}, expected {(T, M, 3)}")
+            sub = np.where(miss_k[:, :, None], out[:, keep, :], est[:, keep, :])  # observed samples: unused
+            X[miss_cols] = from_data(sub)[miss_cols]
+        else:
+            X[miss_cols] = fitted[miss_cols]
+        if it >= 2 and abs(objective[-1] - objective[-2]) <= tol * max(1.0, abs(objective[-2] - log_scale)):
+            converged = True
+            break
+        if it == max_iter:
+            break
+        params = lds.m_step(stats, X.T @ stats.Ez, float(np.einsum("ij,ij->", X, X)), m, params,
+                            isotropic=isotropic)
+    if not converged:
+        warnings.warn(f"DynaMMo stopped at max_iter={max_iter} before the objective changed by less than "
+                      f"tol={tol:g}", ConvergenceWarning, stacklevel=2)
+
+    estimate = np.full((T, M, 3), np.nan)
+    estimate[:, keep, :] = to_data(X)
+    std = None
+    if uncertainty:
+        var = lds.missing_data_variance(params, ~miss_k)
+        std = np.full((T, M), np.nan)
+        std[:, keep] = np.sqrt(var + params.sigma2) * scale
+    info.update(hidden=H, sigma2=float(params.sigma2 * scale ** 2), scale=scale,
+                steady_state_frames=int(len(sm.Vhat.head)) if sm is not None else 0, body_frame=rot is not None,
+                objective_kind="negative log-likelihood of the completed data per entry (nats, data units)")
+    return finish(positions, estimate, std=std, n_iter=n_iter, converged=converged, objective=objective, info=info)
+
+
+def fill_dynammo(
+    positions: np.ndarray,
+    *,
+    hidden: int = DEFAULT_HIDDEN,
+    max_iter: int = DEFAULT_MAX_ITER,
+    tol: float = DEFAULT_TOL,
+    seed: int | None = None,
+    progress: ProgressFn | None = None,
+    energy: float | None = None,
+) -> FillResult:
+    """Fill gaps with DynaMMo (see the module docstring); positions (n_frames, n_markers, 3), NaN = missing.
+
+    Returns a FillResult whose ``std`` (n_frames, n_markers) is each filled sample's predictive standard deviation
+    in the data's units.
+    """
+    return run_dynammo(positions, hidden=hidden, max_iter=max_iter, tol=tol, seed=seed, progress=progress,
+                       energy=energy)

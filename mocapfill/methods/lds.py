@@ -1,0 +1,547 @@
+"""Linear dynamical system (LDS) primitives for DynaMMo: Kalman filter, RTS smoother, E-step statistics, M-step.
+
+The model (BoLeRO paper, section 3.1, eqs. 1-4), with H hidden and m observed dimensions::
+
+    z_1     = mu0 + w_0,        w_0 ~ N(0, Gamma)          (1)
+    z_{n+1} = F z_n + w_n,      w_n ~ N(0, Lambda)         (2)
+    x_n     = G z_n + v_n,      v_n ~ N(0, sigma2 * I_m)   (3), (4) with Sigma = sigma2 I
+
+Everything here works on a *fully observed* sequence ``X`` of shape (T, m): DynaMMo treats its current imputation
+of the missing entries as data, so the filter's covariances do not depend on the data at all.  That gives the three
+speed-ups this module is built on:
+
+* **Woodbury / information form.**  With isotropic observation noise the filter update (eqs. 16-18) needs only
+  ``C = G^T G / sigma2`` (H x H) and ``b_t = G^T x_t / sigma2``: with ``P = L L^T`` (Cholesky),
+  ``V_t = (P^-1 + C)^-1 = L (I + L^T C L)^-1 L^T`` and ``mu_t = pred_t + V_t (b_t - C pred_t)``.  No m x m matrix is
+  ever formed; ``|G P G^T + sigma2 I| = sigma2^m |I + L^T C L|`` gives the likelihood.
+* **Steady state.**  The covariance recursions (eqs. 15, 18, 25, 27) are run until successive matrices agree to a
+  relative ``rtol`` (1e-13); from then on the stored steady-state matrix is reused.  Covariance sequences are kept as
+  :class:`PiecewiseCov` (explicit head, constant middle, explicit tail).
+* **Vectorised means.**  In the steady state the filter mean obeys ``mu_t = A mu_{t-1} + u_t`` with constant
+  ``A = (I - V C) F`` and the smoother mean ``mhat_t = J mhat_{t+1} + w_t``; both are solved by
+  :func:`linear_recurrence` (complex Schur form of ``A`` + one first-order ``scipy.signal.lfilter`` per mode), not a
+  Python loop over frames.
+
+Sufficient statistics (eqs. 28-30) are formed as matrix products (``Ez^T Ez``) plus closed-form sums of the
+piecewise-constant covariances, and :func:`m_step` implements eqs. 31-36 (with isotropic ``Gamma``/``Lambda`` by
+default, as the authors' code runs).
+
+:func:`missing_data_variance` is the one place where missing entries are treated as missing: it runs the covariance
+recursions with the per-frame observed rows to give each missing sample a posterior variance (used for ``std``).
+
+Shapes: ``T`` frames, ``m`` observed dimensions (3 x markers), ``H`` hidden dimensions.  Pure NumPy / SciPy.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from scipy import linalg as sla
+from scipy import signal
+
+#: Relative change below which a covariance recursion counts as having reached its steady state.
+STEADY_RTOL = 1e-13
+
+
+class LDSParams(NamedTuple):
+    """Parameters Theta = {mu0, Gamma, F, Lambda, G, Sigma = sigma2 I} of eqs. (1)-(4).
+
+    Attributes
+    ----------
+    F : ndarray (H, H)        transition matrix, eq. (2)
+    G : ndarray (m, H)        observation matrix, eq. (3)
+    mu0 : ndarray (H,)        mean of z_1, eq. (1)
+    Gamma : ndarray (H, H)    covariance of z_1
+    Lambda : ndarray (H, H)   transition noise covariance
+    sigma2 : float            isotropic observation noise variance (Sigma = sigma2 I_m)
+    """
+
+    F: np.ndarray
+    G: np.ndarray
+    mu0: np.ndarray
+    Gamma: np.ndarray
+    Lambda: np.ndarray
+    sigma2: float
+
+
+class PiecewiseCov(NamedTuple):
+    """A sequence of T covariance matrices stored as explicit head, one constant middle, explicit tail.
+
+    Index t maps to ``head[t]`` for ``t < len(head)``, to ``tail[t - (T - len(tail))]`` for
+    ``t >= T - len(tail)``, and to ``mid`` in between.  Shapes: head (kh, H, H), mid (H, H), tail (kt, H, H).
+    """
+
+    head: np.ndarray
+    mid: np.ndarray
+    tail: np.ndarray
+    T: int
+
+    @property
+    def n_mid(self) -> int:
+        """How many indices hold ``mid``."""
+        return self.T - len(self.head) - len(self.tail)
+
+    def at(self, t: int) -> np.ndarray:
+        """The (H, H) matrix at index ``t`` (0 <= t < T)."""
+        if t < len(self.head):
+            return self.head[t]
+        if t >= self.T - len(self.tail):
+            return self.tail[t - (self.T - len(self.tail))]
+        return self.mid
+
+    def is_mid(self, t: int) -> bool:
+        return len(self.head) <= t < self.T - len(self.tail)
+
+    def total(self) -> np.ndarray:
+        """Sum over all T indices, (H, H)."""
+        out = self.head.sum(axis=0) + self.tail.sum(axis=0)
+        if self.n_mid > 0:
+            out = out + self.n_mid * self.mid
+        return out
+
+    def dense(self) -> np.ndarray:
+        """All T matrices as one (T, H, H) array (tests and small T only)."""
+        return np.stack([self.at(t) for t in range(self.T)]) if self.T else np.zeros((0,) + self.mid.shape)
+
+
+class FilterResult(NamedTuple):
+    """Output of :func:`kalman_filter`.
+
+    mu : (T, H)     filtered means E[z_t | x_1..x_t] (eq. 17)
+    pred : (T, H)   predicted means E[z_t | x_1..x_{t-1}] (pred_0 = mu0)
+    V : PiecewiseCov   filtered covariances V_t (eq. 18)
+    P : PiecewiseCov   P_t = F V_t F^T + Lambda, the covariance of z_{t+1} given x_1..x_t (eq. 15)
+    n_head : int    frames before the steady state (len(V.head)); V_t = V.mid for t >= n_head
+    nll : float     negative log-likelihood -log p(x_1..x_T) of the (completed) data
+    """
+
+    mu: np.ndarray
+    pred: np.ndarray
+    V: PiecewiseCov
+    P: PiecewiseCov
+    n_head: int
+    nll: float
+
+
+class SmootherResult(NamedTuple):
+    """Output of :func:`rts_smoother`.
+
+    mean : (T, H)        E[z_t | all] (eqs. 26, 28)
+    Vhat : PiecewiseCov  Cov[z_t | all] (eq. 27)
+    J : PiecewiseCov     smoother gains J_t = V_t F^T P_t^-1 (eq. 25), index T-1 unused (holds J.mid or zeros)
+    cross : (H, H)       sum_{t=1}^{T-1} Cov[z_t, z_{t-1} | all] = sum Vhat_t J_{t-1}^T
+    """
+
+    mean: np.ndarray
+    Vhat: PiecewiseCov
+    J: PiecewiseCov
+    cross: np.ndarray
+
+
+class Stats(NamedTuple):
+    """Expected sufficient statistics of the E-step (eqs. 28-30), everything the M-step needs besides the data.
+
+    Ez : (T, H)        E[z_t]
+    Szz : (H, H)       sum_t E[z_t z_t^T]
+    Ezz_first : (H, H) E[z_1 z_1^T];  Ezz_last : (H, H)  E[z_T z_T^T]
+    Sz1z0 : (H, H)     sum_{t=2}^{T} E[z_t z_{t-1}^T]
+    V1 : (H, H)        Cov[z_1 | all] (for Gamma, eq. 32)
+    """
+
+    Ez: np.ndarray
+    Szz: np.ndarray
+    Ezz_first: np.ndarray
+    Ezz_last: np.ndarray
+    Sz1z0: np.ndarray
+    V1: np.ndarray
+
+
+def _sym(a: np.ndarray) -> np.ndarray:
+    return (a + a.T) * 0.5
+
+
+def _close(a: np.ndarray, b: np.ndarray, rtol: float) -> bool:
+    scale = np.max(np.abs(b))
+    return bool(np.max(np.abs(a - b)) <= rtol * scale) if scale > 0 else bool(np.all(a == b))
+
+
+def posterior_cov(P: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, float]:
+    """Filter update of the covariance (eqs. 16, 18) in information form.
+
+    Parameters
+    ----------
+    P : (H, H) prior (predicted) covariance, SPD.
+    C : (H, H) observation information ``G_o^T G_o / sigma2`` (rows of the observed coordinates).
+
+    Returns
+    -------
+    V : (H, H)  ``(P^-1 + C)^-1``, computed as ``L (I + L^T C L)^-1 L^T`` with ``P = L L^T`` (never inverts P).
+    logdet_w : float  ``log |I + L^T C L|`` = ``log |G P G^T + sigma2 I| - m log sigma2``.
+    """
+    L = np.linalg.cholesky(P)
+    W = L.T @ C @ L
+    W[np.diag_indices_from(W)] += 1.0
+    Lw = np.linalg.cholesky(W)
+    B = sla.solve_triangular(Lw, L.T, lower=True, check_finite=False)  # Lw^-1 L^T
+    V = B.T @ B
+    return V, 2.0 * float(np.log(np.diag(Lw)).sum())
+
+
+def _chol_solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Solve A X = B for SPD A via Cholesky (symmetrised first); falls back to least squares if A is singular."""
+    A = _sym(A)
+    try:
+        return sla.cho_solve(sla.cho_factor(A, lower=True, check_finite=False), B, check_finite=False)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(A, B, rcond=None)[0]
+
+
+def linear_recurrence(A: np.ndarray, U: np.ndarray, z0: np.ndarray) -> np.ndarray:
+    """Solve ``z_t = A z_{t-1} + u_t`` for t = 0..n-1 with ``z_{-1} = z0``, vectorised over time.
+
+    Short sequences use a parallel prefix scan (``S_t += A^(2^k) S_{t-2^k}``, stopped once the power has decayed
+    below rounding), long ones the complex Schur form ``A = Q R Q^*`` (unitary Q, upper-triangular R), which turns
+    the system into H scalar first-order recursions solved from the last mode up by ``scipy.signal.lfilter``.  Both
+    are as accurate as the sequential loop for a stable A (spectral radius < 1, as for the filter and smoother).
+
+    Parameters
+    ----------
+    A : (H, H), U : (n, H) inputs (row t is u_t), z0 : (H,).
+
+    Returns
+    -------
+    Z : (n, H), row t is z_t.
+    """
+    n, H = U.shape
+    if n == 0:
+        return np.zeros((0, H))
+    if n <= _SCAN_MAX:
+        S = np.array(U, dtype=np.float64)
+        S[0] += A @ z0
+        P = A.T.copy()  # rows: S_t^T <- S_t^T + S_{t-k}^T (A^k)^T
+        ref = max(float(np.max(np.abs(S))), 1e-300)
+        k = 1
+        while k < n:
+            S[k:] += S[:-k] @ P
+            k *= 2
+            if k >= n:
+                break
+            P = P @ P
+            if float(np.max(np.abs(P))) * H * float(np.max(np.abs(S))) <= 1e-18 * ref:
+                break
+        return S
+    R, Q = sla.schur(A, output="complex")
+    Qc = Q.conj()
+    Vin = U @ Qc  # rows: Q^* u_t
+    w0 = z0 @ Qc
+    W = np.empty((H, n), dtype=complex)  # mode-major so each mode is contiguous
+    for i in range(H - 1, -1, -1):
+        x = Vin[:, i].copy()
+        if i < H - 1:
+            coupling = R[i, i + 1:]
+            x[0] += w0[i + 1:] @ coupling
+            x[1:] += coupling @ W[i + 1:, :-1]
+        r = R[i, i]
+        W[i] = signal.lfilter([1.0], [1.0, -r], x, zi=np.array([r * w0[i]]))[0]
+    return (Q @ W).real.T
+
+
+#: Sequences up to this length use the prefix scan in :func:`linear_recurrence`, longer ones the Schur form.
+_SCAN_MAX = 4096
+
+
+def filter_covariances(params: LDSParams, T: int, rtol: float = STEADY_RTOL):
+    """Covariance part of the Kalman filter (eqs. 15-18, 20-22) for a fully observed sequence of length T.
+
+    Returns ``(V, P, logdet_w, n_head)``: PiecewiseCov ``V`` and ``P`` (no tail), ``logdet_w`` (T,) with
+    ``log|G P_{t-1} G^T + sigma2 I| - m log sigma2`` per frame, and the steady-state start ``n_head``.
+    """
+    F, G, _, Gamma, Lam, s = params
+    H = F.shape[0]
+    C = _sym(G.T @ G) / s
+    Vs, Ps, lds = [], [], []
+    P_prev = _sym(Gamma)
+    n_head = T
+    for t in range(T):
+        V, ldw = posterior_cov(P_prev, C)
+        V = _sym(V)
+        Pn = _sym(F @ V @ F.T + Lam)
+        if t > 0 and _close(V, Vs[-1], rtol) and _close(Pn, Ps[-1], rtol):
+            n_head = t
+            break
+        Vs.append(V)
+        Ps.append(Pn)
+        lds.append(ldw)
+        P_prev = Pn
+    if n_head < T:
+        V_inf, P_inf, ld_inf = V, Pn, ldw
+    else:
+        V_inf, P_inf, ld_inf = (Vs[-1], Ps[-1], lds[-1]) if T else (np.zeros((H, H)),) * 2 + (0.0,)
+    empty = np.zeros((0, H, H))
+    Vh = np.array(Vs).reshape(-1, H, H)
+    Ph = np.array(Ps).reshape(-1, H, H)
+    logdet = np.full(T, ld_inf)
+    logdet[:n_head] = lds[:n_head]
+    return PiecewiseCov(Vh, V_inf, empty, T), PiecewiseCov(Ph, P_inf, empty, T), logdet, n_head
+
+
+def kalman_filter(params: LDSParams, X: np.ndarray, *, rtol: float = STEADY_RTOL) -> FilterResult:
+    """Kalman filter (eqs. 14-23) on a fully observed sequence ``X`` (T, m), with its log-likelihood.
+
+    The negative log-likelihood is ``0.5 sum_t [m log 2 pi + log|S_t| + e_t^T S_t^-1 e_t]`` with innovation
+    ``e_t = x_t - G pred_t`` and ``S_t = G P_{t-1} G^T + sigma2 I``; by Woodbury
+    ``e^T S^-1 e = |e|^2 / sigma2 - g^T V_t g`` with ``g = G^T e / sigma2``.
+    """
+    F, G, mu0, _, _, s = params
+    T, m = X.shape
+    H = F.shape[0]
+    V, P, logdet_w, k = filter_covariances(params, T, rtol)
+    GtG = _sym(G.T @ G)
+    C = GtG / s
+    b = (X @ G) / s  # (T, H): G^T x_t / sigma2
+    mu = np.empty((T, H))
+    prev = None
+    for t in range(k):  # transient: time-varying gain
+        pr = mu0 if t == 0 else F @ prev
+        prev = pr + V.head[t] @ (b[t] - C @ pr)
+        mu[t] = prev
+    if k < T:  # steady state: mu_t = A mu_{t-1} + V b_t
+        Vm = V.mid
+        A = F - Vm @ C @ F
+        U = b[k:] @ Vm  # V symmetric
+        mu[k:] = linear_recurrence(A, U, mu[k - 1])  # k >= 1: the steady state is detected at t >= 1
+    pred = np.empty((T, H))
+    if T:
+        pred[0] = mu0
+        pred[1:] = mu[:-1] @ F.T
+    # Likelihood.  |e_t|^2 is formed without cancellation from r_t = x_t - G mu_t (filtered residual) and
+    # d_t = mu_t - pred_t: e_t = r_t + G d_t.
+    g = b - pred @ C  # G^T e_t / sigma2
+    d = mu - pred
+    r2 = _row_sq_residual(X, mu, G)
+    Gtr = s * b - mu @ GtG  # G^T r_t
+    e2 = r2 + np.einsum("ij,ij->i", 2.0 * Gtr + d @ GtG, d)
+    quad = e2 / s
+    if k:
+        quad[:k] -= np.einsum("ti,tij,tj->t", g[:k], V.head, g[:k])
+    if k < T:
+        quad[k:] -= np.einsum("ti,ti->t", g[k:] @ V.mid, g[k:])
+    nll = 0.5 * float(T * m * np.log(2 * np.pi * s) + logdet_w.sum() + quad.sum())
+    return FilterResult(mu, pred, V, P, k, nll)
+
+
+def _row_sq_residual(X: np.ndarray, Z: np.ndarray, G: np.ndarray, chunk: int = 8192) -> np.ndarray:
+    """Per-row |x_t - G z_t|^2 for X (T, m), Z (T, H), computed in chunks of frames to bound the temporary."""
+    T = X.shape[0]
+    out = np.empty(T)
+    for a in range(0, T, chunk):
+        R = X[a:a + chunk] - Z[a:a + chunk] @ G.T
+        out[a:a + chunk] = np.einsum("ij,ij->i", R, R)
+    return out
+
+
+def rts_smoother(params: LDSParams, filt: FilterResult, *, rtol: float = STEADY_RTOL) -> SmootherResult:
+    """Rauch-Tung-Striebel smoother (eqs. 24-27) and the summed lag-one cross-covariance (from eq. 29).
+
+    ``J_t = V_t F^T P_t^-1`` is constant once the filter is steady (t >= n_head), so the mean recursion
+    ``mhat_t = J_t mhat_{t+1} + (mu_t - J_t pred_{t+1})`` is vectorised there; ``Vhat`` is iterated backward from
+    ``Vhat_T = V_T`` until it stops changing, then held, and iterated explicitly again through the filter's
+    transient head.
+    """
+    F = params.F
+    mu, pred, V, P, k = filt.mu, filt.pred, filt.V, filt.P, filt.n_head
+    T, H = mu.shape
+
+    def gain(Vt, Pt):
+        return _chol_solve(Pt, F @ Vt).T  # J = V F^T P^-1 (P symmetric)
+
+    J_head = np.array([gain(V.head[t], P.head[t]) for t in range(min(k, max(T - 1, 0)))]).reshape(-1, H, H)
+    J_inf = gain(V.mid, P.mid) if k < T else (J_head[-1] if len(J_head) else np.zeros((H, H)))
+    J = PiecewiseCov(J_head, J_inf, np.zeros((0, H, H)), T)
+
+    # Means.
+    mean = np.empty((T, H))
+    if T:
+        mean[T - 1] = mu[T - 1]
+    lo = max(k, 0)
+    if lo < T - 1:  # steady segment t = lo..T-2, run backward in time
+        Wt = mu[lo:T - 1] - pred[lo + 1:T] @ J_inf.T
+        rev = linear_recurrence(J_inf, Wt[::-1], mu[T - 1])
+        mean[lo:T - 1] = rev[::-1]
+    for t in range(min(k, T - 1) - 1, -1, -1):
+        Jt = J.head[t]
+        mean[t] = mu[t] + Jt @ (mean[t + 1] - pred[t + 1])
+
+    # Covariances, backward from Vhat_{T-1} = V_{T-1}.
+    tail = []  # Vhat for t = T-1, T-2, ... (reversed order)
+    head = []  # Vhat for t = k-1, ..., 0 (reversed order)
+    mid = None
+    if T:
+        cur = V.at(T - 1)
+        tail.append(cur)
+        t = T - 2
+        while t >= 0:
+            Jt = J.at(t)
+            new = _sym(V.at(t) + Jt @ (cur - P.at(t)) @ Jt.T)
+            # For t >= k the backward map is the same at every step, so a fixed point holds down to t = k.
+            if t >= k and mid is None and _close(new, cur, rtol):
+                mid = new
+                n_mid = t - k + 1  # indices k..t hold mid
+                cur = new
+                t = k - 1
+                continue
+            if mid is None:
+                tail.append(new)
+            else:
+                head.append(new)
+            cur = new
+            t -= 1
+    if mid is None:  # never steady: everything explicit, as a head
+        all_ = tail[::-1]
+        Vhat = PiecewiseCov(np.array(all_).reshape(-1, H, H), all_[-1] if all_ else np.zeros((H, H)),
+                            np.zeros((0, H, H)), T)
+    else:
+        Vhat = PiecewiseCov(np.array(head[::-1]).reshape(-1, H, H), mid, np.array(tail[::-1]).reshape(-1, H, H), T)
+        assert Vhat.n_mid == n_mid
+
+    # sum_{t=1}^{T-1} Vhat_t J_{t-1}^T: explicit where either factor is, closed form for the constant part.
+    cross = np.zeros((H, H))
+    kh, tail_start = len(Vhat.head), T - len(Vhat.tail)
+    explicit = sorted({t for t in range(1, min(k + 1, T))} | set(range(1, min(kh, T)))
+                      | set(range(max(tail_start, 1), T)))
+    for t in explicit:
+        cross += Vhat.at(t) @ J.at(t - 1).T
+    n_const = (T - 1) - len(explicit)
+    if n_const:
+        cross += n_const * (Vhat.mid @ J_inf.T)
+    return SmootherResult(mean, Vhat, J, cross)
+
+
+def e_step(params: LDSParams, X: np.ndarray, *, rtol: float = STEADY_RTOL) -> tuple[Stats, SmootherResult, float]:
+    """E-step: filter + smoother on the completed data ``X`` (T, m) and the sufficient statistics (eqs. 28-30).
+
+    Returns ``(stats, smoother, nll)`` with ``nll = -log p(X | params)``.
+    """
+    filt = kalman_filter(params, X, rtol=rtol)
+    sm = rts_smoother(params, filt, rtol=rtol)
+    Ez = sm.mean
+    T = Ez.shape[0]
+    Szz = Ez.T @ Ez + sm.Vhat.total()
+    first = sm.Vhat.at(0) + np.outer(Ez[0], Ez[0])
+    last = sm.Vhat.at(T - 1) + np.outer(Ez[-1], Ez[-1])
+    Sz1z0 = Ez[1:].T @ Ez[:-1] + sm.cross
+    return Stats(Ez, _sym(Szz), _sym(first), _sym(last), Sz1z0, sm.Vhat.at(0)), sm, filt.nll
+
+
+def m_step(stats: Stats, XtEz: np.ndarray, sum_x2: float, m: int, old: LDSParams, *, isotropic: bool = True,
+           var_floor: float = 1e-12) -> LDSParams:
+    """M-step (eqs. 31-36) given the E-step statistics and the data's ``X^T Ez`` (m, H) and ``sum |x_t|^2``.
+
+    ``Sigma = sigma2 I`` always (sigma2 = trace of eq. 36 / (T m)); with ``isotropic`` also ``Gamma`` and
+    ``Lambda`` are replaced by ``trace / H * I`` (the maximiser under that constraint).  With T = 1 the transition
+    parameters F and Lambda keep their old values (no transitions to learn from).  Variances are floored at
+    ``var_floor`` (data scaled to unit RMS) so that a collapsing covariance cannot break the Cholesky factorisations.
+    """
+    Ez = stats.Ez
+    T, H = Ez.shape
+    eye = np.eye(H)
+    mu0 = Ez[0].copy()  # (31)
+    Gamma = _sym(stats.V1)  # (32)
+    if T >= 2:
+        S_prev = stats.Szz - stats.Ezz_last
+        S_next = stats.Szz - stats.Ezz_first
+        F = _chol_solve(S_prev, stats.Sz1z0.T).T  # (33)
+        Lam = _sym(S_next - F @ stats.Sz1z0.T) / (T - 1)  # (34) at the optimal F
+    else:
+        F, Lam = old.F, old.Lambda
+    G = _chol_solve(stats.Szz, XtEz.T).T  # (35)
+    sigma2 = (sum_x2 - float(np.sum(G * XtEz))) / (T * m)  # trace of (36) at the optimal G
+    sigma2 = max(sigma2, var_floor)
+    if isotropic:
+        Gamma = max(np.trace(Gamma) / H, var_floor) * eye
+        Lam = max(np.trace(Lam) / H, var_floor) * eye
+    else:
+        Gamma = Gamma + var_floor * eye
+        Lam = Lam + var_floor * eye
+    return LDSParams(F, G, mu0, Gamma, Lam, float(sigma2))
+
+
+def missing_data_variance(params: LDSParams, observed: np.ndarray, *, rtol: float = 1e-10,
+                          chunk: int = 2048) -> np.ndarray:
+    """Posterior variance of ``G z_t`` per missing sample, treating the missing entries as missing.
+
+    Runs the covariance recursions of the filter and smoother with each frame's observed rows only
+    (``C_t = sum_{observed markers k} G_k^T G_k / sigma2``), which depends on the missing pattern but not on the
+    data.  Stretches where the pattern does not change and the recursion has reached its fixed point (relative
+    ``rtol``) are skipped, so the cost grows with the number of pattern changes, not the number of frames.
+
+    Parameters
+    ----------
+    params : LDSParams with m = 3 * n_markers (x, y, z of each marker consecutive).
+    observed : (T, n_markers) bool.
+
+    Returns
+    -------
+    var : (T, n_markers): the mean over x/y/z of ``diag(G_k Cov[z_t | observed] G_k^T)`` where marker k is missing,
+        0 where it is observed.
+    """
+    F, G, _, Gamma, Lam, s = params
+    T, M = observed.shape
+    H = F.shape[0]
+    var = np.zeros((T, M))
+    if T == 0 or observed.all():
+        return var
+    Gk = G.reshape(M, 3, H)
+    blocks = np.einsum("kai,kaj->kij", Gk, Gk).reshape(M, H * H)  # G_k^T G_k per marker
+    patterns, pat = np.unique(observed, axis=0, return_inverse=True)
+    pat = np.asarray(pat).reshape(-1)
+    Cs = (patterns.astype(float) @ blocks).reshape(-1, H, H) / s
+
+    # Forward: filtered V_t, P_t stored once per distinct value, indexed per frame.
+    Vs, Ps, vid = [], [], np.empty(T, dtype=np.int64)
+    P_prev = _sym(Gamma)
+    steady = False
+    for t in range(T):
+        if t > 0 and steady and pat[t] == pat[t - 1]:
+            vid[t] = vid[t - 1]
+            continue
+        V, _ = posterior_cov(P_prev, Cs[pat[t]])
+        V = _sym(V)
+        Pn = _sym(F @ V @ F.T + Lam)
+        steady = t > 0 and pat[t] == pat[t - 1] and _close(V, Vs[-1], rtol) and _close(Pn, Ps[-1], rtol)
+        Vs.append(V)
+        Ps.append(Pn)
+        vid[t] = len(Vs) - 1
+        P_prev = Pn
+
+    # Backward: smoothed Vhat_t, again stored per distinct value.
+    gains: dict[int, np.ndarray] = {}
+    Vh, hid = [Vs[vid[T - 1]]], np.empty(T, dtype=np.int64)
+    hid[T - 1] = 0
+    steady = False
+    for t in range(T - 2, -1, -1):
+        same = vid[t] == vid[t + 1]
+        if same and steady:
+            hid[t] = hid[t + 1]
+            continue
+        i = int(vid[t])
+        if i not in gains:
+            gains[i] = _chol_solve(Ps[i], F @ Vs[i]).T
+        Jt = gains[i]
+        new = _sym(Vs[i] + Jt @ (Vh[hid[t + 1]] - Ps[i]) @ Jt.T)
+        steady = bool(same) and _close(new, Vh[hid[t + 1]], rtol)
+        Vh.append(new)
+        hid[t] = len(Vh) - 1
+
+    # Variances of the missing markers, once per distinct Vhat used by a frame with a missing marker.
+    frames = np.flatnonzero(~observed.all(axis=1))
+    used, inv = np.unique(hid[frames], return_inverse=True)
+    Vstack = np.array(Vh)[used]
+    diag = np.empty((len(used), M))
+    for a in range(0, len(used), chunk):
+        GV = np.einsum("mi,nij->nmj", G, Vstack[a:a + chunk])
+        diag[a:a + chunk] = np.einsum("nmj,mj->nm", GV, G).reshape(-1, M, 3).mean(axis=2)
+    v = diag[np.asarray(inv).reshape(-1)]
+    var[frames] = np.where(observed[frames], 0.0, v)
+    return np.maximum(var, 0.0)

@@ -1,0 +1,169 @@
+"""The LDS primitives against dense, straightforward solutions (small sizes)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import linalg as sla
+
+from mocapfill.methods import lds
+
+
+def random_params(H=3, m=6, *, seed=0, rho=0.95, sigma2=0.05, iso=False):
+    """A stable LDS with well-conditioned covariances."""
+    rng = np.random.default_rng(seed)
+    Q, _ = np.linalg.qr(rng.standard_normal((H, H)))
+    F = rho * Q @ np.diag(rng.uniform(0.6, 1.0, H)) @ Q.T + 0.05 * rng.standard_normal((H, H))
+    F *= rho / max(1.0, np.max(np.abs(np.linalg.eigvals(F))))
+    G = rng.standard_normal((m, H))
+    mu0 = rng.standard_normal(H)
+    if iso:
+        Gamma, Lam = 0.5 * np.eye(H), 0.1 * np.eye(H)
+    else:
+        A = rng.standard_normal((H, H))
+        Gamma = A @ A.T / H + 0.2 * np.eye(H)
+        B = rng.standard_normal((H, H))
+        Lam = 0.1 * (B @ B.T / H + 0.2 * np.eye(H))
+    return lds.LDSParams(F, G, mu0, Gamma, Lam, sigma2)
+
+
+def simulate(p, T, seed=1):
+    rng = np.random.default_rng(seed)
+    H, m = p.F.shape[0], p.G.shape[0]
+    z = np.empty((T, H))
+    z[0] = rng.multivariate_normal(p.mu0, p.Gamma)
+    for t in range(1, T):
+        z[t] = p.F @ z[t - 1] + rng.multivariate_normal(np.zeros(H), p.Lambda)
+    x = z @ p.G.T + np.sqrt(p.sigma2) * rng.standard_normal((T, m))
+    return z, x
+
+
+def dense_posterior(p, X, observed=None):
+    """Condition the joint Gaussian of (z_1..z_T, x_1..x_T) on the (observed entries of the) data."""
+    T, m = X.shape
+    H = p.F.shape[0]
+    Ez = np.empty((T, H))
+    Sig = np.empty((T, H, H))
+    Ez[0], Sig[0] = p.mu0, p.Gamma
+    for t in range(1, T):
+        Ez[t] = p.F @ Ez[t - 1]
+        Sig[t] = p.F @ Sig[t - 1] @ p.F.T + p.Lambda
+    Czz = np.zeros((T * H, T * H))
+    for t in range(T):
+        Ft = np.eye(H)
+        for s in range(t, T):  # Cov(z_s, z_t) = F^{s-t} Sig_t
+            Czz[s * H:(s + 1) * H, t * H:(t + 1) * H] = Ft @ Sig[t]
+            Czz[t * H:(t + 1) * H, s * H:(s + 1) * H] = (Ft @ Sig[t]).T
+            Ft = p.F @ Ft
+    Gb = np.kron(np.eye(T), p.G)
+    Czx = Czz @ Gb.T
+    Cxx = Gb @ Czz @ Gb.T + p.sigma2 * np.eye(T * m)
+    x = X.reshape(-1)
+    Ex = Gb @ Ez.reshape(-1)
+    keep = np.ones(T * m, bool) if observed is None else np.repeat(observed, 3, axis=1).reshape(-1)
+    cf = sla.cho_factor(Cxx[np.ix_(keep, keep)])
+    mean = Ez.reshape(-1) + Czx[:, keep] @ sla.cho_solve(cf, x[keep] - Ex[keep])
+    cov = Czz - Czx[:, keep] @ sla.cho_solve(cf, Czx[:, keep].T)
+    n = keep.sum()
+    resid = x[keep] - Ex[keep]
+    nll = 0.5 * (n * np.log(2 * np.pi) + 2 * np.log(np.diag(cf[0])).sum() + resid @ sla.cho_solve(cf, resid))
+    return mean.reshape(T, H), cov, nll
+
+
+@pytest.mark.parametrize("T, iso", [(1, False), (2, False), (7, False), (60, False), (60, True)])
+def test_smoother_matches_dense_joint_gaussian(T, iso):
+    p = random_params(seed=T, iso=iso)
+    _, X = simulate(p, T, seed=T + 1)
+    stats, sm, nll = lds.e_step(p, X)
+    mean, cov, nll_dense = dense_posterior(p, X)
+    H = p.F.shape[0]
+    scale = np.max(np.abs(cov))
+    np.testing.assert_allclose(sm.mean, mean, atol=1e-10 * max(1, np.abs(mean).max()))
+    Vhat = sm.Vhat.dense()
+    for t in range(T):
+        np.testing.assert_allclose(Vhat[t], cov[t * H:(t + 1) * H, t * H:(t + 1) * H], atol=1e-10 * scale)
+    cross = sum(cov[t * H:(t + 1) * H, (t - 1) * H:t * H] for t in range(1, T)) if T > 1 else np.zeros((H, H))
+    np.testing.assert_allclose(sm.cross, cross, atol=1e-10 * scale * T)
+    assert nll == pytest.approx(nll_dense, rel=1e-10)
+    # The statistics of eqs. 28-30.
+    Ezz = sum(cov[t * H:(t + 1) * H, t * H:(t + 1) * H] + np.outer(mean[t], mean[t]) for t in range(T))
+    np.testing.assert_allclose(stats.Szz, Ezz, atol=1e-9 * np.abs(Ezz).max())
+
+
+def test_steady_state_is_used_on_long_sequences():
+    p = random_params(seed=3)
+    _, X = simulate(p, 400)
+    filt = lds.kalman_filter(p, X)
+    assert 1 <= filt.n_head < 100
+    sm = lds.rts_smoother(p, filt)
+    assert sm.Vhat.n_mid > 200
+    mean, cov, _ = dense_posterior(p, X[:120])  # a shorter window cannot match the end, but the head must
+    sm_short = lds.rts_smoother(p, lds.kalman_filter(p, X[:120]))
+    np.testing.assert_allclose(sm_short.mean, mean, atol=1e-9)
+
+
+def test_linear_recurrence_matches_loop():
+    rng = np.random.default_rng(5)
+    H, n = 6, 500
+    A = rng.standard_normal((H, H))
+    A *= 0.97 / np.max(np.abs(np.linalg.eigvals(A)))
+    U = rng.standard_normal((n, H))
+    z0 = rng.standard_normal(H)
+    Z = lds.linear_recurrence(A, U, z0)
+    ref = np.empty_like(U)
+    prev = z0
+    for t in range(n):
+        prev = A @ prev + U[t]
+        ref[t] = prev
+    np.testing.assert_allclose(Z, ref, atol=1e-11 * np.abs(ref).max())
+
+
+def test_m_step_maximises_expected_log_likelihood():
+    """The closed-form M-step beats small perturbations of its own answer on the expected complete-data NLL."""
+    p = random_params(seed=7, iso=True)
+    _, X = simulate(p, 80)
+    stats, sm, _ = lds.e_step(p, X)
+    T, m = X.shape
+    new = lds.m_step(stats, X.T @ stats.Ez, float((X ** 2).sum()), m, p, isotropic=True)
+
+    def expected_nll(q):
+        H = q.F.shape[0]
+        Ez, Szz = stats.Ez, stats.Szz
+        g, lam, s = q.Gamma[0, 0], q.Lambda[0, 0], q.sigma2
+        e1 = stats.Ezz_first - np.outer(Ez[0], q.mu0) - np.outer(q.mu0, Ez[0]) + np.outer(q.mu0, q.mu0)
+        Sp, Sn, S10 = Szz - stats.Ezz_last, Szz - stats.Ezz_first, stats.Sz1z0
+        trans = Sn - q.F @ S10.T - S10 @ q.F.T + q.F @ Sp @ q.F.T
+        XtEz = X.T @ Ez
+        obs = (X ** 2).sum() - 2 * np.sum(q.G * XtEz) + np.trace(q.G @ Szz @ q.G.T)
+        return (0.5 * (np.trace(e1) / g + H * np.log(g)) + 0.5 * (np.trace(trans) / lam + (T - 1) * H * np.log(lam))
+                + 0.5 * (obs / s + T * m * np.log(s)))
+
+    best = expected_nll(new)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        q = new._replace(F=new.F + 1e-3 * rng.standard_normal(new.F.shape),
+                         G=new.G + 1e-3 * rng.standard_normal(new.G.shape),
+                         mu0=new.mu0 + 1e-3 * rng.standard_normal(new.mu0.shape),
+                         Lambda=new.Lambda * np.exp(0.01 * rng.standard_normal()),
+                         Gamma=new.Gamma * np.exp(0.01 * rng.standard_normal()),
+                         sigma2=new.sigma2 * np.exp(0.01 * rng.standard_normal()))
+        assert expected_nll(q) > best
+
+
+def test_missing_data_variance_matches_dense():
+    p = random_params(H=3, m=9, seed=11, iso=True)
+    T = 50
+    _, X = simulate(p, T)
+    observed = np.ones((T, 3), bool)
+    observed[10:30, 1] = False
+    observed[20:25, :] = False  # a blackout
+    observed[45:, 2] = False  # a gap at the end
+    var = lds.missing_data_variance(p, observed, rtol=1e-14)
+    _, cov, _ = dense_posterior(p, X, observed)
+    H = 3
+    for t in range(T):
+        C = cov[t * H:(t + 1) * H, t * H:(t + 1) * H]
+        d = np.diag(p.G @ C @ p.G.T).reshape(3, 3).mean(axis=1)
+        for k in range(3):
+            expected = 0.0 if observed[t, k] else d[k]
+            assert var[t, k] == pytest.approx(expected, rel=1e-8, abs=1e-12)
