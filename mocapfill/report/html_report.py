@@ -17,6 +17,8 @@ from . import plots
 
 #: More gap rows than this are cut from the table (the JSON report has them all).
 MAX_TABLE_ROWS = 500
+#: Gap tables longer than this are folded under a <details> element, with the longest gaps shown above.
+OPEN_TABLE_ROWS = 40
 
 _CSS = """
 body { font-family: -apple-system, "Segoe UI", Roboto, Helvetica, Arial, sans-serif; color: #222; margin: 0;
@@ -201,7 +203,7 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
         if has_method:
             headers += ["filled by"]
         rows = []
-        for g in gaps[:MAX_TABLE_ROWS]:
+        for g in gaps:
             row = [_e(g["marker"]), str(g["first_frame"]), str(g["last_frame"]), str(g["length"]),
                    _num(g["seconds"], 3), f'<span class="status-{g["status"]}">{g["status"]}</span>'
                    + (f' ({g["rejected_samples"]} outliers)' if g["rejected_samples"] else "")]
@@ -210,7 +212,17 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
             if has_method:
                 row += [_e(g["method"] or "\u2013")]
             rows.append(row)
-        parts.append(_table(headers, rows, {1, 2, 3, 4} | ({6, 7} if has_std else set())))
+        numeric = {1, 2, 3, 4} | ({6, 7} if has_std else set())
+        if len(gaps) > OPEN_TABLE_ROWS:
+            # A long table is folded; the longest gaps, what a person checks first, stay in view.
+            longest = sorted(range(len(rows)), key=lambda i: -gaps[i]["length"])[:10]
+            parts.append(f"<h3>The {len(longest)} longest gaps</h3>")
+            parts.append(_table(headers, [rows[i] for i in sorted(longest)], numeric))
+            shown = "all" if len(gaps) <= MAX_TABLE_ROWS else "the first"
+            parts.append(f"<details><summary>Show {shown} {min(len(gaps), MAX_TABLE_ROWS)} of {len(gaps)} gaps"
+                         f"</summary>{_table(headers, rows[:MAX_TABLE_ROWS], numeric)}</details>")
+        else:
+            parts.append(_table(headers, rows, numeric))
         if len(gaps) > MAX_TABLE_ROWS:
             parts.append(f'<p class="note">{len(gaps) - MAX_TABLE_ROWS} more gaps not shown; the JSON report '
                          "(--report file.json) lists them all.</p>")

@@ -56,10 +56,14 @@ def _rc() -> Iterator[type]:
         yield Figure
 
 
-def svg_of(fig) -> str:
-    """The SVG markup of ``fig`` without the XML prolog, ready to inline in HTML."""
+def svg_of(fig, *, tight: bool = False) -> str:
+    """The SVG markup of ``fig`` without the XML prolog, ready to inline in HTML.
+
+    ``tight`` crops to the drawn content, at the cost of a second draw; the time-series plots use fixed margins
+    instead because a report draws dozens of them.
+    """
     buf = io.StringIO()
-    fig.savefig(buf, format="svg", bbox_inches="tight")
+    fig.savefig(buf, format="svg", bbox_inches="tight" if tight else None)
     text = buf.getvalue()
     text = re.sub(r"<\?xml[^>]*\?>\s*", "", text)
     text = re.sub(r"<!DOCTYPE[^>]*>\s*", "", text, flags=re.S)
@@ -78,10 +82,23 @@ def _spans(mask: np.ndarray) -> list[tuple[int, int]]:
 
 
 def _shade(ax, frames: np.ndarray, mask: np.ndarray, colour: str, alpha: float, label: str | None = None) -> None:
-    """Shade the frames of the runs of ``mask`` (shape (n,)) on ``ax``; each run spans half a frame either side."""
-    for i, (start, stop) in enumerate(_spans(mask)):
-        ax.axvspan(frames[start] - 0.5, frames[stop - 1] + 0.5, color=colour, alpha=alpha, lw=0,
-                   label=label if i == 0 else None)
+    """Shade the frames of the runs of ``mask`` (shape (n,)) on ``ax``; each run spans half a frame either side.
+
+    One collection for all runs (not one patch per run): a clip with hundreds of gaps stays quick to draw."""
+    from matplotlib.collections import PolyCollection
+
+    spans = _spans(mask)
+    if not spans:
+        return
+    verts = [[(frames[a] - 0.5, 0), (frames[a] - 0.5, 1), (frames[b - 1] + 0.5, 1), (frames[b - 1] + 0.5, 0)]
+             for a, b in spans]
+    ax.add_collection(PolyCollection(verts, transform=ax.get_xaxis_transform(), facecolors=colour, alpha=alpha,
+                                     linewidths=0, label=label), autolim=False)
+
+
+def _margins(fig, *, top: float) -> None:
+    """Fixed margins for the time-series figures (room for y tick labels such as "-1,500" and the legend row)."""
+    fig.subplots_adjust(left=0.09, right=0.985, bottom=0.2 if top < 0.9 else 0.1, top=top, hspace=0.12)
 
 
 def trajectory_svg(frames: np.ndarray, observed: np.ndarray, output: np.ndarray, filled: np.ndarray,
@@ -131,6 +148,7 @@ def trajectory_svg(frames: np.ndarray, observed: np.ndarray, output: np.ndarray,
         axes[-1].set_xlabel("frame")
         axes[0].set_title(label, loc="left", fontsize=10, fontweight="bold")
         axes[0].legend(loc="lower right", fontsize=7, ncol=5, frameon=False, bbox_to_anchor=(1.0, 1.0))
+        _margins(fig, top=0.92)
         return svg_of(fig)
 
 
@@ -172,6 +190,7 @@ def bone_svg(frames: np.ndarray, before: np.ndarray, after: np.ndarray, referenc
         ax.margins(x=0)
         ax.set_title(name, loc="left", fontsize=10, fontweight="bold")
         ax.legend(loc="lower right", fontsize=7, ncol=4, frameon=False, bbox_to_anchor=(1.0, 1.0))
+        _margins(fig, top=0.85)
         return svg_of(fig)
 
 
@@ -184,7 +203,7 @@ def objective_svg(objective: Sequence[float | None]) -> str:
         ax.plot(np.arange(1, len(values) + 1), values, color=REFERENCE, lw=1.2, marker="." if len(values) < 60 else None)
         ax.set_xlabel("iteration")
         ax.set_ylabel("objective")
-        return svg_of(fig)
+        return svg_of(fig, tight=True)
 
 
 def gap_map_svg(status: np.ndarray, labels: Sequence[str], first_frame: int, *, max_columns: int = 1500) -> str:
@@ -225,4 +244,4 @@ def gap_map_svg(status: np.ndarray, labels: Sequence[str], first_frame: int, *, 
         present = sorted(set(np.unique(status).tolist()) | {0})
         ax.legend(handles=[handles[i] for i in present], loc="lower left", bbox_to_anchor=(0, 1.0), ncol=5,
                   fontsize=7, frameon=False)
-        return svg_of(fig)
+        return svg_of(fig, tight=True)
