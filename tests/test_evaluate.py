@@ -306,3 +306,14 @@ def test_only_observed_samples_are_scored(clip):
     trial = Trial((Occlusion((0,), 40, 30),))
     result = evaluate(holey, ["linear"], occlusions=[trial], seed=0)
     assert result.scores[0].n_scored == 20
+
+
+def test_outlier_rejection_with_the_clean_reference_catches_shifts(clip):
+    pytest.importorskip("mocapfill.outliers")
+    plain = evaluate(clip, ["linear"], "random", trials=2, seed=4)
+    cleaned = evaluate(clip, ["linear"], "random", trials=2, seed=4, reject_outliers="clean")
+    assert all(s.detected is None for s in plain.scores)
+    assert all(s.detected > 0.9 for s in cleaned.scores)
+    assert cleaned.summary()["linear"]["rmse"]["mean"] < plain.summary()["linear"]["rmse"]["mean"]
+    with pytest.raises(MocapfillError, match="reject_outliers must be"):
+        evaluate(clip, ["linear"], "random", trials=1, seed=4, reject_outliers="sometimes")

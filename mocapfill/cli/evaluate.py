@@ -156,8 +156,10 @@ def _show(result, quiet: bool) -> None:
               help="Trials run in parallel in this many processes (0 = every CPU); the numbers do not change.")
 @click.option("-o", "--option", "option_pairs", multiple=True, metavar="KEY=VALUE",
               help="A fill option for every method that takes it (repeatable), e.g. -o max_iter=50 -o hidden=12.")
-@click.option("--reject-outliers", is_flag=True,
-              help="Run outlier rejection on each corrupted clip before filling (see the random protocol).")
+@click.option("--reject-outliers", type=click.Choice(["self", "clean"]), default=None,
+              help="Run outlier rejection on each corrupted clip before filling (for the random protocol): "
+                   "'self' uses the corrupted clip as its own reference (as fill does), 'clean' uses the clean "
+                   "file as Holden's reference take.")
 @click.option("--json", "as_json", is_flag=True, help="Print every trial as JSON on stdout.")
 @click.option("--csv", "as_csv", is_flag=True, help="Print every trial as CSV on stdout.")
 @click.option("--input-format", type=click.Choice(FORMATS + ("vicon-csv",)), default=None,
@@ -165,7 +167,7 @@ def _show(result, quiet: bool) -> None:
 @quiet_option
 def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, seed: int | None,
              gap_min: str | None, gap_max: str | None, limb_size: int, occlusions: str | None,
-             save_occlusions: str | None, jobs: int, option_pairs: tuple[str, ...], reject_outliers: bool,
+             save_occlusions: str | None, jobs: int, option_pairs: tuple[str, ...], reject_outliers: str | None,
              as_json: bool, as_csv: bool, input_format: str | None, quiet: bool) -> None:
     """Score fill methods on CLEAN_FILE: hide samples it has, fill them with each method, compare with the truth.
 

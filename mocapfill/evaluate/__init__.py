@@ -216,7 +216,7 @@ def _check_methods(methods: Sequence[str], options: dict[str, dict[str, Any]]) -
 def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), protocol: str = "marker", *,
              trials: int = 10, seed: int | None = None, occlusions: Sequence[Trial] | str | os.PathLike | dict | None
              = None, gap_min=None, gap_max=None, jobs: int = 1, options: dict[str, Any] | None = None,
-             method_options: dict[str, dict[str, Any]] | None = None, reject_outliers: bool = False,
+             method_options: dict[str, dict[str, Any]] | None = None, reject_outliers: bool | str | None = None,
              progress: Callable[[int, int], None] | None = None, **protocol_options: Any) -> EvaluationResult:
     """Score ``methods`` on ``data`` by hiding known samples and filling them.
 
@@ -240,9 +240,11 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
         Fill options for every method (``max_iter``, ``hidden``, ...); a method that does not take one ignores it.
     method_options : dict of dict, optional
         Per-method options, overriding ``options``.
-    reject_outliers : bool
-        Run :func:`mocapfill.outliers.reject_outliers` on each corrupted clip before filling (shifted samples it
-        finds become gaps); ``detected`` then reports the fraction of shifted samples it caught.
+    reject_outliers : None, "self" (or True) or "clean"
+        Run :func:`mocapfill.outliers.reject_outliers` on each corrupted clip before filling (the samples it rejects
+        become gaps); ``detected`` then reports the fraction of shifted samples it caught.  "self": the corrupted
+        clip is its own reference (what ``fill`` does without a reference); "clean": the clean clip is the reference
+        take of Holden's rule (its distance ranges, not its positions).
     progress : callable(done, total), optional
         Called after each trial.
 
@@ -260,6 +262,11 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
     for name in methods:
         per_method[name] = {k: v for k, v in (options or {}).items() if v is not None}
         per_method[name].update((method_options or {}).get(name, {}))
+    if reject_outliers is True:
+        reject_outliers = "self"
+    if reject_outliers not in (None, False, "self", "clean"):
+        raise MocapfillError(f"reject_outliers must be None, 'self' or 'clean', got {reject_outliers!r}")
+    reject_outliers = reject_outliers or None
     _check_methods(methods, per_method)
     for name in methods:  # drop options a method does not take (already warned about once, above)
         from ..methods import get_method
@@ -267,7 +274,7 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
         accepted = get_method(name).parameters()
         per_method[name] = {k: v for k, v in per_method[name].items() if k in accepted or k == "seed"}
     settings: dict[str, Any] = {"options": dict(options or {}), "method_options": dict(method_options or {}),
-                                "reject_outliers": bool(reject_outliers)}
+                                "reject_outliers": reject_outliers}
     if occlusions is not None:
         protocol = "replay"
         if isinstance(occlusions, (str, os.PathLike)):
@@ -289,6 +296,6 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
         raise MocapfillError("no trials to run")
     # Method seeds: one per trial, from a stream independent of the occlusions' streams.
     seeds = [int(s.generate_state(1, np.uint32)[0]) for s in np.random.SeedSequence([seed, 1]).spawn(len(trial_list))]
-    config = RunConfig(tuple(methods), per_method, bool(reject_outliers))
+    config = RunConfig(tuple(methods), per_method, reject_outliers)
     scores = run_trials(data, trial_list, seeds, config, jobs=jobs, progress=progress)
     return EvaluationResult(methods, protocol, trial_list, scores, seed, data, settings)

@@ -49,7 +49,7 @@ class RunConfig:
 
     methods: tuple[str, ...]
     options: dict[str, dict[str, Any]]  # per method: the keyword options for mocapfill.api.fill
-    reject_outliers: bool = False
+    reject_outliers: str | None = None  # None, "self" (the corrupted clip is its own reference) or "clean"
 
 
 def _bones(positions: np.ndarray, units: str, labels: list[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -88,7 +88,9 @@ def run_trial(truth: MarkerData, index: int, trial: Trial, method_seed: int, con
     if config.reject_outliers:
         from ..outliers import reject_outliers
 
-        res = reject_outliers(corrupted, units=truth.units)
+        # "clean": the clean clip plays Holden's reference take of the same marker set (distance ranges only).
+        reference = positions if config.reject_outliers == "clean" else None
+        res = reject_outliers(corrupted, reference=reference, units=truth.units, labels=truth.labels)
         corrupted = np.asarray(res.positions, dtype=float)
         rejected = np.asarray(res.rejected, dtype=bool)
         if shifted.any():
