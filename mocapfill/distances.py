@@ -101,7 +101,8 @@ def _check(positions: np.ndarray, pairs: np.ndarray | None) -> tuple[np.ndarray,
 
 def pair_distance_stats(positions: np.ndarray, pairs: np.ndarray | None = None, *,
                         percentiles: Sequence[float] = DEFAULT_PERCENTILES,
-                        chunk: int | None = None, chunk_bytes: int = DEFAULT_CHUNK_BYTES) -> DistanceStats:
+                        chunk: int | None = None, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
+                        window: int = 1) -> DistanceStats:
     """Distance statistics per marker pair over the frames where both markers are observed.
 
     Parameters
@@ -116,6 +117,10 @@ def pair_distance_stats(positions: np.ndarray, pairs: np.ndarray | None = None, 
         Pairs per chunk; default from ``chunk_bytes``.
     chunk_bytes : int
         Working memory of one chunk; peak memory is about 2 x positions (one transposed copy) plus this.
+    window : int
+        1 (default): statistics of the distance itself.  An odd ``window`` > 1: statistics of its running median
+        over ``window`` consecutive frames (a window with a missing frame is skipped), which ignores spikes shorter
+        than ``window // 2 + 1`` frames while keeping any pose held that long; ``count`` then counts windows.
 
     Returns
     -------
@@ -125,11 +130,14 @@ def pair_distance_stats(positions: np.ndarray, pairs: np.ndarray | None = None, 
     levels = np.asarray(percentiles, dtype=np.float64).reshape(-1)
     if levels.size and (levels.min() < 0 or levels.max() > 100 or not np.isfinite(levels).all()):
         raise MocapfillError(f"percentiles must lie in [0, 100], got {list(levels)}")
+    window = int(window)
+    if window < 1 or window % 2 == 0:
+        raise MocapfillError(f"window must be a positive odd number of frames, got {window}")
     n_frames, n_markers, _ = positions.shape
     n_pairs = len(pairs)
     if chunk is None:
-        # about four (chunk, n_frames) float64 buffers are alive at once
-        chunk = max(1, int(chunk_bytes // (4 * 8 * max(n_frames, 1))))
+        # about four (chunk, n_frames) float64 buffers are alive at once, plus the running median's window copy
+        chunk = max(1, int(chunk_bytes // ((4 + (window if window > 1 else 0)) * 8 * max(n_frames, 1))))
     chunk = int(max(1, min(chunk, max(n_pairs, 1))))
 
     count = np.zeros(n_pairs, dtype=np.intp)
@@ -138,7 +146,7 @@ def pair_distance_stats(positions: np.ndarray, pairs: np.ndarray | None = None, 
     dmin = np.full(n_pairs, np.nan)
     dmax = np.full(n_pairs, np.nan)
     pct = np.full((n_pairs, levels.size), np.nan)
-    if n_pairs == 0 or n_frames == 0:
+    if n_pairs == 0 or n_frames < window:
         return DistanceStats(pairs, count, mean, std, dmin, dmax, pct, levels)
 
     # Marker-major copy (3, n_markers, n_frames): gathering a marker's trajectory is then one contiguous row,
@@ -166,10 +174,12 @@ def pair_distance_stats(positions: np.ndarray, pairs: np.ndarray | None = None, 
             np.multiply(a, a, out=a)
             np.add(d, a, out=d)
         np.sqrt(d, out=d)
+        if window > 1:
+            d = _running_median(d, window)
         # sorted in place; NaN sort to the end of each row, so the first `n` entries are the observed distances
         d.sort(axis=1)
         nan = np.isnan(d)
-        n = n_frames - nan.sum(axis=1)
+        n = d.shape[1] - nan.sum(axis=1)
         count[start:stop] = n
         ok = n > 0
         if not ok.any():
@@ -184,7 +194,7 @@ def pair_distance_stats(positions: np.ndarray, pairs: np.ndarray | None = None, 
         mu = d.sum(axis=1) / n
         mean[start:stop][ok] = mu
         # two-pass variance for accuracy (distances are large compared with their spread)
-        dev = a[:rows]
+        dev = a[:rows, : d.shape[1]]
         np.subtract(d, mu[:, None], out=dev)
         dev[nan] = 0.0
         np.multiply(dev, dev, out=dev)
@@ -199,3 +209,11 @@ def pair_distance_stats(positions: np.ndarray, pairs: np.ndarray | None = None, 
             vhi = np.take_along_axis(d, hi, axis=1)
             pct[start:stop][ok] = vlo + frac * (vhi - vlo)
     return DistanceStats(pairs, count, mean, std, dmin, dmax, pct, levels)
+
+
+def _running_median(d: np.ndarray, window: int) -> np.ndarray:
+    """Running median along axis 1 of ``d`` (m, n) over ``window`` frames: (m, n - window + 1); NaN if any is NaN."""
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    # np.median propagates NaN, so a window touching a gap yields NaN and is skipped by the caller
+    return np.median(sliding_window_view(d, window, axis=1), axis=2)

@@ -1,0 +1,270 @@
+"""Outlier rejection by inter-marker distance ranges (Holden 2018, "Robust solving of optical motion capture data by
+denoising", Runtime / Outlier Removal).
+
+The rule
+--------
+For every marker pair a distance range ``[Dmin, Dmax]`` (``Drange = Dmax - Dmin``) is taken from a reference.  In
+each frame, a pair *violates* when its distance ``D`` satisfies ``D < Dmin - m`` or ``D > Dmax + m`` with margin
+``m = max(delta * Drange, min_margin)`` (``min_margin`` only keeps pairs that never changed length in the
+reference, e.g. two markers of one rigid plate, from flagging sub-millimetre noise).  Then, frame by frame, the
+marker that violates "the most" is removed, and this repeats until no pair of remaining markers violates.
+
+"The most" is measured by the **number of violated pairs** the marker belongs to; ties are broken by the marker's
+**mean strain**: over all its observed pairs, ``|D - centre| / (half range + margin)`` (> 1 = violated), weighted by
+``1 / (Drange + 2 m)`` so that rigid pairs speak loudest.  A marker thrown 5-50 cm away breaks every pair it has
+with rigid partners while each partner breaks only its pair with it, so the count settles most frames; when two
+markers share their only violated pair, the one that was displaced also strains its other pairs.
+
+The reference
+-------------
+- ``reference=`` a clean capture of the same marker set, ``(n_ref_frames, n_markers, 3)``: ``Dmin``/``Dmax`` are the
+  exact minimum and maximum over its frames (as Holden does with his training data).
+- ``reference=None``: the file itself.  Its own minimum and maximum would include the outliers, and plain
+  percentiles would flag clean frames (with 1st/99th percentiles and ``delta`` 0.1, 13 % of the frames of the
+  clean CMU clip 85_02 break some pair) or, trimmed further, be polluted by the outliers themselves.  Outliers are
+  spikes in time, clean extremes are not; so the ranges come in two stages:
+
+  1. robust ranges: the ``percentile`` / ``100 - percentile`` percentiles (default 0: min and max) of each pair's
+     distance after a running median over ``window`` frames (default 3, which ignores a spike of one frame but
+     keeps any pose held for two), widened by ``robust_delta`` (default 0.5) of their width, reject the gross
+     outliers;
+  2. the exact minimum and maximum of the raw distances over the samples that survived stage 1 become
+     ``Dmin`` / ``Dmax``, and the rule is applied afresh with ``delta``.  A clean extreme that stage 1 flagged
+     comes back unless it lies beyond all the kept samples by more than the margin.
+
+  Measured (3 % of frames, 1-3 markers each thrown 5-50 cm in a random direction, 20 seeds): on CMU 85_02
+  precision >= 0.978 in every seed, recall >= 0.95 in 19 of 20 (0.918 once, when a pair was hit in two of three
+  consecutive frames), and no sample of the uncorrupted file rejected.  On the "complete" tennis serve the
+  uncorrupted file loses 9 samples: vendor-interpolated stretches (equal steps) and one-frame jumps of the racket
+  arm that do break its bone lengths.  Give a clean ``reference`` when the file may hold long-lasting errors.
+
+Pairs seen together in fewer than ``min_frames`` reference frames have no range and never violate.
+Everything is vectorised across frames (chunks of frames x pairs of about ``chunk_bytes``); the greedy loop runs
+once per removed marker, over the frames that still violate.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple, Sequence
+
+import numpy as np
+
+from .bones import UNIT_MM, default_min_frames, unit_scale
+from .distances import pair_distance_stats
+from .errors import MocapfillError
+
+#: Default margin floor (mm, converted to the data's units).
+DEFAULT_MIN_MARGIN_MM = 1.0
+
+
+class OutlierResult(NamedTuple):
+    """Outcome of :func:`reject_outliers`.
+
+    positions : ndarray, shape (n_frames, n_markers, 3)
+        The input with rejected samples set to NaN (a copy; other samples bit-identical).
+    rejected : ndarray bool, shape (n_frames, n_markers)
+        True where an observed sample was removed.
+    dmin, dmax : ndarray float64, shape (P,)
+        The distance range per pair used by the final pass (NaN = unconstrained pair).
+    pairs : ndarray int, shape (P, 2)
+        The pairs of ``dmin`` / ``dmax``.
+    """
+
+    positions: np.ndarray
+    rejected: np.ndarray
+    dmin: np.ndarray | None = None
+    dmax: np.ndarray | None = None
+    pairs: np.ndarray | None = None
+
+
+def _ranges(positions: np.ndarray, percentile: float, min_frames: int, window: int = 1
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(pairs (P, 2), lo (P,), hi (P,)) over the observed frames; NaN where seen together < min_frames times."""
+    levels = (percentile, 100.0 - percentile)
+    stats = pair_distance_stats(positions, percentiles=levels, window=window)
+    lo, hi = stats.percentiles[:, 0].copy(), stats.percentiles[:, 1].copy()
+    few = stats.count < max(min_frames, 1)
+    lo[few] = np.nan
+    hi[few] = np.nan
+    return stats.pairs, lo, hi
+
+
+def pair_strain(positions: np.ndarray, pairs: np.ndarray, dmin: np.ndarray, dmax: np.ndarray, *, delta: float,
+                min_margin: float) -> np.ndarray:
+    """Strain of every pair in every frame, shape (n_frames, P); NaN where a marker is missing.
+
+    ``u = |D - c| / (h + m)`` with ``c`` the middle and ``h`` half the width of ``[dmin, dmax]`` and
+    ``m = max(delta * (dmax - dmin), min_margin)`` the margin: ``u > 1`` exactly when the pair violates
+    ``D < dmin - m`` or ``D > dmax + m``.  ``positions`` (n_frames, n_markers, 3); ``pairs`` (P, 2);
+    ``dmin``, ``dmax`` (P,) finite.
+    """
+    span = dmax - dmin
+    half = 0.5 * span + np.maximum(delta * span, min_margin)
+    diff = positions[:, pairs[:, 0], :] - positions[:, pairs[:, 1], :]
+    d = np.sqrt(np.einsum("tpc,tpc->tp", diff, diff))
+    return np.abs(d - 0.5 * (dmin + dmax)) / half
+
+
+def _greedy(strain: np.ndarray, weight: np.ndarray, pairs: np.ndarray, n_markers: int) -> np.ndarray:
+    """Greedy removal per frame.
+
+    ``strain`` (F, P) from :func:`pair_strain` (NaN = unobserved pair); ``weight`` (P,) how much a pair says about
+    its markers (1 / width of its widened range: rigid pairs speak loudest).  Returns removed (F, n_markers) bool.
+    """
+    n_frames = strain.shape[0]
+    removed = np.zeros((n_frames, n_markers), dtype=bool)
+    observed = ~np.isnan(strain)
+    strain = np.where(observed, strain, 0.0)
+    violated = strain > 1.0
+    active = np.flatnonzero(violated.any(axis=1))
+    a, b = pairs[:, 0], pairs[:, 1]
+    # incidence (P, n_markers): per-marker sums are then matrix products
+    incidence = np.zeros((len(pairs), n_markers))
+    incidence[np.arange(len(pairs)), a] = 1.0
+    incidence[np.arange(len(pairs)), b] = 1.0
+    while active.size:
+        va, oa = violated[active], observed[active]
+        counts = va.astype(np.float64) @ incidence  # (F', n_markers) violated pairs per marker
+        # tie-break: the weighted mean strain over all the marker's observed pairs.  Two markers whose only violated
+        # pair is the one they share tie on the count; the one displaced also strains its other pairs.
+        w = np.where(oa, weight[None, :], 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean_strain = ((w * strain[active]) @ incidence) / (w @ incidence)
+        mean_strain = np.nan_to_num(mean_strain, nan=0.0)
+        # lexicographic (count, mean strain): mean_strain / (1 + mean_strain) < 1 keeps the order of counts
+        worst = np.argmax(counts + mean_strain / (1.0 + mean_strain), axis=1)
+        removed[active, worst] = True
+        # pairs touching the removed marker no longer count in that frame
+        gone = (a[None, :] == worst[:, None]) | (b[None, :] == worst[:, None])
+        va &= ~gone
+        oa &= ~gone
+        violated[active] = va
+        observed[active] = oa
+        active = active[va.any(axis=1)]
+    return removed
+
+
+def _apply(positions: np.ndarray, pairs: np.ndarray, dmin: np.ndarray, dmax: np.ndarray, *, delta: float,
+           min_margin: float, chunk_bytes: int) -> np.ndarray:
+    """Rejected mask (n_frames, n_markers) of the greedy rule, chunked over frames."""
+    n_frames, n_markers, _ = positions.shape
+    known = np.isfinite(dmin) & np.isfinite(dmax)
+    pairs, dmin, dmax = pairs[known], dmin[known], dmax[known]
+    rejected = np.zeros((n_frames, n_markers), dtype=bool)
+    if len(pairs) == 0 or n_frames == 0:
+        return rejected
+    span = dmax - dmin
+    weight = 1.0 / (span + 2.0 * np.maximum(delta * span, min_margin))
+    # about six (frames, P) float64 temporaries (diff is three of them)
+    step = max(1, int(chunk_bytes // (6 * 8 * len(pairs))))
+    for start in range(0, n_frames, step):
+        stop = min(n_frames, start + step)
+        strain = pair_strain(positions[start:stop], pairs, dmin, dmax, delta=delta, min_margin=min_margin)
+        rejected[start:stop] = _greedy(strain, weight, pairs, n_markers)
+    return rejected
+
+
+def _align(reference: np.ndarray, labels: Sequence[str] | None, reference_labels: Sequence[str] | None,
+           n_markers: int) -> np.ndarray:
+    reference = np.asarray(reference, dtype=np.float64)
+    if reference.ndim != 3 or reference.shape[2] != 3:
+        raise MocapfillError(f"reference must have shape (n_frames, n_markers, 3), got {reference.shape}")
+    if reference_labels is None or labels is None:
+        if reference.shape[1] != n_markers:
+            raise MocapfillError(f"reference has {reference.shape[1]} markers, the data {n_markers}; "
+                                 "give labels and reference_labels to match them by name")
+        return reference
+    where = {str(label): k for k, label in enumerate(reference_labels)}
+    short = {}
+    for k, label in enumerate(reference_labels):
+        short.setdefault(str(label).rsplit(":", 1)[-1], []).append(k)
+    aligned = np.full((reference.shape[0], n_markers, 3), np.nan)
+    found = 0
+    for m, label in enumerate(labels):
+        k = where.get(str(label))
+        if k is None:
+            hits = short.get(str(label).rsplit(":", 1)[-1], [])
+            k = hits[0] if len(hits) == 1 else None
+        if k is not None:
+            aligned[:, m] = reference[:, k]
+            found += 1
+    if found < 2:
+        raise MocapfillError(f"the reference shares {found} marker label(s) with the data; need at least 2")
+    return aligned
+
+
+def reject_outliers(positions: np.ndarray, *, reference: np.ndarray | None = None, delta: float = 0.1,
+                    units: str = "mm", percentile: float = 0.0, robust_delta: float = 0.5,
+                    min_margin: float | None = None, min_frames: int | None = None,
+                    labels: Sequence[str] | None = None, reference_labels: Sequence[str] | None = None,
+                    chunk_bytes: int = 64 * 2**20, window: int = 3, two_stage: bool = True) -> OutlierResult:
+    """Remove markers that break the inter-marker distance ranges (Holden's rule; see the module docstring).
+
+    Parameters
+    ----------
+    positions : ndarray, shape (n_frames, n_markers, 3)
+        NaN = missing.
+    reference : ndarray, shape (n_ref_frames, n_ref_markers, 3), optional
+        A clean capture of the same marker set (exact min / max are used).  Default: the file itself (two stages).
+    delta : float
+        Margin as a fraction of each pair's range (Holden: 0.1).
+    units : str
+        Units of ``positions``; scales ``min_margin``'s default (1 mm).
+    percentile : float
+        Stage-1 robust range of the self-reference: the ``percentile`` and ``100 - percentile`` percentiles of the
+        running-median distance (default 0: its min and max).
+    robust_delta : float
+        Stage-1 margin as a fraction of that robust range (default 0.5).
+    window : int
+        Running-median window (odd, frames) of stage 1 (default 3; 1 = none).
+    two_stage : bool
+        False: use the stage-1 ranges directly as ``Dmin`` / ``Dmax`` (with ``delta``).
+    min_margin : float, optional
+        Smallest margin, in ``units`` (default 1 mm converted).
+    min_frames : int, optional
+        Pairs seen together in fewer reference frames are unconstrained (default as for bones:
+        ``max(10, min(100, n_frames // 2))``).
+    labels, reference_labels : sequence of str, optional
+        When both are given the reference's markers are matched to the data's by label (exact, else without a
+        ``Subject:`` prefix); markers absent from the reference are unconstrained.
+    chunk_bytes : int
+        Working-memory budget of one chunk of frames x pairs.
+
+    Returns
+    -------
+    OutlierResult
+        ``positions`` with rejected samples NaN, ``rejected`` (n_frames, n_markers) bool, and the final ranges.
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    if positions.ndim != 3 or positions.shape[2] != 3:
+        raise MocapfillError(f"positions must have shape (n_frames, n_markers, 3), got {positions.shape}")
+    if units not in UNIT_MM:
+        raise MocapfillError(f"unknown length unit {units!r} (expected one of {', '.join(UNIT_MM)})")
+    if not (delta >= 0 and robust_delta >= 0 and 0 <= percentile < 50):
+        raise MocapfillError(f"delta and robust_delta must be >= 0 and percentile in [0, 50) "
+                             f"(got {delta}, {robust_delta}, {percentile})")
+    n_frames, n_markers, _ = positions.shape
+    if min_margin is None:
+        min_margin = DEFAULT_MIN_MARGIN_MM * unit_scale("mm", units)
+    observed = ~np.isnan(positions).any(axis=2)
+    if n_markers < 2 or n_frames == 0:
+        return OutlierResult(positions.copy(), np.zeros((n_frames, n_markers), dtype=bool))
+    if reference is not None:
+        ref = _align(reference, labels, reference_labels, n_markers)
+        mf = default_min_frames(ref.shape[0]) if min_frames is None else min_frames
+        pairs, dmin, dmax = _ranges(ref, 0.0, mf)
+    else:
+        mf = default_min_frames(n_frames) if min_frames is None else min_frames
+        pairs, lo, hi = _ranges(positions, percentile, mf, window)
+        if two_stage:
+            first = _apply(positions, pairs, lo, hi, delta=robust_delta, min_margin=min_margin, chunk_bytes=chunk_bytes)
+            kept = positions.copy()
+            kept[first] = np.nan
+            _, dmin, dmax = _ranges(kept, 0.0, mf)
+        else:
+            dmin, dmax = lo, hi
+    rejected = _apply(positions, pairs, dmin, dmax, delta=delta, min_margin=min_margin, chunk_bytes=chunk_bytes)
+    rejected &= observed
+    out = positions.copy()
+    out[rejected] = np.nan
+    return OutlierResult(out, rejected, dmin, dmax, pairs)

@@ -1,0 +1,112 @@
+"""Holden's distance-range outlier rejection: the paper's corruption on CMU 85_02, references, edge cases."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import mocapfill
+from mocapfill.errors import MocapfillError
+from mocapfill.outliers import reject_outliers
+
+
+@pytest.fixture(scope="module")
+def cmu(sample_data):
+    return mocapfill.read(sample_data / "85_02.c3d")
+
+
+def corrupt(positions: np.ndarray, seed: int, *, frac: float = 0.03, scale: float = 1.0):
+    """Holden's corruption: in ``frac`` of the frames, 1-3 random markers thrown 5-50 cm (in mm x scale) away."""
+    rng = np.random.default_rng(seed)
+    out = positions.copy()
+    n_frames, n_markers, _ = positions.shape
+    truth = np.zeros((n_frames, n_markers), dtype=bool)
+    for t in rng.choice(n_frames, int(round(frac * n_frames)), replace=False):
+        for m in rng.choice(n_markers, rng.integers(1, 4), replace=False):
+            direction = rng.normal(size=3)
+            out[t, m] += direction / np.linalg.norm(direction) * rng.uniform(50.0, 500.0) * scale
+            truth[t, m] = True
+    return out, truth
+
+
+def precision_recall(rejected: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    tp = (rejected & truth).sum()
+    return tp / max(rejected.sum(), 1), tp / truth.sum()
+
+
+def test_clean_capture_loses_nothing(cmu):
+    result = reject_outliers(cmu.positions, units=cmu.units)
+    assert not result.rejected.any()
+    np.testing.assert_array_equal(result.positions, cmu.positions)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3, 4])
+def test_detects_the_papers_corruption(cmu, seed):
+    corrupted, truth = corrupt(cmu.positions, seed)
+    result = reject_outliers(corrupted, units=cmu.units)
+    precision, recall = precision_recall(result.rejected, truth)
+    assert precision >= 0.95 and recall >= 0.95, (precision, recall)
+    # rejected samples become NaN, every other sample is untouched
+    assert np.isnan(result.positions[result.rejected]).all()
+    keep = ~result.rejected
+    np.testing.assert_array_equal(result.positions[keep], corrupted[keep])
+
+
+def test_clean_reference_with_labels_in_another_order(cmu):
+    corrupted, truth = corrupt(cmu.positions, 7)
+    order = np.random.default_rng(0).permutation(cmu.n_markers)
+    reference = cmu.positions[:, order]
+    reference_labels = [cmu.labels[k].split(":")[-1] for k in order]  # no subject prefix: matched by name
+    result = reject_outliers(corrupted, reference=reference, labels=cmu.labels, reference_labels=reference_labels)
+    precision, recall = precision_recall(result.rejected, truth)
+    assert precision >= 0.95 and recall >= 0.95, (precision, recall)
+    with pytest.raises(MocapfillError, match="reference has 40 markers"):
+        reject_outliers(corrupted, reference=reference[:, 1:])
+
+
+def test_units_scale_only_the_margin_floor(cmu):
+    corrupted, _ = corrupt(cmu.positions[:300], 3)
+    in_mm = reject_outliers(corrupted, units="mm").rejected
+    in_m = reject_outliers(corrupted / 1000.0, units="m").rejected
+    np.testing.assert_array_equal(in_mm, in_m)
+
+
+def _rigid_cloud(seed: int, n_frames: int = 200, n_markers: int = 6) -> np.ndarray:
+    """One rigid body tumbling and translating, 0.2 mm noise; (n_frames, n_markers, 3) in mm."""
+    rng = np.random.default_rng(seed)
+    body = rng.normal(0, 80, (n_markers, 3))
+    out = np.empty((n_frames, n_markers, 3))
+    for t in range(n_frames):
+        a, b = 0.05 * t, 0.03 * t
+        rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+        rx = np.array([[1, 0, 0], [0, np.cos(b), -np.sin(b)], [0, np.sin(b), np.cos(b)]])
+        out[t] = body @ (rz @ rx).T + [2.0 * t, 0, 1000]
+    return out + rng.normal(0, 0.2, out.shape)
+
+
+def test_the_thrown_marker_goes_not_its_partners():
+    positions = _rigid_cloud(0)
+    positions[50, 2] += [0, 120, 0]
+    positions[120, 4] += [-60, 0, 30]
+    positions[120, 1] += [0, 0, 300]
+    positions[130:140, 0] = np.nan  # a real gap stays a gap and is not "rejected"
+    result = reject_outliers(positions, units="mm")
+    assert sorted(map(tuple, np.argwhere(result.rejected).tolist())) == [(50, 2), (120, 1), (120, 4)]
+
+
+def test_a_small_shift_on_a_rigid_body():
+    positions = _rigid_cloud(1, n_markers=4)
+    positions[80, 0] += [25, 0, 0]
+    result = reject_outliers(positions, units="mm")
+    assert result.rejected[80, 0] and result.rejected.sum() == 1
+
+
+def test_degenerate_inputs():
+    assert not reject_outliers(np.zeros((5, 1, 3))).rejected.any()
+    assert reject_outliers(np.zeros((0, 4, 3))).rejected.shape == (0, 4)
+    nan = np.full((20, 3, 3), np.nan)
+    assert not reject_outliers(nan).rejected.any()
+    with pytest.raises(MocapfillError, match="unknown length unit"):
+        reject_outliers(np.zeros((5, 3, 3)), units="ft")
+    with pytest.raises(MocapfillError):
+        reject_outliers(np.zeros((5, 3, 3)), delta=-1)
