@@ -27,11 +27,12 @@ import numpy as np
 from mocapfill.distances import pair_distance_stats
 positions = np.load(sys.argv[1])
 rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-t0 = time.perf_counter()
+t0, c0 = time.perf_counter(), time.process_time()
 stats = pair_distance_stats(positions)
-seconds = time.perf_counter() - t0
+seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
 rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-print(json.dumps({"seconds": seconds, "peak_rss_mb": rss / 1024, "rss_after_input_mb": rss_before / 1024,
+print(json.dumps({"seconds": seconds, "cpu_seconds": cpu, "peak_rss_mb": rss / 1024,
+                  "rss_after_input_mb": rss_before / 1024,
                   "input_mb": positions.nbytes / 2**20, "pairs": int(len(stats.pairs)),
                   "min_count": int(stats.count.min()), "max_count": int(stats.count.max())}))
 """
@@ -66,6 +67,7 @@ def main() -> None:
           f"python {platform.python_version()}, {platform.system()} {platform.release()}")
     import numpy
     print(f"numpy {numpy.__version__}")
+    load = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "positions.npy")
         numpy.save(path, synthetic(args.markers, args.frames, args.missing, args.seed))
@@ -73,7 +75,8 @@ def main() -> None:
     result = json.loads(out.stdout.strip().splitlines()[-1])
     print(f"pair_distance_stats: {args.markers} markers x {args.frames} frames ({result['pairs']} pairs, "
           f"{args.missing:.0%} missing, common frames per pair {result['min_count']}-{result['max_count']})")
-    print(f"  wall time     {result['seconds']:.1f} s")
+    print(f"  wall time     {result['seconds']:.1f} s (CPU time {result['cpu_seconds']:.1f} s; "
+          f"load average before the run {load[0]:.1f})")
     print(f"  peak RSS      {result['peak_rss_mb']:.0f} MB (input array {result['input_mb']:.0f} MB, "
           f"process before the call {result['rss_after_input_mb']:.0f} MB)")
 

@@ -165,38 +165,45 @@ def pair_distance_stats(positions: np.ndarray, pairs: np.ndarray | None = None, 
         stop = min(start + chunk, n_pairs)
         m = stop - start
         a, b, d = buf_a[:m], buf_b[:m], d2[:m]
-        d.fill(0.0)
         for c in range(3):
             # mode="clip": with the default mode="raise" NumPy buffers `out` (an extra copy); indices are checked
             np.take(coords[c], pairs[start:stop, 0], axis=0, out=a, mode="clip")
             np.take(coords[c], pairs[start:stop, 1], axis=0, out=b, mode="clip")
-            np.subtract(a, b, out=a)
-            np.multiply(a, a, out=a)
-            np.add(d, a, out=d)
+            if c == 0:
+                np.subtract(a, b, out=d)
+                np.multiply(d, d, out=d)
+            else:
+                np.subtract(a, b, out=a)
+                np.multiply(a, a, out=a)
+                np.add(d, a, out=d)
         np.sqrt(d, out=d)
         if window > 1:
             d = _running_median(d, window)
         # sorted in place; NaN sort to the end of each row, so the first `n` entries are the observed distances
+        # and `n` is where the first NaN sits (a binary search per row instead of a pass over the chunk)
         d.sort(axis=1)
-        nan = np.isnan(d)
-        n = d.shape[1] - nan.sum(axis=1)
+        n = np.array([np.searchsorted(row, np.nan) for row in d], dtype=np.intp)
         count[start:stop] = n
         ok = n > 0
         if not ok.any():
             continue
         if not ok.all():
-            d, nan, n = d[ok], nan[ok], n[ok]
+            d, n = d[ok], n[ok]
         rows = len(n)
+        width = d.shape[1]
         dmin[start:stop][ok] = d[:, 0]
         dmax[start:stop][ok] = d[np.arange(rows), n - 1]
-        # sums over observed entries only: zero the NaN tail (percentiles below read only the first n entries)
-        d[nan] = 0.0
+        # sums over observed entries only: zero the NaN tails (percentiles below read only the first n entries)
+        tails = np.flatnonzero(n < width)
+        for r in tails:
+            d[r, n[r]:] = 0.0
         mu = d.sum(axis=1) / n
         mean[start:stop][ok] = mu
         # two-pass variance for accuracy (distances are large compared with their spread)
-        dev = a[:rows, : d.shape[1]]
+        dev = a[:rows, :width]
         np.subtract(d, mu[:, None], out=dev)
-        dev[nan] = 0.0
+        for r in tails:
+            dev[r, n[r]:] = 0.0
         np.multiply(dev, dev, out=dev)
         std[start:stop][ok] = np.sqrt(dev.sum(axis=1) / n)
         if levels.size:

@@ -79,3 +79,19 @@ def test_bad_arguments(bad):
         pair_distance_stats(**kwargs)
     with pytest.raises(MocapfillError, match="not computed"):
         pair_distance_stats(np.zeros((4, 3, 3))).percentile(25)
+
+
+def test_no_percentiles_and_running_median():
+    positions = _random_positions(4, missing=0.1)
+    stats = pair_distance_stats(positions, percentiles=())
+    assert stats.percentiles.shape == (len(stats.pairs), 0) and np.isfinite(stats.std).all()
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    d = pair_distances(positions, stats.pairs)
+    med = np.median(sliding_window_view(d, 3, axis=0), axis=-1)  # NaN where the window touches a gap
+    windowed = pair_distance_stats(positions, percentiles=(0, 100), window=3)
+    np.testing.assert_array_equal(windowed.count, np.isfinite(med).sum(0))
+    np.testing.assert_allclose(windowed.max, np.nanmax(med, 0))
+    np.testing.assert_allclose(windowed.percentiles[:, 0], np.nanmin(med, 0))
+    with pytest.raises(MocapfillError, match="window"):
+        pair_distance_stats(positions, window=4)
