@@ -24,6 +24,7 @@ import numpy as np
 
 from ..errors import MethodError, MocapfillError
 from ..markers import MarkerData
+from ..report.json_report import jsonable
 from .metrics import bone_error, point_errors, score
 from .occlusions import (DEFAULT_GAPS, PROTOCOLS, Occlusion, Shift, Trial, gap_range, make_occlusions,
                          parse_length, rigid_partners)
@@ -158,7 +159,7 @@ class EvaluationResult:
             "protocol": self.protocol,
             "seed": self.seed,
             "methods": list(self.methods),
-            "settings": self.settings,
+            "settings": jsonable(self.settings),
             "metrics": list(METRICS),
             "summary": self.summary(),
             "win_rates": {m: self.win_rates(m) for m in ("rmse", "bone_error")},
@@ -166,7 +167,8 @@ class EvaluationResult:
         }
 
     def to_csv(self) -> str:
-        """One row per trial and method: the hidden markers, where, and every metric."""
+        """One row per trial and method: the hidden markers, where (first frame and length, empty when a trial hides
+        several stretches), the number of scored samples, and every metric (empty where not a number)."""
         labels = self.data.labels
         first = self.data.first_frame
         buf = io.StringIO()
@@ -179,8 +181,8 @@ class EvaluationResult:
             markers = ";".join(sorted({labels[m] for o in occ for m in o.markers}))
             if len(occ) == 1:
                 where, length = str(first + occ[0].start), str(occ[0].length)
-            else:
-                where, length = "", str(sum(o.length * len(o.markers) for o in occ))
+            else:  # several stretches (random protocol): see n_scored, and the JSON output for the details
+                where, length = "", ""
             for s in self.scores[t * n:(t + 1) * n]:
                 row = [t + 1, s.method, markers, where, length, s.n_scored]
                 row += ["" if not math.isfinite(v) else f"{v:.6g}"
