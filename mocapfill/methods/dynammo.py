@@ -7,7 +7,7 @@ Algorithm (BoLeRO paper section 3.1 and Appendix A; the authors' code as describ
    blackouts are bridged the same way).
 2. Body frame (``body_frame=True``, with >= 3 markers): as in the authors' mocap experiments, each frame is moved
    by a rigid transform into a body-fixed frame: translation = weighted centroid, rotation = weighted Kabsch fit to
-   a reference shape refined by three rounds of generalised Procrustes; observed markers have weight 1 and
+   a reference shape refined by two rounds of generalised Procrustes; observed markers have weight 1 and
    interpolated ones 1e-6 (so they only matter in blackout frames); the missing entries are then interpolated
    again, linearly in the body frame, which follows the body's turning.  The transform is fixed before EM and undone
    at the end; being rigid it keeps the noise isotropic and inter-marker distances exact.  Without it an LDS must
@@ -71,19 +71,19 @@ def interpolate_columns(X: np.ndarray, miss: np.ndarray) -> np.ndarray:
     -------
     (T, m) copy with missing entries interpolated; a column with no observation becomes 0.
     """
-    X = np.array(X, dtype=np.float64)
-    T = X.shape[0]
-    frames = np.arange(T)
-    for j in np.flatnonzero(miss.any(axis=0)):
-        ok = ~miss[:, j]
+    Xt = np.array(X, dtype=np.float64).T.copy()  # columns as contiguous rows
+    mt = np.asarray(miss, dtype=bool).T
+    frames = np.arange(Xt.shape[1])
+    for j in np.flatnonzero(mt.any(axis=1)):
+        ok = ~mt[j]
         if not ok.any():
-            X[:, j] = 0.0
+            Xt[j] = 0.0
             continue
-        X[~ok, j] = np.interp(frames[~ok], frames[ok], X[ok, j])
-    return X
+        Xt[j, ~ok] = np.interp(frames[~ok], frames[ok], Xt[j, ok])
+    return np.ascontiguousarray(Xt.T)
 
 
-def fit_body_frame(positions: np.ndarray, weights: np.ndarray, *, rounds: int = 3) -> tuple[np.ndarray, np.ndarray]:
+def fit_body_frame(positions: np.ndarray, weights: np.ndarray, *, rounds: int = 2) -> tuple[np.ndarray, np.ndarray]:
     """Per-frame rigid transforms into a body-fixed frame (weighted centroid + Kabsch rotation, Procrustes reference).
 
     Parameters
@@ -97,18 +97,25 @@ def fit_body_frame(positions: np.ndarray, weights: np.ndarray, *, rounds: int = 
     the local coordinates of a frame are ``(positions[t] - c[t]) @ R[t]``.
     """
     w = weights / weights.sum(axis=1, keepdims=True)
-    c = np.einsum("tm,tmi->ti", w, positions)
+    c = np.matmul(w[:, None, :], positions)[:, 0, :]
     Y = positions - c[:, None, :]
+    wY = (Y * w[:, :, None]).transpose(0, 2, 1)  # (T, 3, M)
+    T, M, _ = Y.shape
     ref = Y[int(np.argmax(weights.sum(axis=1)))]  # the best-observed frame starts the reference shape
     for _ in range(rounds):
-        cross = np.einsum("tm,tmi,mj->tij", w, Y, ref)  # sum_k w Y_k ref_k^T
-        U, _, Vt = np.linalg.svd(cross)
-        d = np.sign(np.linalg.det(U @ Vt))
-        d[d == 0] = 1.0
-        U[:, :, 2] *= d[:, None]  # proper rotations only
-        R = U @ Vt
-        ref = np.einsum("tmi,tij->mj", Y, R) / len(Y)
+        cross = (wY.reshape(T * 3, M) @ ref).reshape(T, 3, 3)  # sum_k w_k Y_k ref_k^T
+        R = _nearest_rotation(cross)
+        ref = np.matmul(Y, R).mean(axis=0)
     return R, c
+
+
+def _nearest_rotation(A: np.ndarray) -> np.ndarray:
+    """The proper rotation R maximising trace(R^T A[t]) per frame (Kabsch via SVD), A (T, 3, 3) -> R (T, 3, 3)."""
+    U, _, Vt = np.linalg.svd(A)
+    s = np.sign(np.linalg.det(U @ Vt))
+    s[s == 0] = 1.0
+    U[:, :, 2] *= s[:, None]  # no reflections
+    return U @ Vt
 
 
 def choose_hidden(X: np.ndarray, energy: float) -> int:
@@ -227,7 +234,7 @@ def run_dynammo(
     rot = shift = None
     if body_frame and Mk >= 3:
         rot, shift = fit_body_frame(Y.reshape(T, Mk, 3), np.where(miss_k, 1e-6, 1.0))
-        Y = np.einsum("tmi,tij->tmj", Y.reshape(T, Mk, 3) - shift[:, None, :], rot).reshape(T, m)
+        Y = np.matmul(Y.reshape(T, Mk, 3) - shift[:, None, :], rot).reshape(T, m)
         Y = interpolate_columns(Y, miss_cols)  # interpolating in the body frame follows the body's turning
     Yobs = np.where(miss_cols, np.nan, Y)
     centre = np.nanmean(Yobs, axis=0)
@@ -240,17 +247,34 @@ def run_dynammo(
         """Internal (T, m) -> data units (T, Mk, 3)."""
         out = (Z * scale + centre).reshape(T, Mk, 3)
         if rot is not None:
-            out = np.einsum("tmj,tij->tmi", out, rot) + shift[:, None, :]
+            out = np.matmul(out, rot.transpose(0, 2, 1)) + shift[:, None, :]
         return out
 
     def from_data(D: np.ndarray) -> np.ndarray:
         """Data units (T, Mk, 3) -> internal (T, m)."""
         if rot is not None:
-            D = np.einsum("tmi,tij->tmj", D - shift[:, None, :], rot)
+            D = np.matmul(D - shift[:, None, :], rot)
         return (D.reshape(T, m) - centre) / scale
+
     H = choose_hidden(X, energy) if energy is not None else int(hidden)
     params = initial_params(X, H, rng)
     log_scale = float(np.log(scale))
+    # The imputation touches only the missing entries: per marker, the frames where it is missing.  |x_t|^2 and
+    # sum |x|^2 are kept as "observed part (constant) + missing part (updated)".
+    rows = [np.flatnonzero(miss_k[:, j]) for j in range(Mk)]
+    x2_obs = np.einsum("ij,ij->i", np.where(miss_cols, 0.0, X), np.where(miss_cols, 0.0, X))
+
+    def row_norms() -> np.ndarray:
+        x2 = x2_obs.copy()
+        for j, r in enumerate(rows):
+            if len(r):
+                x2[r] += np.einsum("ij,ij->i", X[r, 3 * j:3 * j + 3], X[r, 3 * j:3 * j + 3])
+        return x2
+
+    def impute(Ez: np.ndarray, G: np.ndarray) -> None:
+        for j, r in enumerate(rows):
+            if len(r):
+                X[r, 3 * j:3 * j + 3] = Ez[r] @ G[3 * j:3 * j + 3].T
 
     objective: list[float] = []
     converged = False
@@ -258,13 +282,14 @@ def run_dynammo(
     sm = None
     for it in range(1, max_iter + 1):
         n_iter = it
-        stats, sm, nll = lds.e_step(params, X)
+        x2 = row_norms()
+        stats, sm, nll = lds.e_step(params, X, x2=x2)
         obj = nll / (T * m)  # per entry, internal scale
         objective.append(obj + log_scale)
         if progress is not None:
             progress(it, max_iter, obj + log_scale)
-        fitted = stats.Ez @ params.G.T  # (T, m) = G E[z_t]
         if project is not None and it >= project_start:
+            fitted = stats.Ez @ params.G.T  # (T, m) = G E[z_t]
             est = np.full((T, M, 3), np.nan)
             est[:, keep, :] = to_data(fitted)
             out = np.asarray(project(est, missing, params.sigma2 * scale ** 2, it), dtype=np.float64)
@@ -273,14 +298,13 @@ def run_dynammo(
             sub = np.where(miss_k[:, :, None], out[:, keep, :], est[:, keep, :])  # observed samples: unused
             X[miss_cols] = from_data(sub)[miss_cols]
         else:
-            X[miss_cols] = fitted[miss_cols]
+            impute(stats.Ez, params.G)  # missing entries <- G E[z_t]
         if it >= 2 and abs(objective[-1] - objective[-2]) <= tol * max(1.0, abs(objective[-2] - log_scale)):
             converged = True
             break
         if it == max_iter:
             break
-        params = lds.m_step(stats, X.T @ stats.Ez, float(np.einsum("ij,ij->", X, X)), m, params,
-                            isotropic=isotropic)
+        params = lds.m_step(stats, X.T @ stats.Ez, float(row_norms().sum()), m, params, isotropic=isotropic)
     if not converged:
         warnings.warn(f"DynaMMo stopped at max_iter={max_iter} before the objective changed by less than "
                       f"tol={tol:g}", ConvergenceWarning, stacklevel=2)

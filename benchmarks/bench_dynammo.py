@@ -1,0 +1,159 @@
+"""Speed and memory of the DynaMMo engine (issue 3's targets).  Run: python benchmarks/bench_dynammo.py [--quick]
+
+Prints the machine, then:
+  1. one EM iteration on 1,500 frames x 41 markers, H = 16 (target <= 10 ms), next to the straightforward dense
+     reference implementation kept in tests/test_dynammo.py (one iteration, same data);
+  2. a whole default `fill_dynammo` at 1k, 10k and 72k frames x 41 markers with 5 % missing (target at 72k:
+     <= 30 s, peak memory <= 1.5 GB; time per EM iteration should grow linearly with frames).
+Data: the real CMU capture sample_data/85_02.c3d (810 frames, 41 markers, 120 Hz) tiled forward-backward-forward...
+to the length needed (no jumps at the seams), with occlusions of one marker for 0.5-2 s at random (seeded) until
+5 % of the samples are missing.  Each size runs in a fresh subprocess so that its peak RSS (ru_maxrss) is its own.
+BLAS threads: the figures are taken with OPENBLAS_NUM_THREADS=1 (set below unless already set): the per-frame
+H x H work gains nothing from threads, and on a loaded machine OpenBLAS threads make it 10-40x slower.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+
+def make_data(n_frames: int, missing: float = 0.05, seed: int = 0):
+    """(positions, truth, mask): 85_02 tiled to n_frames, occluded until ``missing`` of the samples are gone."""
+    import numpy as np
+
+    import mocapfill
+
+    P = mocapfill.read(REPO / "sample_data" / "85_02.c3d").positions
+    reps = -(-n_frames // (2 * len(P)))
+    P = np.concatenate([P, P[::-1]] * reps)[:n_frames]
+    rng = np.random.default_rng(seed)
+    T, M = P.shape[:2]
+    mask = np.zeros((T, M), bool)
+    while mask.mean() < missing:
+        k = rng.integers(M)
+        L = int(rng.integers(60, 241))
+        s = int(rng.integers(0, max(T - L, 1)))
+        mask[s:s + L, k] = True
+    X = P.copy()
+    X[mask] = np.nan
+    return X, P, mask
+
+
+def child(n_frames: int) -> None:
+    """Run one whole default fill and print a JSON line (time, iterations, peak RSS, RMSE)."""
+    import resource
+    import warnings
+
+    import numpy as np
+
+    from mocapfill.methods.dynammo import fill_dynammo, run_dynammo
+
+    X, P, mask = make_data(n_frames)
+    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        t0 = time.perf_counter()
+        run_dynammo(X, max_iter=2, tol=0.0, uncertainty=False)
+        t2 = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        run_dynammo(X, max_iter=12, tol=0.0, uncertainty=False)
+        t12 = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        res = fill_dynammo(X)
+        total = time.perf_counter() - t0
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    err = np.sqrt(np.mean(np.sum((res.positions[mask] - P[mask]) ** 2, axis=-1)))
+    print(json.dumps({"frames": n_frames, "per_iter_ms": (t12 - t2) / 10 * 1e3, "setup_s": t2 - 2 * (t12 - t2) / 10,
+                      "fill_s": total, "n_iter": res.n_iter, "converged": res.converged, "peak_mb": peak,
+                      "baseline_mb": base, "rmse_mm": float(err), "missing": float(mask.mean())}))
+
+
+def one_iteration() -> None:
+    import warnings
+
+    import numpy as np
+
+    sys.path.insert(0, str(REPO / "tests"))
+    from test_dynammo import dense_e_step, dense_m_step
+
+    from mocapfill.methods import lds
+    from mocapfill.methods.dynammo import initial_params, interpolate_columns
+
+    X3, _, mask = make_data(1500)
+    T, M, _ = X3.shape
+    miss = np.repeat(mask, 3, axis=1)
+    X = interpolate_columns(X3.reshape(T, -1), miss)
+    X = (X - X.mean(0)) / X.std()
+    p = initial_params(X, 16, np.random.default_rng(0))
+    m = X.shape[1]
+
+    def fast():
+        stats, sm, nll = lds.e_step(p, X)
+        fitted = stats.Ez @ p.G.T
+        Xn = np.where(miss, fitted, X)
+        return lds.m_step(stats, Xn.T @ stats.Ez, float((Xn ** 2).sum()), m, p)
+
+    fast()
+    reps = 30
+    t0 = time.perf_counter()
+    for _ in range(reps):
+        fast()
+    t_fast = (time.perf_counter() - t0) / reps
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        t0 = time.perf_counter()
+        mh, Ezz, Ez1z0, Vh, _ = dense_e_step(p, X)
+        dense_m_step(p, X, mh, Ezz, Ez1z0, Vh)
+        t_dense = time.perf_counter() - t0
+    print(f"one EM iteration, 1500 frames x {M} markers, H=16: fast {t_fast * 1e3:.2f} ms "
+          f"(target <= 10 ms); dense reference {t_dense * 1e3:.0f} ms; ratio {t_dense / t_fast:.0f}x")
+
+
+def main() -> None:
+    if len(sys.argv) > 2 and sys.argv[1] == "--child":
+        child(int(sys.argv[2]))
+        return
+    import numpy as np
+    import scipy
+
+    quick = "--quick" in sys.argv
+    cpu = platform.processor() or ""
+    try:
+        cpu = next(line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    print(f"machine: {cpu}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} "
+          f"(1 min), Python {platform.python_version()}, NumPy {np.__version__}, SciPy {scipy.__version__}, "
+          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}")
+    one_iteration()
+    sizes = [1000, 10000] if quick else [1000, 10000, 72000]
+    rows = []
+    for n in sizes:
+        out = subprocess.run([sys.executable, __file__, "--child", str(n)], capture_output=True, text=True,
+                             env=os.environ.copy(), check=True)
+        row = json.loads(out.stdout.strip().splitlines()[-1])
+        rows.append(row)
+        print(f"{n:>6} frames: EM iteration {row['per_iter_ms']:7.1f} ms "
+              f"({row['per_iter_ms'] / n * 1e3:.2f} us/frame), default fill {row['fill_s']:6.2f} s "
+              f"({row['n_iter']} iterations, converged={row['converged']}), peak RSS {row['peak_mb']:.0f} MB "
+              f"(interpreter + data before the fill {row['baseline_mb']:.0f} MB), RMSE {row['rmse_mm']:.1f} mm "
+              f"on {row['missing'] * 100:.1f} % missing", flush=True)
+    if len(rows) >= 2:
+        a, b = rows[0], rows[-1]
+        print(f"per-iteration time ratio {b['frames']}/{a['frames']} frames: "
+              f"{b['per_iter_ms'] / a['per_iter_ms']:.1f}x for {b['frames'] / a['frames']:.0f}x the frames")
+    print(f"targets: 1 iteration <= 10 ms (1.5k frames); 72k fill <= 30 s and <= 1536 MB")
+
+
+if __name__ == "__main__":
+    main()
