@@ -86,7 +86,7 @@ def _fill(data, leave=()):
             est[~ok, m] = np.nan
     std = np.full(pos.shape[:2], 2.0)
     return finish(pos, est, std=std, n_iter=3, converged=False, objective=[10.0, 5.0, float("nan")],
-                  info={"gap_methods": [{"marker": "M1", "start": 20, "length": 15, "method": "dynammo"},
+                  info={"gap_methods": [{"marker": "M1", "start": 20, "length": 15, "method": "dynammo", "reason": "long gap"},
                                         {"marker": 2, "first_frame": 60, "method": "pca"}],
                         "hidden": 16})
 
@@ -124,7 +124,8 @@ def test_json_report_validates_and_holds_the_facts(case, tmp_path):
     by_marker = {g["marker"]: g for g in doc["gaps"]}
     assert by_marker["M1"]["first_frame"] == 30 and by_marker["M1"]["length"] == 15  # file numbering
     assert by_marker["M1"]["method"] == "dynammo" and by_marker["M2"]["method"] == "pca"
-    assert by_marker["M1"]["mean_std"] == 2.0
+    assert by_marker["M1"]["mean_std"] == 2.0 and by_marker["M1"]["reason"] == "long gap"
+    assert by_marker["M2"]["reason"] is None
     assert by_marker["M3"]["status"] == "unfilled" and by_marker["M3"]["at_start"]
     assert by_marker["M4"]["rejected_samples"] == 2
     assert doc["unfilled"] == [{"marker": "M3", "first_frame": 10, "length": 5}]

@@ -210,7 +210,11 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
             if has_std:
                 row += [_num(g["mean_std"], 3), _num(g["max_std"], 3)]
             if has_method:
-                row += [_e(g["method"] or "\u2013")]
+                # The reason (when the method gives one) is a tooltip: a sentence per row would drown the table.
+                cell = _e(g["method"] or "\u2013")
+                if g.get("reason"):
+                    cell = f'<span title="{_e(g["reason"])}">{cell}</span>'
+                row += [cell]
             rows.append(row)
         numeric = {1, 2, 3, 4} | ({6, 7} if has_std else set())
         if len(gaps) > OPEN_TABLE_ROWS:

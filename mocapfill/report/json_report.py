@@ -62,12 +62,14 @@ def report_json(report: dict[str, Any]) -> str:
     return json.dumps(jsonable(report), indent=2, allow_nan=False) + "\n"
 
 
-def _gap_method_records(info: dict[str, Any], labels: list[str], first_frame: int) -> list[tuple[int, int, int, str]]:
-    """Per-gap method records from ``info["gap_methods"]`` as (marker index, start index, length, method).
+def _gap_method_records(info: dict[str, Any], labels: list[str], first_frame: int
+                        ) -> list[tuple[int, int, int, str, str | None]]:
+    """Per-gap method records from ``info["gap_methods"]`` as (marker index, start index, length, method, reason).
 
     Accepted record layout (what the ``auto`` method writes): a list of dicts with ``marker`` (index or label),
-    ``start`` (0-based frame index) or ``first_frame`` (file numbering), optional ``length`` (default 1) and
-    ``method`` (str).  Malformed records are skipped: the report is informative, never a reason to fail a fill.
+    ``start`` (0-based frame index) or ``first_frame`` (file numbering), optional ``length`` (default 1),
+    ``method`` (str) and optional ``reason`` (str).  Malformed records are skipped: the report is informative, never
+    a reason to fail a fill.
     """
     out = []
     records = info.get("gap_methods") if isinstance(info, dict) else None
@@ -92,7 +94,8 @@ def _gap_method_records(info: dict[str, Any], labels: list[str], first_frame: in
             length = max(1, int(rec.get("length", 1)))
         except (TypeError, ValueError):
             continue
-        out.append((marker, start, length, str(rec["method"])))
+        reason = rec.get("reason")
+        out.append((marker, start, length, str(rec["method"]), None if reason is None else str(reason)))
     return out
 
 
@@ -185,8 +188,10 @@ def build_fill_report(data, result, *, method: str, settings: dict[str, Any] | N
             vals = vals[np.isfinite(vals)]
             if vals.size:
                 mean_std, max_std = float(vals.mean()), float(vals.max())
-        names = sorted({m for (mk, s, ln, m) in gap_methods
-                        if mk == gap.marker and s < gap.stop and s + ln > gap.start})
+        hits = [(m, why) for (mk, s, ln, m, why) in gap_methods
+                if mk == gap.marker and s < gap.stop and s + ln > gap.start]
+        names = sorted({m for m, _ in hits})
+        reasons = list(dict.fromkeys(why for _, why in hits if why))
         gaps.append({
             "marker": labels[gap.marker],
             "first_frame": first + gap.start,
@@ -201,6 +206,7 @@ def build_fill_report(data, result, *, method: str, settings: dict[str, Any] | N
             "mean_std": mean_std,
             "max_std": max_std,
             "method": "+".join(names) if names else None,
+            "reason": "; ".join(reasons) if reasons else None,
         })
 
     unfilled_runs = [
