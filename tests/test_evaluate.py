@@ -317,3 +317,12 @@ def test_outlier_rejection_with_the_clean_reference_catches_shifts(clip):
     assert cleaned.summary()["linear"]["rmse"]["mean"] < plain.summary()["linear"]["rmse"]["mean"]
     with pytest.raises(MocapfillError, match="reject_outliers must be"):
         evaluate(clip, ["linear"], "random", trials=1, seed=4, reject_outliers="sometimes")
+
+
+def test_markers_never_observed_are_not_picked(clip):
+    pos = clip.positions.copy()
+    pos[:, 1:] = np.nan  # only marker 0 is ever observed
+    trials = make_occlusions(clip.with_positions(pos), "marker", trials=5, seed=0, gap_min=5, gap_max=10)
+    assert all(t.occlusions[0].markers == (0,) for t in trials)
+    with pytest.raises(MocapfillError, match="nothing to hide"):
+        make_occlusions(clip.with_positions(np.full_like(pos, np.nan)), "marker", trials=1, seed=0)

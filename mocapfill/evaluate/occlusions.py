@@ -216,13 +216,17 @@ def make_occlusions(data, protocol: str = "marker", *, trials: int = 10, seed: i
     if n_markers < 1:
         raise MocapfillError("the clip has no markers")
     lo, hi = gap_range(protocol, n_frames, data.rate, gap_min, gap_max)
+    # Markers never observed have nothing to hide: trials pick among the others.
+    seen = np.flatnonzero(~np.isnan(data.positions).any(axis=2).all(axis=0))
+    if not seen.size:
+        raise MocapfillError("every marker is missing in every frame: nothing to hide")
     rngs = _trial_rngs(seed, trials)
     out: list[Trial] = []
     if protocol == "marker":
         for rng in rngs:
             length = int(rng.integers(lo, hi + 1))
-            out.append(Trial((Occlusion((int(rng.integers(n_markers)),), _interior_start(rng, n_frames, length),
-                                        length),)))
+            out.append(Trial((Occlusion((int(seen[rng.integers(seen.size)]),),
+                                        _interior_start(rng, n_frames, length), length),)))
     elif protocol == "blackout":
         everyone = tuple(range(n_markers))
         for rng in rngs:
@@ -236,7 +240,7 @@ def make_occlusions(data, protocol: str = "marker", *, trials: int = 10, seed: i
             raise MocapfillError(f"limb_size {size} is more than the clip's {n_markers} markers")
         partners = rigid_partners(data.positions, k=min(n_markers - 1, 2 * size))
         for rng in rngs:
-            chain = [int(rng.integers(n_markers))]
+            chain = [int(seen[rng.integers(seen.size)])]
             while len(chain) < size:
                 # Walk from the last marker to one of its two most rigid partners not already chosen; fall back to
                 # any partner of the chain so far, so the walk cannot get stuck.
