@@ -118,18 +118,15 @@ def _greedy(strain: np.ndarray, weight: np.ndarray, pairs: np.ndarray, n_markers
     violated = strain > 1.0
     active = np.flatnonzero(violated.any(axis=1))
     a, b = pairs[:, 0], pairs[:, 1]
-    # incidence (P, n_markers): per-marker sums are then matrix products
-    incidence = np.zeros((len(pairs), n_markers))
-    incidence[np.arange(len(pairs)), a] = 1.0
-    incidence[np.arange(len(pairs)), b] = 1.0
+    by_marker = _PerMarkerSum(pairs, n_markers)
     while active.size:
         va, oa = violated[active], observed[active]
-        counts = va.astype(np.float64) @ incidence  # (F', n_markers) violated pairs per marker
+        counts = by_marker(va.astype(np.float64))  # (F', n_markers) violated pairs per marker
         # tie-break: the weighted mean strain over all the marker's observed pairs.  Two markers whose only violated
         # pair is the one they share tie on the count; the one displaced also strains its other pairs.
         w = np.where(oa, weight[None, :], 0.0)
         with np.errstate(invalid="ignore", divide="ignore"):
-            mean_strain = ((w * strain[active]) @ incidence) / (w @ incidence)
+            mean_strain = by_marker(w * strain[active]) / by_marker(w)
         mean_strain = np.nan_to_num(mean_strain, nan=0.0)
         # lexicographic (count, mean strain): mean_strain / (1 + mean_strain) < 1 keeps the order of counts
         worst = np.argmax(counts + mean_strain / (1.0 + mean_strain), axis=1)
@@ -142,6 +139,25 @@ def _greedy(strain: np.ndarray, weight: np.ndarray, pairs: np.ndarray, n_markers
         observed[active] = oa
         active = active[va.any(axis=1)]
     return removed
+
+
+class _PerMarkerSum:
+    """Sums over the pairs touching each marker: ``(F, P) -> (F, n_markers)`` in O(F P), not a dense (P, M) product."""
+
+    def __init__(self, pairs: np.ndarray, n_markers: int) -> None:
+        ends = np.concatenate([pairs[:, 0], pairs[:, 1]])
+        order = np.argsort(ends, kind="stable")
+        self.columns = order % len(pairs)  # the pair behind each end, grouped by marker
+        sorted_ends = ends[order]
+        self.starts = np.flatnonzero(np.r_[True, sorted_ends[1:] != sorted_ends[:-1]])
+        self.markers = sorted_ends[self.starts]
+        self.n_markers = n_markers
+
+    def __call__(self, values: np.ndarray) -> np.ndarray:
+        out = np.zeros((values.shape[0], self.n_markers))
+        if values.shape[0]:
+            out[:, self.markers] = np.add.reduceat(values[:, self.columns], self.starts, axis=1)
+        return out
 
 
 def _apply(positions: np.ndarray, pairs: np.ndarray, dmin: np.ndarray, dmax: np.ndarray, *, delta: float,
@@ -197,7 +213,7 @@ def reject_outliers(positions: np.ndarray, *, reference: np.ndarray | None = Non
                     units: str = "mm", percentile: float = 0.0, robust_delta: float = 0.5,
                     min_margin: float | None = None, min_frames: int | None = None,
                     labels: Sequence[str] | None = None, reference_labels: Sequence[str] | None = None,
-                    chunk_bytes: int = 64 * 2**20, window: int = 3, two_stage: bool = True) -> OutlierResult:
+                    reference_units: str | None = None, chunk_bytes: int = 64 * 2**20, window: int = 3, two_stage: bool = True) -> OutlierResult:
     """Remove markers that break the inter-marker distance ranges (Holden's rule; see the module docstring).
 
     Parameters
@@ -205,7 +221,8 @@ def reject_outliers(positions: np.ndarray, *, reference: np.ndarray | None = Non
     positions : ndarray, shape (n_frames, n_markers, 3)
         NaN = missing.
     reference : ndarray, shape (n_ref_frames, n_ref_markers, 3), optional
-        A clean capture of the same marker set (exact min / max are used).  Default: the file itself (two stages).
+        A clean capture of the same marker set, in ``units`` unless ``reference_units`` says otherwise (exact min /
+        max are used).  Default: the file itself (two stages).
     delta : float
         Margin as a fraction of each pair's range (Holden: 0.1).
     units : str
@@ -227,6 +244,8 @@ def reject_outliers(positions: np.ndarray, *, reference: np.ndarray | None = Non
     labels, reference_labels : sequence of str, optional
         When both are given the reference's markers are matched to the data's by label (exact, else without a
         ``Subject:`` prefix); markers absent from the reference are unconstrained.
+    reference_units : str, optional
+        Units of ``reference`` when they differ from ``units``: it is converted (mm / cm / m).
     chunk_bytes : int
         Working-memory budget of one chunk of frames x pairs.
 
@@ -251,6 +270,8 @@ def reject_outliers(positions: np.ndarray, *, reference: np.ndarray | None = Non
         return OutlierResult(positions.copy(), np.zeros((n_frames, n_markers), dtype=bool))
     if reference is not None:
         ref = _align(reference, labels, reference_labels, n_markers)
+        if reference_units is not None and reference_units != units:
+            ref = ref * unit_scale(reference_units, units)
         mf = default_min_frames(ref.shape[0]) if min_frames is None else min_frames
         pairs, dmin, dmax = _ranges(ref, 0.0, mf)
     else:

@@ -60,6 +60,9 @@ def test_clean_reference_with_labels_in_another_order(cmu):
     result = reject_outliers(corrupted, reference=reference, labels=cmu.labels, reference_labels=reference_labels)
     precision, recall = precision_recall(result.rejected, truth)
     assert precision >= 0.95 and recall >= 0.95, (precision, recall)
+    in_m = reject_outliers(corrupted, reference=reference / 1000.0, reference_units="m", labels=cmu.labels,
+                           reference_labels=reference_labels)
+    np.testing.assert_array_equal(in_m.rejected, result.rejected)
     with pytest.raises(MocapfillError, match="reference has 40 markers"):
         reject_outliers(corrupted, reference=reference[:, 1:])
 
