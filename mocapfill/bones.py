@@ -19,14 +19,19 @@ For every pair observed together in at least ``min_frames`` frames:
   to head).
 
 Then every marker with fewer than ``min_partners`` bones gets its lowest-score remaining pairs, as long as their
-score stays <= ``relax`` (default 1.5, i.e. thresholds loosened by half): a marker is held by something where the
-data allows it, but never by a pair that visibly stretches (a thigh marker has only the knee as a rigid partner;
-pelvis pairs cross the hip and stay out).
+score stays <= ``relax`` (default 1.25, i.e. thresholds loosened by a quarter): a marker is held by something
+where the data allows it, but never by a pair that visibly stretches (a thigh marker has only the knee as a rigid
+partner; pelvis pairs cross the hip and stay out).
 
-Defaults (set on the CMU 41-marker clip 85_02 and checked on the tennis serve, the sprint TRC and a Vicon upper-body
-trial): ``max_rel_spread`` 0.04, ``max_abs_spread`` 6 mm (converted to the data's units), ``min_frames``
-``max(10, min(100, n_frames // 2))``.  Rigid same-segment pairs there have robust spreads of 1-6 mm and relative
-spreads of 0.4-4 %; cross-joint pairs of 6-60 mm or 5-15 %.
+Defaults (set on the CMU 41-marker clip 85_02 and checked on the tennis serve (metres), a Vicon upper-body trial,
+an OptiTrack lower-leg cluster walk and a wheelchair-basketball clip with 39 % missing): ``max_rel_spread`` 0.04,
+``max_abs_spread`` 6 mm (converted to the data's units), ``min_partners`` 3, ``relax`` 1.25, ``min_frames``
+``max(10, min(100, n_frames // 2))``.  On 85_02, same-segment pairs have robust spreads of 0.9-2.4 mm (head,
+wrist, LTHI-LKNE, RKNE-RSHN, LBWT-RBWT) up to 5-7 mm (pelvis, shank, RTHI-RKNE) and relative spreads of 0.4-3.6 %;
+pairs across a joint have 5-10 % relative (RSHO-RUPA 5.2 %, LWRB-LFIN 6.2 %) or, when long, 9-25 mm absolute at
+2-3 % relative (pelvis-head, knee-heel, pelvis-knee), which is why both thresholds are needed.  With relax 1.5 the
+fallback let in RSHO-RUPA, RELB-RFIN and RSHN-RHEE; with 1.25 it does not.  Result on 85_02: 51 bones, every marker
+held except LFIN (the left hand's only marker; its pairs stretch 5-10 %).
 
 JSON format (:func:`save_bones` / :func:`load_bones`), meant to be edited by hand::
 
