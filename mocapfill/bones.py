@@ -309,13 +309,16 @@ def _label_index(labels: Sequence[str]):
     for k, label in enumerate(labels):
         short.setdefault(label.rsplit(":", 1)[-1], []).append(k)
 
-    def find(name: str) -> int | None:
+    def find(name: str) -> int | list[int] | None:
+        """The index of ``name``; a list of candidates when only ambiguous prefix-free matches exist; else None."""
         if name in exact:
             return exact[name]
         # "Male:RKNE" in the file and "RKNE" (or "Derrick:RKNE") in the data: match on the name without its
         # subject prefix when that is unambiguous
         hits = short.get(str(name).rsplit(":", 1)[-1], [])
-        return hits[0] if len(hits) == 1 else None
+        if len(hits) == 1:
+            return hits[0]
+        return hits or None
 
     return find
 
@@ -400,6 +403,9 @@ def load_bones(path, labels: Sequence[str], *, units: str | None = None) -> Bone
             if k is None:
                 raise FormatError(f"{path}: {where}: unknown marker {name!r} (not among the data's "
                                   f"{len(labels)} labels)")
+            if isinstance(k, list):
+                raise FormatError(f"{path}: {where}: ambiguous marker {name!r} (matches "
+                                  f"{', '.join(labels[i] for i in k)}); write the full label")
             ends.append(k)
         if ends[0] == ends[1]:
             raise FormatError(f"{path}: {where} joins marker {labels[ends[0]]!r} to itself")

@@ -212,6 +212,13 @@ def test_hand_edited_file_and_prefix_matching(tmp_path):
     assert bones.pairs.tolist() == [[0, 3]] and bones.lengths.tolist() == [80.0] and bones.n_frames[0] == 0
 
 
+def test_ambiguous_short_label(tmp_path):
+    path = tmp_path / "b.json"
+    path.write_text(json.dumps({"units": "mm", "bones": [{"a": "RKNE", "b": "X:A", "length": 8}]}))
+    with pytest.raises(FormatError, match="ambiguous marker 'RKNE'.*X:RKNE, Y:RKNE"):
+        load_bones(path, ["X:RKNE", "Y:RKNE", "X:A"])
+
+
 def test_csv_round_trip(tmp_path):
     path = tmp_path / "bones.csv"
     save_bones(_bones(), path, labels=LABELS)
