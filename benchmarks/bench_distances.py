@@ -3,6 +3,7 @@
 Usage::
 
     python benchmarks/bench_distances.py [--markers 200] [--frames 72000] [--missing 0.05]
+    python benchmarks/bench_distances.py --outliers 20     # also: outlier-rejection precision / recall, 20 seeds
 
 Each measurement runs in a fresh subprocess, so the peak resident set size (``ru_maxrss`` of the child) is that of
 one call (including the input array itself and the interpreter, about 30 MB), not of this driver.  The synthetic
@@ -62,6 +63,8 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=72_000)
     parser.add_argument("--missing", type=float, default=0.05, help="fraction of samples missing (default 0.05)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--outliers", type=int, default=0, metavar="SEEDS",
+                        help="also score reject_outliers on the sample captures with SEEDS corruption seeds")
     args = parser.parse_args()
     print(f"machine: {platform.machine()} {platform.processor() or ''} {os.cpu_count()} cpus, "
           f"python {platform.python_version()}, {platform.system()} {platform.release()}")
@@ -79,6 +82,48 @@ def main() -> None:
           f"load average before the run {load[0]:.1f})")
     print(f"  peak RSS      {result['peak_rss_mb']:.0f} MB (input array {result['input_mb']:.0f} MB, "
           f"process before the call {result['rss_after_input_mb']:.0f} MB)")
+    if args.outliers:
+        outlier_trials(args.outliers)
+
+
+def outlier_trials(n_seeds: int) -> None:
+    """Holden's corruption (3 % of frames, 1-3 markers thrown 5-50 cm) on the complete sample captures."""
+    import time
+    from pathlib import Path
+
+    import numpy as np
+
+    import mocapfill
+    from mocapfill.bones import unit_scale
+    from mocapfill.outliers import reject_outliers
+
+    root = Path(__file__).resolve().parents[1] / "sample_data"
+    print(f"reject_outliers (self-reference, defaults), {n_seeds} seeds; 3 % of frames, 1-3 markers thrown 5-50 cm")
+    for name in ("85_02.c3d", "kinematics_tennis_serve.c3d"):
+        data = mocapfill.read(root / name)
+        scale = unit_scale("mm", data.units)
+        clean = reject_outliers(data.positions, units=data.units).rejected.sum()
+        precision, recall, seconds = [], [], []
+        for seed in range(n_seeds):
+            rng = np.random.default_rng(seed)
+            corrupted = data.positions.copy()
+            truth = np.zeros(data.missing.shape, dtype=bool)
+            for t in rng.choice(data.n_frames, int(round(0.03 * data.n_frames)), replace=False):
+                for m in rng.choice(data.n_markers, rng.integers(1, 4), replace=False):
+                    direction = rng.normal(size=3)
+                    corrupted[t, m] += direction / np.linalg.norm(direction) * rng.uniform(50, 500) * scale
+                    truth[t, m] = True
+            t0 = time.perf_counter()
+            rejected = reject_outliers(corrupted, units=data.units).rejected
+            seconds.append(time.perf_counter() - t0)
+            tp = (rejected & truth).sum()
+            precision.append(tp / max(rejected.sum(), 1))
+            recall.append(tp / truth.sum())
+        p, r = np.array(precision), np.array(recall)
+        print(f"  {name}: {data.n_frames} frames x {data.n_markers} markers; uncorrupted file: {clean} samples "
+              f"rejected; precision min {p.min():.3f} median {np.median(p):.3f}; recall min {r.min():.3f} median "
+              f"{np.median(r):.3f}; seeds with both >= 0.95: {int(((p >= 0.95) & (r >= 0.95)).sum())}/{n_seeds}; "
+              f"{np.median(seconds):.2f} s per call")
 
 
 if __name__ == "__main__":
