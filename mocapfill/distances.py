@@ -61,7 +61,7 @@ def all_pairs(n_markers: int) -> np.ndarray:
 
 
 def pair_index(pairs: np.ndarray, n_markers: int) -> np.ndarray:
-    """A (n_markers, n_markers) int matrix giving the row of ``pairs`` (shape (P, 2)) for (i, j) and (j, i); -1 if absent."""
+    """The row of ``pairs`` (P, 2) for (i, j) and (j, i), as a (n_markers, n_markers) int matrix; -1 if absent."""
     index = np.full((n_markers, n_markers), -1, dtype=np.intp)
     rows = np.arange(len(pairs))
     index[pairs[:, 0], pairs[:, 1]] = rows

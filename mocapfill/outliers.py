@@ -216,8 +216,8 @@ def reject_outliers(positions: np.ndarray, *, reference: np.ndarray | None = Non
                     units: str = "mm", percentile: float = 0.0, robust_delta: float = 0.5,
                     min_margin: float | None = None, min_frames: int | None = None,
                     labels: Sequence[str] | None = None, reference_labels: Sequence[str] | None = None,
-                    reference_units: str | None = None, chunk_bytes: int = 64 * 2**20, window: int = 3, two_stage: bool = True,
-                    stage1_passes: int = 3) -> OutlierResult:
+                    reference_units: str | None = None, chunk_bytes: int = 64 * 2**20, window: int = 3,
+                    two_stage: bool = True, stage1_passes: int = 3) -> OutlierResult:
     """Remove markers that break the inter-marker distance ranges (Holden's rule; see the module docstring).
 
     Parameters
