@@ -10,8 +10,8 @@ from scipy.interpolate import CubicSpline
 
 from mocapfill.errors import ConvergenceWarning
 from mocapfill.methods import lds
-from mocapfill.methods.dynammo import (fill_dynammo, fit_body_frame, initial_params, interpolate_columns,
-                                       run_dynammo)
+from mocapfill.methods.dynammo import (bridge_residuals, choose_hidden, fill_dynammo, fit_body_frame, initial_params,
+                                       interpolate_columns, run_dynammo)
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -258,9 +258,57 @@ def test_beats_spline_on_real_capture(sample_data):
         s = int(rng.integers(1, T - L - 1))
         X = P.copy()
         X[s:s + L, k] = np.nan
-        res = run_quiet(X)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            res = fill_dynammo(X)
         ok = np.arange(T)[~np.isnan(X[:, k, 0])]
         spline = CubicSpline(ok, X[ok, k])(np.arange(s, s + L))
         rmse = lambda E: np.sqrt(np.mean(np.sum((E - P[s:s + L, k]) ** 2, axis=-1)))
         ratios.append(rmse(res.positions[s:s + L, k]) / rmse(spline))
     assert np.median(ratios) < 1.0, ratios
+
+
+def test_bridge_residuals_blends_the_neighbouring_residuals():
+    T, H = 10, 2
+    G = np.arange(6 * H, dtype=float).reshape(6, H) / 10
+    Ez = np.zeros((T, H))
+    X = np.zeros((T, 6))
+    X[:, 0:3] = 1.0  # marker 0: residual 1 everywhere it is observed
+    X[:, 3:6] = -2.0
+    missing = np.zeros((T, 2), bool)
+    missing[3:6, 0] = True  # inside: both neighbours have residual 1
+    missing[7:, 1] = True  # at the end: held
+    X[missing[:, 0], 0:3] = 0.0
+    X[missing[:, 1], 3:6] = 0.0
+    X[4, 0:3] = 0.0
+    bridge_residuals(X, Ez, G, missing)
+    np.testing.assert_allclose(X[3:6, 0:3], 1.0)
+    np.testing.assert_allclose(X[7:, 3:6], -2.0)
+    # unequal residuals: a straight line between them
+    X2 = np.zeros((5, 3))
+    X2[0], X2[4] = 0.0, 4.0
+    miss = np.array([[False], [True], [True], [True], [False]])
+    X2[1:4] = 0.0
+    bridge_residuals(X2, np.zeros((5, 1)), np.zeros((3, 1)), miss)
+    np.testing.assert_allclose(X2[1:4, 0], [1.0, 2.0, 3.0])
+
+
+def test_fill_dynammo_joins_the_observed_trajectory():
+    P, _ = lds_markers(T=300, M=6, H=3, seed=9)
+    X = P.copy()
+    X[100:160, 2] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        res = fill_dynammo(X, hidden=3)
+    step_in = np.abs(res.positions[100, 2] - res.positions[99, 2]).max()
+    typical = np.abs(np.diff(P[:, 2], axis=0)).max()
+    assert step_in <= 2 * typical
+
+
+def test_energy_chooses_the_hidden_dimension():
+    rng = np.random.default_rng(0)
+    X = rng.standard_normal((200, 3)) @ rng.standard_normal((3, 12)) + 1e-3 * rng.standard_normal((200, 12))
+    assert choose_hidden(X, 0.999) == 3
+    P, _ = lds_markers(T=100, M=4, H=3, seed=10)
+    res = run_quiet(with_gaps(P), energy=0.99, max_iter=5)
+    assert 1 <= res.info["hidden"] <= 12

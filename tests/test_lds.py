@@ -102,11 +102,12 @@ def test_steady_state_is_used_on_long_sequences():
     np.testing.assert_allclose(sm_short.mean, mean, atol=1e-9)
 
 
-def test_linear_recurrence_matches_loop():
+@pytest.mark.parametrize("rho, n, nonnormal", [(0.97, 500, 0.0), (0.999, 3000, 0.0), (0.9, 700, 3.0), (0.5, 1, 0.0)])
+def test_linear_recurrence_matches_loop(rho, n, nonnormal):
     rng = np.random.default_rng(5)
-    H, n = 6, 500
-    A = rng.standard_normal((H, H))
-    A *= 0.97 / np.max(np.abs(np.linalg.eigvals(A)))
+    H = 6
+    A = rng.standard_normal((H, H)) + nonnormal * np.triu(rng.standard_normal((H, H)), 1)
+    A *= rho / np.max(np.abs(np.linalg.eigvals(A)))
     U = rng.standard_normal((n, H))
     z0 = rng.standard_normal(H)
     Z = lds.linear_recurrence(A, U, z0)

@@ -47,13 +47,14 @@ from typing import Callable
 import numpy as np
 
 from ..errors import ConvergenceWarning, MethodError
+from ..gaps import runs
 from . import lds
 from .base import FillResult, ProgressFn, check_positions, finish
 
 #: Defaults chosen by measurement (benchmarks/bench_dynammo.py, see benchmarks/README.md).
 DEFAULT_HIDDEN = 16
 DEFAULT_MAX_ITER = 200
-DEFAULT_TOL = 1e-5
+DEFAULT_TOL = 1e-4
 
 #: ``project(estimate, missing, sigma2, iteration) -> ndarray`` (see :func:`run_dynammo`).
 ProjectFn = Callable[[np.ndarray, np.ndarray, float, int], np.ndarray]
@@ -118,6 +119,33 @@ def _nearest_rotation(A: np.ndarray) -> np.ndarray:
     return U @ Vt
 
 
+def bridge_residuals(X: np.ndarray, Ez: np.ndarray, G: np.ndarray, missing: np.ndarray) -> None:
+    """Add the model residual at each gap's observed neighbours to the gap, blended linearly (in place).
+
+    Parameters
+    ----------
+    X : (T, 3 M) completed data, modified in place at the missing entries.
+    Ez : (T, H) smoothed means; G : (3 M, H); missing : (T, M) bool.
+
+    For a gap of marker k over frames [a, b) the residual ``r = x - G_k E[z]`` at frames a - 1 and b (where they
+    exist) is added with weights (b - t) / (b - a + 1) and (t - a + 1) / (b - a + 1); a gap touching the first or
+    last frame gets its one neighbour's residual held.  A marker missing throughout is left alone.
+    """
+    T = X.shape[0]
+    for j in range(missing.shape[1]):
+        cols = slice(3 * j, 3 * j + 3)
+        for a, length in runs(missing[:, j]):
+            b = a + length
+            left = X[a - 1, cols] - G[cols] @ Ez[a - 1] if a > 0 else None
+            right = X[b, cols] - G[cols] @ Ez[b] if b < T else None
+            if left is None and right is None:
+                continue
+            left = right if left is None else left
+            right = left if right is None else right
+            w = (np.arange(a, b) - a + 1.0)[:, None] / (length + 1.0)
+            X[a:b, cols] += (1.0 - w) * left + w * right
+
+
 def choose_hidden(X: np.ndarray, energy: float) -> int:
     """Smallest number of principal components of X (T, m) whose share of the total variance reaches ``energy``."""
     if not 0 < energy <= 1:
@@ -176,6 +204,7 @@ def run_dynammo(
     isotropic: bool = True,
     uncertainty: bool = True,
     body_frame: bool = True,
+    bridge: bool = False,
 ) -> FillResult:
     """The DynaMMo EM engine (reused by BoLeRO through ``project``).
 
@@ -200,6 +229,11 @@ def run_dynammo(
         Isotropic Gamma and Lambda (the authors' default); ``sigma2`` is always isotropic.
     body_frame : bool
         Model the data in a per-frame body-fixed frame (see the module docstring); needs >= 3 modelled markers.
+    bridge : bool
+        After EM, add to each filled gap the model's residual ``x - G E[z]`` at the observed frames on either side
+        of the gap, blended linearly across it (held at a capture edge), so the fill joins the observed
+        trajectory without a jump (:func:`bridge_residuals`).  ``fill_dynammo`` turns it on; off by default here so
+        that a ``project`` result is returned as projected.
     uncertainty : bool
         Compute ``std`` (one extra covariance pass); False gives ``std=None``.
 
@@ -236,12 +270,18 @@ def run_dynammo(
         rot, shift = fit_body_frame(Y.reshape(T, Mk, 3), np.where(miss_k, 1e-6, 1.0))
         Y = np.matmul(Y.reshape(T, Mk, 3) - shift[:, None, :], rot).reshape(T, m)
         Y = interpolate_columns(Y, miss_cols)  # interpolating in the body frame follows the body's turning
-    Yobs = np.where(miss_cols, np.nan, Y)
-    centre = np.nanmean(Yobs, axis=0)
-    scale = float(np.sqrt(np.nanmean((Yobs - centre) ** 2)))
+    # Mean and RMS over observed entries only, without (T, m) temporaries: totals minus the missing entries.
+    mi, mj = np.nonzero(miss_cols)
+    n_obs = T - np.bincount(mj, minlength=m)
+    centre = (Y.sum(axis=0) - np.bincount(mj, weights=Y[mi, mj], minlength=m)) / n_obs
+    X = Y
+    X -= centre
+    ss = float(np.einsum("ij,ij->", X, X)) - float(np.sum(X[mi, mj] ** 2))
+    scale = float(np.sqrt(max(ss, 0.0) / n_obs.sum()))
     if not np.isfinite(scale) or scale <= 0:
         scale = 1.0
-    X = (Y - centre) / scale
+    X /= scale
+    del Y
 
     def to_data(Z: np.ndarray) -> np.ndarray:
         """Internal (T, m) -> data units (T, Mk, 3)."""
@@ -262,7 +302,7 @@ def run_dynammo(
     # The imputation touches only the missing entries: per marker, the frames where it is missing.  |x_t|^2 and
     # sum |x|^2 are kept as "observed part (constant) + missing part (updated)".
     rows = [np.flatnonzero(miss_k[:, j]) for j in range(Mk)]
-    x2_obs = np.einsum("ij,ij->i", np.where(miss_cols, 0.0, X), np.where(miss_cols, 0.0, X))
+    x2_obs = np.einsum("ij,ij->i", X, X) - np.bincount(mi, weights=X[mi, mj] ** 2, minlength=T)
 
     def row_norms() -> np.ndarray:
         x2 = x2_obs.copy()
@@ -305,6 +345,8 @@ def run_dynammo(
         if it == max_iter:
             break
         params = lds.m_step(stats, X.T @ stats.Ez, float(row_norms().sum()), m, params, isotropic=isotropic)
+    if bridge:
+        bridge_residuals(X, stats.Ez, params.G, miss_k)
     if not converged:
         warnings.warn(f"DynaMMo stopped at max_iter={max_iter} before the objective changed by less than "
                       f"tol={tol:g}", ConvergenceWarning, stacklevel=2)
@@ -338,4 +380,4 @@ def fill_dynammo(
     in the data's units.
     """
     return run_dynammo(positions, hidden=hidden, max_iter=max_iter, tol=tol, seed=seed, progress=progress,
-                       energy=energy)
+                       energy=energy, bridge=True)
