@@ -222,5 +222,9 @@ def _running_median(d: np.ndarray, window: int) -> np.ndarray:
     """Running median along axis 1 of ``d`` (m, n) over ``window`` frames: (m, n - window + 1); NaN if any is NaN."""
     from numpy.lib.stride_tricks import sliding_window_view
 
-    # np.median propagates NaN, so a window touching a gap yields NaN and is skipped by the caller
+    # NaN propagates (np.median, np.minimum, np.maximum), so a window touching a gap is NaN and skipped by the caller
+    if window == 3:
+        # median of three by min / max: several times faster than partitioning a windowed copy
+        x, y, z = d[:, :-2], d[:, 1:-1], d[:, 2:]
+        return np.maximum(np.minimum(x, y), np.minimum(np.maximum(x, y), z))
     return np.median(sliding_window_view(d, window, axis=1), axis=2)

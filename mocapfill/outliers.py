@@ -103,9 +103,24 @@ def pair_strain(positions: np.ndarray, pairs: np.ndarray, dmin: np.ndarray, dmax
     """
     span = dmax - dmin
     half = 0.5 * span + np.maximum(delta * span, min_margin)
-    diff = positions[:, pairs[:, 0], :] - positions[:, pairs[:, 1], :]
-    d = np.sqrt(np.einsum("tpc,tpc->tp", diff, diff))
-    return np.abs(d - 0.5 * (dmin + dmax)) / half
+    a, b = pairs[:, 0], pairs[:, 1]
+    # one coordinate at a time from a contiguous (n_frames, n_markers) copy: column gathers and in-place
+    # arithmetic on (n_frames, P), instead of a (n_frames, P, 3) gather with stride 3
+    d = None
+    for c in range(3):
+        x = np.ascontiguousarray(positions[:, :, c])
+        diff = np.take(x, a, axis=1)
+        diff -= np.take(x, b, axis=1)
+        diff *= diff
+        if d is None:
+            d = diff
+        else:
+            d += diff
+    np.sqrt(d, out=d)
+    d -= 0.5 * (dmin + dmax)
+    np.abs(d, out=d)
+    d /= half
+    return d
 
 
 def _greedy(strain: np.ndarray, weight: np.ndarray, pairs: np.ndarray, n_markers: int) -> np.ndarray:
