@@ -1,0 +1,148 @@
+"""One conformance test for every registered fill method (``mocapfill.methods.METHODS``).
+
+Every method must: return the input's shapes; give observed samples back bit-identical; fill every missing sample
+of a marker observed at least once (gaps inside the clip, gaps at both edges, and whole-body blackout frames); leave
+a marker missing in every frame missing; cope with a single frame; be deterministic under a seed; report a
+``filled`` mask consistent with the NaNs; and give a non-negative ``std`` of the right shape when it has one.
+
+Blackouts: every registered method is required to fill them (issue 3 names dynammo, bilinear and spline; linear
+and msvd bridge them by interpolation, and the others build on these).  A method that cannot would be listed in
+``BLACKOUT_EXEMPT`` with the reason; it is empty.
+
+Iterative methods run with a small iteration cap (``max_iter``) so the whole file takes seconds; the conformance
+properties do not depend on convergence.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+import mocapfill
+from mocapfill.methods import METHODS
+
+#: Methods allowed to leave whole-body blackout frames unfilled (name -> reason).  None today.
+BLACKOUT_EXEMPT: dict[str, str] = {}
+
+FAST = {"max_iter": 15}
+
+
+def _options(name: str) -> dict:
+    accepted = METHODS[name].parameters()
+    return {k: v for k, v in FAST.items() if k in accepted}
+
+
+def _fill(positions: np.ndarray, name: str, *, seed=0, rate=60.0, units="mm", labels=None):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return mocapfill.fill(positions, name, seed=seed, rate=rate, units=units, labels=labels, **_options(name))
+
+
+def synthetic(n_frames: int = 90, n_markers: int = 8, seed: int = 3) -> np.ndarray:
+    """A rigid marker cloud walking and turning, in mm: shape (n_frames, n_markers, 3), complete."""
+    rng = np.random.default_rng(seed)
+    body = rng.normal(scale=150.0, size=(n_markers, 3))
+    t = np.arange(n_frames) / 60.0
+    angle = 0.8 * np.sin(2 * np.pi * 0.5 * t)
+    rot = np.zeros((n_frames, 3, 3))
+    rot[:, 0, 0] = rot[:, 1, 1] = np.cos(angle)
+    rot[:, 0, 1], rot[:, 1, 0] = -np.sin(angle), np.sin(angle)
+    rot[:, 2, 2] = 1.0
+    root = np.stack([800 * t, 100 * np.sin(2 * np.pi * 0.7 * t), 900 + 30 * np.sin(2 * np.pi * 1.3 * t)], axis=1)
+    return np.einsum("fij,mj->fmi", rot, body) + root[:, None, :]
+
+
+def with_gaps(truth: np.ndarray) -> np.ndarray:
+    """Interior gap, gaps touching both edges, a short blackout, and one marker missing throughout."""
+    pos = truth.copy()
+    pos[20:35, 1] = np.nan  # interior
+    pos[:6, 2] = np.nan  # at the start
+    pos[-7:, 3] = np.nan  # at the end
+    pos[50:53] = np.nan  # whole-body blackout
+    pos[:, 5] = np.nan  # never observed
+    return pos
+
+
+@pytest.fixture(scope="module")
+def real_clip(sample_data):
+    """200 frames of the tennis serve (metres, 50 Hz) with two gaps, one touching the end.
+
+    Blackouts are exercised on the synthetic clip: on this real clip a 3-frame blackout made bolero-hc take over a
+    minute (reported to its owner), too slow for a conformance test.
+    """
+    data = mocapfill.read(sample_data / "kinematics_tennis_serve.c3d")
+    truth = data.positions[300:500].copy()
+    pos = truth.copy()
+    pos[40:80, 4] = np.nan
+    pos[150:200, 20] = np.nan
+    return pos, data.rate, data.units, list(data.labels)
+
+
+def check_contract(original: np.ndarray, result, name: str) -> None:
+    """Shapes, bit-identical observed samples, filled mask, std, fills every fillable sample."""
+    n_frames, n_markers, _ = original.shape
+    assert result.positions.shape == original.shape
+    assert result.positions.dtype == np.float64
+    assert result.filled.shape == (n_frames, n_markers) and result.filled.dtype == bool
+    missing = np.isnan(original).any(axis=2)
+    observed = ~missing
+    # Bit-identical, not merely close.
+    assert np.array_equal(result.positions[observed].view(np.uint64), original[observed].view(np.uint64))
+    out_missing = np.isnan(result.positions).any(axis=2)
+    assert not np.isinf(result.positions).any()
+    assert np.array_equal(result.filled, missing & ~out_missing)
+    # Partly filled samples are not allowed: all three coordinates or none.
+    assert np.array_equal(np.isnan(result.positions).all(axis=2), out_missing)
+    never = missing.all(axis=0)
+    assert out_missing[:, never].all(), f"{name} invented a marker that is never observed"
+    fillable = missing & ~never[None, :]
+    if name in BLACKOUT_EXEMPT:
+        fillable &= ~missing.all(axis=1)[:, None]
+    assert not out_missing[fillable].any(), f"{name} left {int(out_missing[fillable].sum())} fillable samples"
+    if result.std is not None:
+        assert result.std.shape == (n_frames, n_markers)
+        finite = np.isfinite(result.std)
+        assert (result.std[finite] >= 0).all()
+        assert (result.std[observed] == 0).all()
+
+
+@pytest.mark.parametrize("name", list(METHODS))
+def test_synthetic_gaps(name):
+    original = with_gaps(synthetic())
+    check_contract(original, _fill(original, name), name)
+
+
+@pytest.mark.parametrize("name", list(METHODS))
+def test_real_clip(name, real_clip):
+    original, rate, units, labels = real_clip
+    result = _fill(original, name, rate=rate, units=units, labels=labels)
+    check_contract(original, result, name)
+
+
+@pytest.mark.parametrize("name", list(METHODS))
+def test_one_frame(name):
+    original = synthetic(n_frames=1)
+    original[0, 2] = np.nan
+    result = _fill(original, name)
+    check_contract(original, result, name)
+    assert np.isnan(result.positions[0, 2]).all()  # a single frame gives nothing to fill a marker from
+
+
+@pytest.mark.parametrize("name", list(METHODS))
+def test_nothing_missing(name):
+    original = synthetic(n_frames=30)
+    result = _fill(original, name)
+    check_contract(original, result, name)
+    assert not result.filled.any()
+
+
+@pytest.mark.parametrize("name", list(METHODS))
+def test_deterministic_under_seed(name):
+    original = with_gaps(synthetic())
+    first = _fill(original, name, seed=7)
+    second = _fill(original, name, seed=7)
+    assert np.array_equal(first.positions, second.positions, equal_nan=True)
+    if first.std is not None:
+        assert np.array_equal(first.std, second.std, equal_nan=True)
