@@ -97,14 +97,14 @@ def fit_body_frame(positions: np.ndarray, weights: np.ndarray, *, rounds: int = 
     R : (T, 3, 3) rotations and c : (T, 3) translations with ``positions[t, k] ~= R[t] @ local[k] + c[t]``;
     the local coordinates of a frame are ``(positions[t] - c[t]) @ R[t]``.
     """
+    T = positions.shape[0]
     w = weights / weights.sum(axis=1, keepdims=True)
     c = np.matmul(w[:, None, :], positions)[:, 0, :]
     Y = positions - c[:, None, :]
-    wY = (Y * w[:, :, None]).transpose(0, 2, 1)  # (T, 3, M)
-    T, M, _ = Y.shape
+    wY = np.ascontiguousarray((Y * w[:, :, None]).transpose(0, 2, 1)).reshape(T * 3, -1)  # rows (t, axis)
     ref = Y[int(np.argmax(weights.sum(axis=1)))]  # the best-observed frame starts the reference shape
     for _ in range(rounds):
-        cross = (wY.reshape(T * 3, M) @ ref).reshape(T, 3, 3)  # sum_k w_k Y_k ref_k^T
+        cross = (wY @ ref).reshape(T, 3, 3)  # sum_k w_k Y_k ref_k^T
         R = _nearest_rotation(cross)
         ref = np.matmul(Y, R).mean(axis=0)
     return R, c
@@ -265,9 +265,10 @@ def run_dynammo(
     miss_k = missing[:, keep]
     miss_cols = np.repeat(miss_k, 3, axis=1)
     Y = interpolate_columns(positions[:, keep, :].reshape(T, m), miss_cols)
-    rot = shift = None
+    rot = rot_t = shift = None
     if body_frame and Mk >= 3:
         rot, shift = fit_body_frame(Y.reshape(T, Mk, 3), np.where(miss_k, 1e-6, 1.0))
+        rot_t = np.ascontiguousarray(rot.transpose(0, 2, 1))  # batched matmul is slow on strided batches
         Y = np.matmul(Y.reshape(T, Mk, 3) - shift[:, None, :], rot).reshape(T, m)
         Y = interpolate_columns(Y, miss_cols)  # interpolating in the body frame follows the body's turning
     # Mean and RMS over observed entries only, without (T, m) temporaries: totals minus the missing entries.
@@ -287,7 +288,7 @@ def run_dynammo(
         """Internal (T, m) -> data units (T, Mk, 3)."""
         out = (Z * scale + centre).reshape(T, Mk, 3)
         if rot is not None:
-            out = np.matmul(out, rot.transpose(0, 2, 1)) + shift[:, None, :]
+            out = np.matmul(out, rot_t) + shift[:, None, :]
         return out
 
     def from_data(D: np.ndarray) -> np.ndarray:

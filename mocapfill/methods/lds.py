@@ -88,9 +88,6 @@ class PiecewiseCov(NamedTuple):
             return self.tail[t - (self.T - len(self.tail))]
         return self.mid
 
-    def is_mid(self, t: int) -> bool:
-        return len(self.head) <= t < self.T - len(self.tail)
-
     def total(self) -> np.ndarray:
         """Sum over all T indices, (H, H)."""
         out = self.head.sum(axis=0) + self.tail.sum(axis=0)
@@ -353,7 +350,7 @@ def rts_smoother(params: LDSParams, filt: FilterResult, *, rtol: float = STEADY_
     mean = np.empty((T, H))
     if T:
         mean[T - 1] = mu[T - 1]
-    lo = max(k, 0)
+    lo = k
     if lo < T - 1:  # steady segment t = lo..T-2, run backward in time
         Wt = mu[lo:T - 1] - pred[lo + 1:T] @ J_inf.T
         rev = linear_recurrence(J_inf, Wt[::-1], mu[T - 1])
