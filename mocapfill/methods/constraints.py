@@ -16,8 +16,8 @@ gradient ``(x_u - x_v) / L_b`` is dimensionless.
   KKT system from the restored point, backtracking on the KKT residual, and keeps the result only if it is feasible
   and nearer to ``e`` than the restored point.
 - :func:`solve_soft`: ``min |y - e|^2 + w sum_b r_b^2`` (BoLeRO-SC with lambda_b = w / (4 sigma^2 L_b^2), see
-  :mod:`mocapfill.methods.bolero`).  Newton with the negative-curvature part of the Hessian dropped (always positive
-  definite) and an Armijo line search.
+  :mod:`mocapfill.methods.bolero`).  Newton with the exact Hessian, shifted where it is not positive definite, and
+  an Armijo line search; warm-started from the previous EM iteration's solution.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ class SolveStats:
     Violations are mean absolute bone-length errors ``| |x_u - x_v| - L_b |`` in data units over the active
     (bone, frame) pairs, before (at the estimate) and after the solve; ``max_rel_after`` is the largest relative
     error after.  ``iterations`` is the largest iteration count of any frame group (phase 1 + phase 2 for the hard
-    solver).
+    solver).  ``infeasible`` lists the frames (indices into the input) whose bones could not all hold.
     """
 
     n_frames: int = 0
@@ -49,6 +49,7 @@ class SolveStats:
     violation_after: float = 0.0
     max_rel_after: float = 0.0
     n_infeasible: int = 0
+    infeasible: list = field(default_factory=list)
     _sum_before: float = field(default=0.0, repr=False)
     _sum_after: float = field(default=0.0, repr=False)
 
@@ -134,6 +135,17 @@ class _Group:
         return (c[:, :, None, :, None] * np.eye(3)[None, None, :, None, :]).reshape(n, 3 * k, 3 * k)
 
 
+def frame_groups(positions: np.ndarray, missing: np.ndarray, pairs: np.ndarray, lengths: np.ndarray,
+                 frames: np.ndarray | None = None) -> list:
+    """The per-pattern systems of a solve, to pass as ``groups=`` when the same gaps are solved repeatedly.
+
+    ``positions`` (n_frames, n_markers, 3) and ``missing`` (n_frames, n_markers) as for :func:`solve_hard`; the
+    observed partners are copied, so later solves reuse them.  Returns an opaque list.
+    """
+    positions, missing, pairs, lengths = _prepare(positions, positions, missing, pairs, lengths)[1:]
+    return list(_groups(missing, pairs, lengths, positions, frames))
+
+
 def _groups(missing: np.ndarray, pairs: np.ndarray, lengths: np.ndarray, observed: np.ndarray,
             frames: np.ndarray | None = None) -> Iterator[_Group]:
     """Yield one :class:`_Group` per distinct missing pattern that has at least one active bone."""
@@ -176,8 +188,9 @@ def _prepare(estimate, positions, missing, pairs, lengths):
     lengths = np.asarray(lengths, dtype=np.float64).ravel()
     if estimate.shape != positions.shape or missing.shape != positions.shape[:2]:
         raise ValueError("estimate, positions and missing must agree: (n_frames, n_markers, 3) and (n_frames, n_markers)")
-    keep = np.isfinite(lengths) & (lengths > 0)
-    return estimate, positions, missing, pairs[keep], lengths[keep]
+    if not (np.isfinite(lengths) & (lengths > 0)).all():
+        raise ValueError("bone lengths must be finite and positive")
+    return estimate, positions, missing, pairs, lengths
 
 
 # ----------------------------------------------------------------------------------------------- hard constraints
@@ -277,6 +290,7 @@ def solve_hard(
     lengths: np.ndarray,
     *,
     frames: np.ndarray | None = None,
+    groups: list | None = None,
     max_iter: int = 50,
     tol: float = 1e-12,
 ) -> tuple[np.ndarray, SolveStats]:
@@ -293,6 +307,8 @@ def solve_hard(
         The bones; a bone is active in a frame when one of its markers is missing there.
     frames : ndarray of int, optional
         Restrict the solve to these frames (default: every frame with a missing marker).
+    groups : list, optional
+        :func:`frame_groups` of the same positions, missing mask and bones (saves regrouping on repeated solves).
     max_iter : int
         Cap for each phase (restoration, then Newton on the KKT system).
     tol : float
@@ -310,7 +326,7 @@ def solve_hard(
     estimate, positions, missing, pairs, lengths = _prepare(estimate, positions, missing, pairs, lengths)
     out = np.where(missing[:, :, None], estimate, positions)
     stats = SolveStats()
-    for group in _groups(missing, pairs, lengths, positions, frames):
+    for group in (groups if groups is not None else _groups(missing, pairs, lengths, positions, frames)):
         target = estimate[np.ix_(group.frames, group.var, np.arange(3))]
         if not np.isfinite(target).all():
             continue
@@ -343,6 +359,7 @@ def solve_hard(
             y = y1.copy()
             y[sub[good]] = y2[good]
         stats.n_infeasible += int((~feasible).sum())
+        stats.infeasible.extend(int(f) for f in group.frames[~feasible])
         out[np.ix_(group.frames, group.var, np.arange(3))] = y
         stats.add(before, _bone_error(group, y), group.lengths, iters)
     return out, stats
@@ -365,10 +382,12 @@ def solve_soft(
     pairs: np.ndarray,
     lengths: np.ndarray,
     *,
-    weight: float,
+    weight,
     frames: np.ndarray | None = None,
+    groups: list | None = None,
+    start: np.ndarray | None = None,
     max_iter: int = 30,
-    tol: float = 1e-10,
+    tol: float = 1e-6,
 ) -> tuple[np.ndarray, SolveStats]:
     """Minimise |y - e|^2 + weight * sum_b r_b(y)^2 over each frame's missing coordinates.
 
@@ -382,10 +401,15 @@ def solve_soft(
         Target (e.g. G E[z_t]) and data (observed samples are the bones' fixed partners).
     missing : ndarray of bool, shape (n_frames, n_markers)
     pairs : ndarray of int, shape (B, 2); lengths : ndarray, shape (B,)
-    weight : float
-        Dimensionless penalty weight w >= 0 (0 returns the estimate).
+    weight : float or ndarray, shape (B,)
+        Dimensionless penalty weight w >= 0, or one per bone (all 0 returns the estimate).
     frames : ndarray of int, optional
         Restrict the solve to these frames.
+    groups : list, optional
+        :func:`frame_groups` of the same positions, missing mask and bones.
+    start : ndarray, shape (n_frames, n_markers, 3), optional
+        First iterate at the missing samples (e.g. the previous EM iteration's solution, which is usually one or two
+        Newton steps from the new one); default, and wherever ``start`` is not finite: the estimate.
     max_iter : int
         Newton iterations per frame group.
     tol : float
@@ -401,24 +425,34 @@ def solve_soft(
     estimate, positions, missing, pairs, lengths = _prepare(estimate, positions, missing, pairs, lengths)
     out = np.where(missing[:, :, None], estimate, positions)
     stats = SolveStats()
-    if weight <= 0:
+    weight = np.asarray(weight, dtype=np.float64)
+    if weight.ndim and weight.shape != lengths.shape:
+        raise ValueError(f"weight must be a scalar or one per bone {lengths.shape}, got {weight.shape}")
+    if not (weight > 0).any():
         return out, stats
-    for group in _groups(missing, pairs, lengths, positions, frames):
+    for group in (groups if groups is not None else _groups(missing, pairs, lengths, positions, frames)):
         target = estimate[np.ix_(group.frames, group.var, np.arange(3))]
         if not np.isfinite(target).all():
             continue
-        y, it = _soft_newton(group, target, weight, max_iter=max_iter, tol=tol)
+        y0 = target
+        if start is not None:
+            y0 = np.asarray(start, dtype=np.float64)[np.ix_(group.frames, group.var, np.arange(3))]
+            y0 = np.where(np.isfinite(y0), y0, target)
+        y, it = _soft_newton(group, target, weight, start=y0, max_iter=max_iter, tol=tol)
         out[np.ix_(group.frames, group.var, np.arange(3))] = y
         stats.add(_bone_error(group, target), _bone_error(group, y), group.lengths, it)
     return out, stats
 
 
-def _soft_newton(group: _Group, target: np.ndarray, weight: float, *, max_iter: int, tol: float,
+def _soft_newton(group: _Group, target: np.ndarray, weight, *, max_iter: int, tol: float,
                  start: np.ndarray | None = None) -> tuple[np.ndarray, int]:
-    """Newton with the Hessian's compressed-bone (negative-curvature) terms dropped, plus Armijo backtracking.
+    """Newton (Hessian shifted to positive definite where needed) with Armijo backtracking, per frame.
 
-    ``target`` (n, k, 3) is the estimate, ``start`` (n, k, 3) the first iterate (default: the estimate).
+    ``target`` (n, k, 3) is the estimate, ``start`` (n, k, 3) the first iterate (default: the estimate),
+    ``weight`` a scalar or one weight per bone of the whole set, shape (B,) (``group.bones`` indexes it).
     """
+    wb = np.asarray(weight, dtype=np.float64)[group.bones] if np.ndim(weight) else \
+        np.full(group.bones.size, float(weight))
     n, k3 = target.shape[0], 3 * group.k
     eye = np.eye(k3)
     scale = float(group.lengths.min())
@@ -427,21 +461,37 @@ def _soft_newton(group: _Group, target: np.ndarray, weight: float, *, max_iter: 
     def objective(y_):
         d_ = group.diffs(y_)
         r_ = group.residual(d_)
-        return d_, r_, ((y_ - target) ** 2).sum(axis=(1, 2)) + weight * (r_ * r_).sum(axis=1)
+        return d_, r_, ((y_ - target) ** 2).sum(axis=(1, 2)) + (wb * r_ * r_).sum(axis=1)
 
     d, r, f = objective(y)
     active = np.ones(n, dtype=bool)
     it = 0
     for it in range(1, max_iter + 1):
         jac = group.jacobian(d)
-        grad = (y - target).reshape(n, k3) + weight * np.einsum("nbp,nb->np", jac, r)
-        # Gauss-Newton part plus the positive (stretched-bone) second-order terms: positive definite by design.
-        hess = eye + weight * (np.einsum("nbp,nbq->npq", jac, jac) + group.curvature(np.maximum(r, 0.0)))
+        grad = (y - target).reshape(n, k3) + np.einsum("nbp,nb->np", jac, wb * r)
+        # The exact Hessian; compressed bones (r < 0) add negative curvature, so where it is not safely positive
+        # definite it is shifted by a multiple of the identity (dropping those terms instead converges only
+        # linearly).  The identity block of the likelihood term sets the scale: eigenvalues >= 0.1.
+        hess = eye + np.einsum("nbp,b,nbq->npq", jac, wb, jac) + group.curvature(wb * r)
+        # S_b^T S_b has eigenvalues 0 and 2, so lambda_min >= 1 + 2 w sum_{r_b < 0} r_b / L_b: only frames where
+        # that bound is below 0.1 need the eigenvalues.
+        bound = 1.0 + 2.0 * (wb * np.minimum(r, 0.0) / group.lengths).sum(axis=1)
+        check = np.flatnonzero(bound < 0.1)
+        if check.size:
+            try:  # usually the Gauss-Newton part dominates: one batched Cholesky proves lambda_min > 0.1
+                np.linalg.cholesky(hess[check] - 0.1 * eye)
+            except np.linalg.LinAlgError:
+                low = np.linalg.eigvalsh(hess[check])[:, 0]
+                hess[check] += np.maximum(0.1 - low, 0.0)[:, None, None] * eye
         step = _solve(hess, -grad)
         slope = (grad * step).sum(axis=1)
         alpha = np.ones(n)
+        # A frame whose full step is below tolerance has converged: take the step and stop it (Armijo cannot
+        # tell such steps apart from rounding).
+        tiny = np.abs(step).max(axis=1) <= tol * scale
+        y_next = np.where(tiny[:, None, None], y + step.reshape(y.shape), y)
+        active &= ~tiny
         accepted = ~active
-        y_next = y.copy()
         for _ in range(30):
             y_try = y + alpha[:, None, None] * step.reshape(y.shape)
             _, _, f_try = objective(y_try)
@@ -451,10 +501,9 @@ def _soft_newton(group: _Group, target: np.ndarray, weight: float, *, max_iter: 
             if accepted.all():
                 break
             alpha = np.where(accepted, alpha, alpha * 0.5)
-        moved = np.linalg.norm(alpha[:, None] * step, axis=1)
+        active &= accepted  # a frame whose line search found no decrease is at a (numerical) minimum
         y = y_next
         d, r, f = objective(y)
-        active &= moved > tol * scale
         if not active.any():
             break
     return y, it

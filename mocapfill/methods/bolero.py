@@ -1,0 +1,310 @@
+"""BoLeRO: DynaMMo with bone-length constraints (Li, McCann, Pollard & Faloutsos 2010).
+
+Both variants run the DynaMMo EM engine (:func:`mocapfill.methods.dynammo.run_dynammo`) and, after each E-step from
+iteration ``project_start`` on, replace the imputation of every frame with a missing marker by the solution of a
+per-frame problem around the model's estimate e_t = G E[z_t] (:mod:`mocapfill.methods.constraints`):
+
+- **BoLeRO-HC** (hard): the missing coordinates nearest e_t (the observation noise is isotropic, so its metric is
+  the Euclidean one) with |x_u - x_v| = L for every bone touching a missing marker; where the bones cannot all hold,
+  the least-squares point of the bone residuals.
+- **BoLeRO-SC** (soft): the paper's per-frame objective |x - e_t|^2 / sigma^2 + lambda * sum_b (|x_u - x_v|^2 -
+  L_b^2)^2 with a per-bone weight ``lambda_b = w / (4 sigma^2 L_b^2)``.  Then the objective is
+  ``(1/sigma^2) [ |x - e_t|^2 + w sum_b r_b^2 ]`` with r_b = (|d|^2 - L^2) / (2L) ~ |d| - L: a bone's length error
+  costs w times as much as the same displacement of a marker from the model.  This makes ``w`` dimensionless and
+  independent of the units (sigma and L scale together), of sigma^2 (which cancels from the minimiser) and of the
+  number of markers (the penalty is per bone and per frame, like the likelihood term is per marker and per frame).
+  The paper's fixed lambda = 10^6 (in metres) instead depends on units, on the noise level EM happens to reach and
+  on each bone's length.
+
+Bones come from ``bones`` (a :class:`mocapfill.bones.BoneSet`) or, when None, from
+:func:`mocapfill.bones.estimate_bones` on the observed samples of the same input.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import numpy as np
+
+from ..errors import MethodError
+from .base import FillResult, ProgressFn, check_positions, finish
+from .constraints import SolveStats, bone_errors, frame_groups, solve_hard, solve_soft
+from .dynammo import DEFAULT_HIDDEN, DEFAULT_MAX_ITER, DEFAULT_TOL, bridge_residuals, run_dynammo
+
+#: Default dimensionless penalty weight w of BoLeRO-SC (chosen on 85_02 and the tennis serve: benchmarks/bench_bolero.py).
+DEFAULT_PENALTY = 100.0
+
+#: Newton steps per EM iteration once BoLeRO-SC's per-frame solve is warm-started from the previous solution.
+WARM_NEWTON_STEPS = 2
+
+#: How BoLeRO-SC weighs bones against each other (see :func:`bone_weights`).
+BONE_WEIGHTINGS = ("spread", "none")
+DEFAULT_BONE_WEIGHTING = "spread"
+
+#: First EM iteration whose imputation is constrained (measured: benchmarks/bench_bolero.py --sweep-start).
+PROJECT_START_SC = 2
+PROJECT_START_HC = 2
+
+
+def _resolve_bones(positions: np.ndarray, bones: Any, units: str, labels: list[str] | None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """(pairs (B, 2) int, lengths (B,), spreads (B,) (NaN = unknown), source) from a BoneSet or estimated."""
+    source = "given"
+    if bones is None:
+        from ..bones import estimate_bones
+
+        # estimate_bones reads only observed samples (NaN = missing), so hidden data never leaks into the bones.
+        bones = estimate_bones(positions, units=units, labels=labels)
+        source = "estimated from the observed samples"
+    elif getattr(bones, "units", None) not in (None, units) and hasattr(bones, "to_units"):
+        bones = bones.to_units(units)  # lengths in the file's units, converted explicitly
+    pairs = np.asarray(bones.pairs, dtype=np.intp).reshape(-1, 2)
+    lengths = np.asarray(bones.lengths, dtype=np.float64).ravel()
+    if pairs.shape[0] != lengths.shape[0]:
+        raise MethodError(f"bones: {pairs.shape[0]} pairs but {lengths.shape[0]} lengths")
+    n_markers = positions.shape[1]
+    if pairs.size and (pairs.min() < 0 or pairs.max() >= n_markers):
+        raise MethodError(f"bones: marker index out of range 0..{n_markers - 1}")
+    if (pairs[:, 0] == pairs[:, 1]).any():
+        raise MethodError("bones: a bone joins a marker to itself")
+    spread = np.asarray(getattr(bones, "spread", np.full(lengths.shape, np.nan)), dtype=np.float64).ravel()
+    if spread.shape != lengths.shape:
+        spread = np.full(lengths.shape, np.nan)
+    keep = np.isfinite(lengths) & (lengths > 0)
+    return pairs[keep], lengths[keep], spread[keep], source
+
+
+def _run(positions, solver: Callable[..., tuple[np.ndarray, SolveStats]], *, variant: str, bones, units, labels,
+         hidden, max_iter, tol, seed, progress, project_start, extra_info) -> FillResult:
+    positions = check_positions(positions)
+    if int(project_start) < 1:
+        raise MethodError(f"project_start must be >= 1, got {project_start}")
+    pairs, lengths, spread, source = _resolve_bones(positions, bones, units, labels)
+    missing = np.isnan(positions).any(axis=2)
+    record: dict[str, Any] = {"calls": 0, "iterations": 0, "last": None}
+
+    def project(estimate: np.ndarray, missing_now: np.ndarray, sigma2: float, iteration: int) -> np.ndarray:
+        # ``missing_now`` is the engine's mask (the input's gaps); the data's observed samples are the bones'
+        # fixed partners, so they are taken from ``positions``, not from the model's estimate.
+        out, stats = solver(estimate, positions, missing_now, pairs, lengths, spread)
+        record["calls"] += 1
+        record["iterations"] += stats.iterations
+        record["last"] = stats
+        record["estimate"] = estimate
+        return out
+
+    use = project if pairs.shape[0] and missing.any() else None
+    # Same engine settings as fill_dynammo, except that the gap-end residual bridge is applied here, to the model's
+    # estimate *before* the last constraint solve, so that the output still meets its bones.
+    result = run_dynammo(positions, hidden=hidden, max_iter=max_iter, tol=tol, seed=seed, progress=progress,
+                         project=use, project_start=int(project_start), bridge=use is None)
+    if use is not None and "estimate" in record:
+        estimate = _bridged(record["estimate"], positions, missing)
+        out, stats = solver(estimate, positions, missing, pairs, lengths, spread, final=True)
+        record["iterations"] += stats.iterations
+        record["last"] = stats
+        polished = finish(positions, np.where(missing[:, :, None], out, positions), std=result.std,
+                          n_iter=result.n_iter, converged=result.converged, objective=result.objective,
+                          info=result.info)
+        result = polished
+    info = dict(result.info)
+    info.update(extra_info)
+    info["variant"] = variant
+    info["bones"] = int(pairs.shape[0])
+    info["bones_source"] = source
+    info["project_start"] = int(project_start)
+    info["constraint_solves"] = record["calls"]
+    info["solver_iterations"] = record["iterations"]
+    last = record["last"]
+    if last is not None:
+        info["last_solve"] = last.as_dict()
+    info.update(_violations(result.positions, missing, pairs, lengths))
+    if last is not None and variant == "hard":
+        # Exactness where the bones can all hold: the frames the last solve did not report as infeasible.
+        feasible = missing.copy()
+        feasible[np.asarray(last.infeasible, dtype=np.intp)] = False
+        info["infeasible_frames"] = int(last.n_infeasible)
+        info["bone_error_max_rel_feasible"] = _violations(result.positions, feasible, pairs, lengths)[
+            "bone_error_max_rel"]
+    result.info = info
+    return result
+
+
+def bone_weights(penalty: float, lengths: np.ndarray, spread: np.ndarray, mode: str) -> np.ndarray:
+    """Per-bone weights w_b of BoLeRO-SC, shape (B,), from the penalty w and the bones' spreads (B,).
+
+    ``"none"``: w for every bone.  ``"spread"``: ``w * (s_ref / s_b)^2`` with s_b a bone's spread (robust standard
+    deviation of its length in the observed frames) and s_ref the median spread of the set, the ratio clipped to
+    [1/100, 100]: the Gaussian bone-length model, in which a bone whose length varies more weighs less.  Bones of
+    unknown spread (hand-written) get s_ref.  Dimensionless, so independent of units and of the marker count.
+    """
+    weight = np.full(lengths.shape, float(penalty))
+    if mode == "none" or not lengths.size:
+        return weight
+    spread = np.asarray(spread, dtype=np.float64)
+    known = np.isfinite(spread) & (spread > 0)
+    if not known.any():
+        return weight
+    ref = float(np.median(spread[known]))
+    ratio = np.ones(lengths.shape)
+    ratio[known] = np.clip((ref / spread[known]) ** 2, 1e-2, 1e2)
+    return weight * ratio
+
+
+def _bridged(estimate: np.ndarray, positions: np.ndarray, missing: np.ndarray) -> np.ndarray:
+    """The estimate (n_frames, n_markers, 3) with DynaMMo's gap-end residual bridge added at the missing samples.
+
+    The bridge (:func:`mocapfill.methods.dynammo.bridge_residuals`) adds, across each gap, the linear blend of the
+    model's residuals ``x - G E[z]`` at the observed frames on either side, so the fill joins the observed
+    trajectory without a jump.  Here it runs in data units with G = I on the completed data.
+    """
+    n_frames, n_markers, _ = estimate.shape
+    est = np.nan_to_num(estimate.reshape(n_frames, 3 * n_markers), nan=0.0)
+    data = np.where(missing[:, :, None], np.nan_to_num(estimate, nan=0.0), positions).reshape(n_frames, -1)
+    bridge_residuals(data, est, np.eye(3 * n_markers), missing)
+    out = data.reshape(n_frames, n_markers, 3)
+    return np.where(np.isnan(estimate), np.nan, out)
+
+
+def _cached_groups(data, missing, pairs, lengths, cache: dict) -> list:
+    """The per-pattern systems, built once per fill: the missing mask is the same at every EM iteration."""
+    key = missing.tobytes()
+    if cache.get("key") != key:
+        cache["key"] = key
+        cache["groups"] = frame_groups(data, missing, pairs, lengths)
+    return cache["groups"]
+
+
+def _violations(filled: np.ndarray, missing: np.ndarray, pairs: np.ndarray, lengths: np.ndarray) -> dict:
+    """Bone-length errors of the output on (bone, frame) pairs with a missing endpoint: mean and max, data units."""
+    if not pairs.size:
+        return {"bone_error_mean": 0.0, "bone_error_max": 0.0, "bone_error_max_rel": 0.0}
+    active = missing[:, pairs[:, 0]] | missing[:, pairs[:, 1]]
+    err = np.abs(bone_errors(filled, pairs, lengths))[active]
+    err = err[np.isfinite(err)]
+    if not err.size:
+        return {"bone_error_mean": 0.0, "bone_error_max": 0.0, "bone_error_max_rel": 0.0}
+    rel = (np.abs(bone_errors(filled, pairs, lengths)) / lengths)[active]
+    return {"bone_error_mean": float(err.mean()), "bone_error_max": float(err.max()),
+            "bone_error_max_rel": float(np.nanmax(rel))}
+
+
+def fill_bolero_hc(
+    positions: np.ndarray,
+    *,
+    bones: Any = None,
+    units: str = "mm",
+    labels: list[str] | None = None,
+    hidden: int = DEFAULT_HIDDEN,
+    max_iter: int = DEFAULT_MAX_ITER,
+    tol: float = DEFAULT_TOL,
+    seed: int | None = None,
+    progress: ProgressFn | None = None,
+    project_start: int = PROJECT_START_HC,
+    solver_iter: int = 50,
+) -> FillResult:
+    """Fill gaps with DynaMMo under hard bone-length constraints (BoLeRO-HC).
+
+    Parameters
+    ----------
+    positions : ndarray, shape (n_frames, n_markers, 3)
+        NaN = missing.
+    bones : BoneSet or None
+        Bones to hold; None estimates them from the observed samples of ``positions``.
+    units, labels
+        Passed to bone estimation.
+    hidden, max_iter, tol, seed, progress
+        DynaMMo's options.
+    project_start : int
+        First EM iteration (1-based) whose imputation is constrained.
+    solver_iter : int
+        Iteration cap of each phase of the per-frame solver.
+
+    Returns
+    -------
+    FillResult
+        ``positions`` (n_frames, n_markers, 3); ``info`` holds ``bones`` (count), ``bone_error_mean`` /
+        ``bone_error_max`` / ``bone_error_max_rel`` of the output on constrained (bone, frame) pairs,
+        ``infeasible_frames`` (frames whose bones cannot all hold: least-squares there),
+        ``bone_error_max_rel_feasible`` (the largest relative bone error on the other frames), ``last_solve`` (the last per-frame solve: violations before/after, iterations, infeasible frames) and
+        ``solver_iterations`` (summed over EM iterations).
+    """
+
+    cache: dict = {}
+
+    def solver(estimate, data, missing, pairs, lengths, spread, final=False):
+        return solve_hard(estimate, data, missing, pairs, lengths, max_iter=solver_iter,
+                          groups=_cached_groups(data, missing, pairs, lengths, cache))
+
+    return _run(positions, solver, variant="hard", bones=bones, units=units, labels=labels, hidden=hidden,
+                max_iter=max_iter, tol=tol, seed=seed, progress=progress, project_start=project_start,
+                extra_info={})
+
+
+def fill_bolero_sc(
+    positions: np.ndarray,
+    *,
+    bones: Any = None,
+    units: str = "mm",
+    labels: list[str] | None = None,
+    hidden: int = DEFAULT_HIDDEN,
+    max_iter: int = DEFAULT_MAX_ITER,
+    tol: float = DEFAULT_TOL,
+    seed: int | None = None,
+    progress: ProgressFn | None = None,
+    penalty: float = DEFAULT_PENALTY,
+    bone_weighting: str = DEFAULT_BONE_WEIGHTING,
+    project_start: int = PROJECT_START_SC,
+    solver_iter: int = 30,
+) -> FillResult:
+    """Fill gaps with DynaMMo under soft bone-length constraints (BoLeRO-SC).
+
+    Parameters
+    ----------
+    positions : ndarray, shape (n_frames, n_markers, 3)
+        NaN = missing.
+    bones : BoneSet or None
+        Bones to favour; None estimates them from the observed samples of ``positions``.
+    penalty : float
+        Dimensionless weight w >= 0: lambda_b = w / (4 sigma^2 L_b^2) in the paper's objective, i.e. a bone's
+        length error costs w times a marker's displacement from the model.  0 gives plain DynaMMo.
+    project_start : int
+        First EM iteration (1-based) whose imputation is penalised.
+    solver_iter : int
+        Newton iterations per frame group and EM iteration.
+    (other parameters as :func:`fill_bolero_hc`)
+
+    Returns
+    -------
+    FillResult
+        As :func:`fill_bolero_hc`, with ``info["penalty"]``.
+    """
+    penalty = float(penalty)
+    if not np.isfinite(penalty) or penalty < 0:
+        raise MethodError(f"penalty must be a finite number >= 0, got {penalty}")
+
+    if bone_weighting not in BONE_WEIGHTINGS:
+        raise MethodError(f"bone_weighting must be one of {', '.join(BONE_WEIGHTINGS)}, got {bone_weighting!r}")
+    previous: list[np.ndarray] = []
+    cache: dict = {}
+
+    def solver(estimate, data, missing, pairs, lengths, spread, final=False):
+        weight = bone_weights(penalty, lengths, spread, bone_weighting)
+        # Warm start from the previous EM iteration's solution: the estimate moves little between iterations, so
+        # Newton needs one or two steps instead of ~10 from the estimate.
+        # After the first call, EM is itself the outer loop: two Newton steps from the previous solution track the
+        # moving minimiser (Newton converges quadratically from there), at a fraction of a full solve's cost.
+        out, stats = solve_soft(estimate, data, missing, pairs, lengths, weight=weight,
+                                max_iter=min(solver_iter, WARM_NEWTON_STEPS) if previous and not final else
+                                solver_iter,
+                                start=previous[0] if previous else None,
+                                groups=_cached_groups(data, missing, pairs, lengths, cache))
+        previous[:] = [out]
+        return out, stats
+
+    return _run(positions, solver, variant="soft", bones=bones, units=units, labels=labels, hidden=hidden,
+                max_iter=max_iter, tol=tol, seed=seed, progress=progress, project_start=project_start,
+                extra_info={"penalty": penalty, "bone_weighting": bone_weighting})
+
+
+__all__ = ["fill_bolero_hc", "fill_bolero_sc", "DEFAULT_PENALTY", "PROJECT_START_SC", "PROJECT_START_HC"]
