@@ -295,6 +295,26 @@ def cv_curve(
     return per.reshape(len(columns), len(targets), 3).mean(axis=2).T
 
 
+def pattern_groups(missing: np.ndarray, frames: np.ndarray, near: np.ndarray, max_patterns: int
+                   ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Split one marker's gap ``frames`` into (frames, predictors) groups, at most ``max_patterns`` of them.
+
+    ``near`` (p,) are the candidate predictor markers; a group's predictors are those observed in all its frames.
+    Frames with the same pattern of observed candidates form a group; when there are more than ``max_patterns``
+    patterns, the largest ``max_patterns - 1`` keep theirs and the rest are merged.
+    """
+    patterns, inverse, counts = np.unique(missing[np.ix_(frames, near)], axis=0, return_inverse=True,
+                                          return_counts=True)
+    inverse = np.asarray(inverse).ravel()
+    order = np.argsort(counts, kind="stable")[::-1]
+    keep = order if len(order) <= max_patterns else order[:max(max_patterns - 1, 0)]
+    out = [(frames[inverse == p], near[~patterns[p]]) for p in keep]
+    if len(keep) < len(order):
+        rest = frames[~np.isin(inverse, keep)]
+        out.append((rest, near[~missing[np.ix_(rest, near)].any(axis=0)]))
+    return out
+
+
 def _linear_fallback(series: np.ndarray, missing: np.ndarray) -> np.ndarray:
     """Per-coordinate linear interpolation (nearest value beyond the ends) of one marker (n_frames, 3)."""
     out = series.copy()
@@ -318,6 +338,7 @@ def reconstruct(
     folds: int = 5,
     uncertainty: bool = True,
     centroid: bool = True,
+    max_patterns: int = 3,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """The weighted-PCA estimate of every missing sample.
 
@@ -377,23 +398,19 @@ def reconstruct(
         raise MethodError(f"pca strategy must be 'separate' or 'joint', got {strategy!r}")
 
     for targets, frames, weight in tasks:
-        # Frames of this task grouped by which other markers are missing there: each group gets the predictors
-        # observed throughout it.
+        # Frames of this task grouped by which other markers are observed there: each group gets the predictors
+        # observed throughout it (at most ``max_patterns`` groups per task, to bound the cost on messy data).
         others = np.ones(n_markers, dtype=bool)
         others[targets] = False
-        sub = missing[frames][:, others]
-        patterns, inverse = np.unique(sub, axis=0, return_inverse=True)
-        inverse = np.asarray(inverse).ravel()
-        other_idx = np.flatnonzero(others)
-        for p, pattern in enumerate(patterns):
-            group = frames[inverse == p]
-            predictors = other_idx[~pattern & (weight[other_idx] > 0)]
+        candidates = np.flatnonzero(others & (weight > 0))
+        rms = None
+        for group, predictors in pattern_groups(missing, frames, candidates, max_patterns):
             needed = np.concatenate([targets, predictors])
             train = np.flatnonzero(~missing[:, needed].any(axis=1))
             if len(predictors) == 0 or len(train) < MIN_TRAINING_FRAMES:
                 for m in targets:
                     info["fallback"].append(int(m))
-                    est = _linear_fallback(positions[:, m], missing[:, m])
+                    est = _linear_fallback(local[:, m], missing[:, m])
                     estimate[group, m] = est[group]
                 continue
             model = fit_model(flat, train, targets, predictors, weight, variance=variance, normalise=normalise)
@@ -401,8 +418,9 @@ def reconstruct(
             estimate[np.ix_(group, targets)] = est.reshape(len(group), len(targets), 3)
             info["components"].append(int(model.basis.shape[1]))
             if uncertainty:
-                rms = cross_validated_rms(flat, train, targets, predictors, weight, variance=variance,
-                                          normalise=normalise, folds=folds)
+                if rms is None:  # cross-validated on the task's largest group; its other groups reuse it (cost)
+                    rms = cross_validated_rms(flat, train, targets, predictors, weight, variance=variance,
+                                              normalise=normalise, folds=folds)
                 std[np.ix_(group, targets)] = rms[None, :] * np.sqrt(1.0 + leverage)[:, None]
     info["fallback"] = sorted(set(info["fallback"]))
     return estimate + reference, std, info
