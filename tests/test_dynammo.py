@@ -61,7 +61,8 @@ def dense_m_step(p: lds.LDSParams, X, mh, Ezz, Ez1z0, Vh):
         A = sum(Ez1z0)
         B = sum(Ezz[:-1])
         F = A @ np.linalg.inv(B)
-        Lam = sum(Ezz[t] - F @ Ez1z0[t - 1].T - Ez1z0[t - 1] @ F.T + F @ Ezz[t - 1] @ F.T for t in range(1, T)) / (T - 1)
+        Lam = sum(Ezz[t] - F @ Ez1z0[t - 1].T - Ez1z0[t - 1] @ F.T + F @ Ezz[t - 1] @ F.T
+                  for t in range(1, T)) / (T - 1)
         Lam = np.trace(Lam) / H * np.eye(H)
     else:
         F, Lam = p.F, p.Lambda
