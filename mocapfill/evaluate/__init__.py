@@ -193,26 +193,22 @@ class EvaluationResult:
         return buf.getvalue()
 
 
-def _check_methods(methods: Sequence[str], options: dict[str, dict[str, Any]]) -> None:
-    """Fail early, with a one-line message, on unknown or not-importable methods and ignored options."""
+def _method_parameters(methods: Sequence[str]) -> dict[str, set[str]]:
+    """The keyword options each method takes; fails early, in one line, on unknown or not-importable methods."""
     from ..methods import get_method
 
     if not methods:
         raise MethodError("no methods to evaluate")
     if len(set(methods)) != len(methods):
         raise MethodError(f"a method is listed twice: {', '.join(methods)}")
+    accepted = {}
     for name in methods:
         spec = get_method(name)
         try:
-            accepted = spec.parameters()
+            accepted[name] = spec.parameters()
         except (ImportError, AttributeError) as exc:
             raise MethodError(f"method {name!r} is not available in this build ({exc})") from None
-        ignored = sorted(k for k in options.get(name, {}) if k not in accepted and k != "seed")
-        if ignored:
-            warnings.warn(f"method {name!r} ignores option(s): {', '.join(ignored)}", UserWarning, stacklevel=3)
-        if "seed" not in accepted:
-            options.setdefault(name, {})
-            options[name]["seed"] = None  # api.fill drops None options silently
+    return accepted
 
 
 def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), protocol: str = "marker", *,
@@ -260,21 +256,21 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
     if seed is None:
         seed = int(np.random.SeedSequence().entropy % (2 ** 63))
     seed = int(seed)
-    per_method: dict[str, dict[str, Any]] = {}
-    for name in methods:
-        per_method[name] = {k: v for k, v in (options or {}).items() if v is not None}
-        per_method[name].update((method_options or {}).get(name, {}))
     if reject_outliers is True:
         reject_outliers = "self"
     if reject_outliers not in (None, False, "self", "clean"):
         raise MocapfillError(f"reject_outliers must be None, 'self' or 'clean', got {reject_outliers!r}")
     reject_outliers = reject_outliers or None
-    _check_methods(methods, per_method)
-    for name in methods:  # drop options a method does not take (already warned about once, above)
-        from ..methods import get_method
-
-        accepted = get_method(name).parameters()
-        per_method[name] = {k: v for k, v in per_method[name].items() if k in accepted or k == "seed"}
+    accepted = _method_parameters(methods)
+    per_method: dict[str, dict[str, Any]] = {}
+    for name in methods:
+        merged = {k: v for k, v in (options or {}).items() if v is not None}
+        merged.update((method_options or {}).get(name, {}))
+        ignored = sorted(k for k in merged if k not in accepted[name])
+        if ignored:  # once here, not once per trial
+            warnings.warn(f"method {name!r} ignores option(s): {', '.join(ignored)}", UserWarning, stacklevel=2)
+        per_method[name] = {k: v for k, v in merged.items() if k in accepted[name]}
+    seeded = frozenset(name for name in methods if "seed" in accepted[name])
     settings: dict[str, Any] = {"options": dict(options or {}), "method_options": dict(method_options or {}),
                                 "reject_outliers": reject_outliers}
     if occlusions is not None:
@@ -282,8 +278,8 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
         if isinstance(occlusions, (str, os.PathLike)):
             settings["occlusions"] = os.fspath(occlusions)
             trial_list = load_spec(occlusions, data)
-        elif isinstance(occlusions, (dict, list)) and (not occlusions or not isinstance(occlusions[0] if
-                                                       isinstance(occlusions, list) else None, Trial)):
+        elif isinstance(occlusions, dict) or (isinstance(occlusions, list) and occlusions
+                                              and not isinstance(occlusions[0], Trial)):
             trial_list = trials_from_spec(occlusions, data)
         else:
             trial_list = list(occlusions)
@@ -298,6 +294,6 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
         raise MocapfillError("no trials to run")
     # Method seeds: one per trial, from a stream independent of the occlusions' streams.
     seeds = [int(s.generate_state(1, np.uint32)[0]) for s in np.random.SeedSequence([seed, 1]).spawn(len(trial_list))]
-    config = RunConfig(tuple(methods), per_method, reject_outliers)
+    config = RunConfig(tuple(methods), per_method, reject_outliers, seeded)
     scores = run_trials(data, trial_list, seeds, config, jobs=jobs, progress=progress)
     return EvaluationResult(methods, protocol, trial_list, scores, seed, data, settings)

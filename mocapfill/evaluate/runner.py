@@ -50,6 +50,7 @@ class RunConfig:
     methods: tuple[str, ...]
     options: dict[str, dict[str, Any]]  # per method: the keyword options for mocapfill.api.fill
     reject_outliers: str | None = None  # None, "self" (the corrupted clip is its own reference) or "clean"
+    seeded: frozenset = frozenset()  # methods that take a ``seed``: they get the trial's seed
 
 
 def _bones(positions: np.ndarray, units: str, labels: list[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -101,7 +102,8 @@ def run_trial(truth: MarkerData, index: int, trial: Trial, method_seed: int, con
     out = []
     for method in config.methods:
         opts = dict(config.options.get(method, {}))
-        opts.setdefault("seed", method_seed)
+        if method in config.seeded:
+            opts.setdefault("seed", method_seed)
         t0 = time.perf_counter()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
