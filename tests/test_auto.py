@@ -1,0 +1,133 @@
+"""The default fill (``--method auto``) and its parts: local-frame weighted PCA and the bone refinement."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import mocapfill
+from mocapfill.bones import BoneSet
+from mocapfill.errors import MethodError
+from mocapfill.methods import DEFAULT_METHOD, get_method
+from mocapfill.methods.auto import fill_auto
+from mocapfill.methods.hybrid_bones import refine_bones
+from mocapfill.methods.hybrid_local import edge_shift, fill_local_pca, kabsch_rotations
+
+
+def tumbling_body(n_frames: int = 300, n_markers: int = 9, seed: int = 2) -> np.ndarray:
+    """A rigid marker cloud (mm) tumbling through full turns about two axes while it travels: a linear map in the
+    laboratory frame cannot follow it, one in the body's frame can.  (n_frames, n_markers, 3)."""
+    rng = np.random.default_rng(seed)
+    body = rng.normal(scale=120.0, size=(n_markers, 3))
+    t = np.arange(n_frames) / 100.0
+    a, b = 2 * np.pi * 0.4 * t, 2 * np.pi * 0.25 * t
+    rz = np.zeros((n_frames, 3, 3))
+    rz[:, 0, 0] = rz[:, 1, 1] = np.cos(a)
+    rz[:, 0, 1], rz[:, 1, 0] = -np.sin(a), np.sin(a)
+    rz[:, 2, 2] = 1
+    rx = np.zeros((n_frames, 3, 3))
+    rx[:, 1, 1] = rx[:, 2, 2] = np.cos(b)
+    rx[:, 1, 2], rx[:, 2, 1] = -np.sin(b), np.sin(b)
+    rx[:, 0, 0] = 1
+    rot = rx @ rz
+    return np.einsum("fij,mj->fmi", rot, body) + np.stack([300 * t, 0 * t, 1000 + 0 * t], axis=1)[:, None, :]
+
+
+def test_auto_is_the_default_and_registered():
+    assert DEFAULT_METHOD == "auto"
+    assert get_method("auto").load() is fill_auto
+
+
+def test_kabsch_recovers_rotations():
+    rng = np.random.default_rng(0)
+    ref = rng.normal(size=(5, 3))
+    ref -= ref.mean(axis=0)
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    q *= np.sign(np.linalg.det(q))
+    shapes = (ref @ q.T)[None]
+    rot = kabsch_rotations(shapes, ref, np.ones(5))
+    assert np.allclose(shapes[0] @ rot[0], ref, atol=1e-10)
+
+
+def test_edge_shift_meets_both_ends_and_relaxes_in_long_gaps():
+    rb, ra = np.array([1.0, 0.0, 0.0]), np.array([0.0, 2.0, 0.0])
+    shift, factor = edge_shift(rb, ra, 200, 10.0)
+    assert np.allclose(shift[0], rb * np.exp(-0.1), atol=0.01) and np.allclose(shift[-1], ra * np.exp(-0.1),
+                                                                                atol=0.02)
+    assert np.abs(shift[100]).max() < 1e-3  # far from both ends the residual is forgotten
+    assert factor[0] < 0.2 and factor[100] == pytest.approx(1.0)
+    lin, _ = edge_shift(rb, ra, 3, "linear")
+    assert np.allclose(lin[1], (rb + ra) / 2)
+
+
+def test_local_frame_beats_the_published_pca_on_a_tumbling_body():
+    truth = tumbling_body()
+    pos = truth.copy()
+    pos[100:180, 4] = np.nan
+    hidden = np.isnan(pos).any(axis=2)
+    pca = mocapfill.fill(pos, "pca").positions
+    local = fill_local_pca(pos).positions
+    err_pca = np.linalg.norm(pca - truth, axis=2)[hidden].max()
+    err_local = np.linalg.norm(local - truth, axis=2)[hidden].max()
+    assert err_local < 1.0 < err_pca  # mm: rigid in its own frame, so the local fill is near exact
+
+
+def test_bone_refinement_pulls_a_loose_estimate_onto_a_rigid_bone():
+    positions = np.array([[[0.0, 0.0, 0.0], [np.nan] * 3]])  # (1 frame, 2 markers, 3)
+    estimate = np.array([[[0.0, 0.0, 0.0], [120.0, 0.0, 0.0]]])
+    std = np.array([[0.0, 20.0]])
+    out, info = refine_bones(estimate, positions, std, np.array([[0, 1]]), np.array([100.0]), np.array([1.0]),
+                             spread_floor=1.0)
+    assert np.linalg.norm(out[0, 1]) == pytest.approx(100.0, abs=0.5)  # sure bone, unsure estimate: bone wins
+    out2, _ = refine_bones(estimate, positions, np.array([[0.0, 0.1]]), np.array([[0, 1]]), np.array([100.0]),
+                           np.array([30.0]), spread_floor=1.0)
+    assert np.linalg.norm(out2[0, 1]) == pytest.approx(120.0, abs=0.1)  # sure estimate, loose bone: estimate wins
+    assert info["frames"] == 1 and info["bone_error_after"] < info["bone_error_before"]
+
+
+def test_auto_records_which_method_filled_each_gap(sample_data):
+    data = mocapfill.read(sample_data / "kinematics_tennis_serve_nan.c3d")
+    res = mocapfill.fill(data)  # default method
+    assert res.info["method"] == "auto"
+    assert not np.isnan(res.positions).any()
+    observed = ~data.missing
+    assert np.array_equal(res.positions[observed], data.positions[observed])
+    gaps = res.info["gap_methods"]
+    assert len(gaps) == len(mocapfill.gaps.find_gaps(data.missing)) == 10
+    for rec in gaps:
+        assert set(rec) == {"marker", "marker_index", "start", "length", "method", "reason"}
+        assert rec["marker"] == data.labels[rec["marker_index"]]
+        assert rec["method"] in ("local-pca", "local-pca+bones") and rec["reason"]
+    json.dumps(res.info)  # reports embed it
+    assert res.std is not None and np.isfinite(res.std[res.filled]).all() and (res.std[res.filled] > 0).all()
+
+
+def test_fallback_and_never_observed_markers_are_reported():
+    pos = tumbling_body(n_markers=5)
+    pos[:, 4] = np.nan  # never observed
+    pos[50:60] = np.nan  # blackout: no neighbour to predict from
+    pos[100:140, 1] = np.nan
+    res = fill_auto(pos, labels=["a", "b", "c", "d", "e"])
+    methods = {(r["marker"], r["start"]): r["method"] for r in res.info["gap_methods"]}
+    assert methods[("e", 0)] == "none"
+    assert methods[("a", 50)] == "linear"
+    assert methods[("b", 100)].startswith("local-pca")
+    assert np.isnan(res.positions[:, 4]).all() and np.isfinite(res.positions[:, :4]).all()
+
+
+def test_bones_option(sample_data):
+    data = mocapfill.read(sample_data / "85_02.c3d")
+    pos = data.positions[:300].copy()
+    pos[100:180, [5, 6]] = np.nan  # knee and shin
+    plain = fill_auto(pos, bones=False)
+    assert "bone_refinement" not in plain.info and plain.info["bones"] == 0
+    given = BoneSet(np.array([[5, 6]]), np.array([np.linalg.norm(data.positions[0, 5] - data.positions[0, 6])]),
+                    np.array([2.0]), np.array([300]), "mm")
+    res = fill_auto(pos, bones=given)
+    assert res.info["bones"] == 1 and res.info["bone_refinement"]["frames"] == 80
+    with pytest.raises(MethodError, match="BoneSet"):
+        fill_auto(pos, bones=[(5, 6)])
+    metres = fill_auto(pos / 1000.0, units="m", bones=given)  # the bones are converted to the data's units
+    assert np.allclose(metres.positions * 1000.0, res.positions, atol=1e-3)
