@@ -252,6 +252,15 @@ def run_dynammo(
     ``hidden``, ``sigma2`` (data units^2), ``scale``, ``markers_modelled``, ``markers_all_missing``,
     ``steady_state_frames`` (frames the filter needed to reach its steady state in the last E-step).
     """
+    with lds.single_blas_thread():
+        return _run_dynammo(positions, hidden=hidden, max_iter=max_iter, tol=tol, seed=seed, progress=progress,
+                            project=project, project_start=project_start, energy=energy, isotropic=isotropic,
+                            uncertainty=uncertainty, body_frame=body_frame, bridge=bridge)
+
+
+def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, project_start, energy, isotropic,
+                 uncertainty, body_frame, bridge) -> FillResult:
+    """The body of :func:`run_dynammo` (called with OpenBLAS limited to one thread)."""
     positions = check_positions(positions)
     if max_iter < 1:
         raise MethodError(f"max_iter must be at least 1, got {max_iter}")
@@ -358,7 +367,7 @@ def run_dynammo(
         bridge_residuals(X, stats.Ez, params.G, miss_k)
     if not converged:
         warnings.warn(f"DynaMMo stopped at max_iter={max_iter} before the objective changed by less than "
-                      f"tol={tol:g}", ConvergenceWarning, stacklevel=2)
+                      f"tol={tol:g}", ConvergenceWarning, stacklevel=4)
 
     estimate = np.full((T, M, 3), np.nan)
     estimate[:, keep, :] = to_data(X)
