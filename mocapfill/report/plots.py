@@ -56,6 +56,10 @@ def _rc() -> Iterator[type]:
         yield Figure
 
 
+_GEOMETRY = re.compile(r'\s(?:d|x|y|x1|x2|y1|y2|width|height)="[^"]*"')
+_DECIMALS = re.compile(r"(\d\.\d)\d+")
+
+
 def svg_of(fig, *, tight: bool = False) -> str:
     """The SVG markup of ``fig`` without the XML prolog, ready to inline in HTML.
 
@@ -65,6 +69,8 @@ def svg_of(fig, *, tight: bool = False) -> str:
     buf = io.StringIO()
     fig.savefig(buf, format="svg", bbox_inches="tight" if tight else None)
     text = buf.getvalue()
+    # Coordinates to 0.1 pt (a tenth of a screen pixel) in path data and positions: about half the size.
+    text = _GEOMETRY.sub(lambda m: _DECIMALS.sub(r"\1", m.group(0)), text)
     text = re.sub(r"<\?xml[^>]*\?>\s*", "", text)
     text = re.sub(r"<!DOCTYPE[^>]*>\s*", "", text, flags=re.S)
     return text.strip()
@@ -104,7 +110,7 @@ def _margins(fig, *, top: float) -> None:
 def trajectory_svg(frames: np.ndarray, observed: np.ndarray, output: np.ndarray, filled: np.ndarray,
                    unfilled: np.ndarray, std: np.ndarray | None, *, label: str, units: str,
                    outliers: np.ndarray | None = None, window: tuple[int, int] | None = None,
-                   max_points: int = 2000) -> str:
+                   max_points: int = 1000) -> str:
     """x, y, z of one marker over time: input observed in black, filled samples in orange on shaded stretches,
     a +-2 std band where ``std`` is given, still-missing stretches in grey, rejected outliers as pink crosses.
 
@@ -130,16 +136,20 @@ def trajectory_svg(frames: np.ndarray, observed: np.ndarray, output: np.ndarray,
             s = np.where(filled, std, np.nan)
             if np.isfinite(s).any():
                 band = s
+        # Only when the filled samples themselves are too many to draw one by one are they decimated too.
+        fstep = _stride(int(edge.sum()), max_points)
         has_outliers = outliers is not None and np.isfinite(outliers).any()
         for k, ax in enumerate(axes):
             first = k == 0
             _shade(ax, frames, filled, FILLED, 0.10, "filled stretch" if first else None)
             _shade(ax, frames, unfilled, UNFILLED, 0.25, "left unfilled" if first else None)
             if band is not None:
-                ax.fill_between(frames, output[:, k] - 2 * band, output[:, k] + 2 * band, color=BAND, alpha=0.35,
-                                lw=0, label="filled \u00b1 2 std" if first else None)
+                lo = output[::fstep, k] - 2 * band[::fstep]
+                ax.fill_between(frames[::fstep], lo, lo + 4 * band[::fstep], color=BAND, alpha=0.35, lw=0,
+                                label="filled \u00b1 2 std" if first else None)
             ax.plot(frames[::step], observed[::step, k], color=OBSERVED, lw=0.9, label="input" if first else None)
-            ax.plot(frames, filled_curve[:, k], color=FILLED, lw=1.3, label="filled" if first else None)
+            ax.plot(frames[::fstep], filled_curve[::fstep, k], color=FILLED, lw=1.3,
+                    label="filled" if first else None)
             if has_outliers:
                 ax.plot(frames, outliers[:, k], ls="none", marker="x", ms=4, color=REJECTED,
                         label="rejected outlier" if first else None)
@@ -169,7 +179,7 @@ def plot_window(mask: np.ndarray, *, min_margin: int = 30, max_fraction: float =
 
 
 def bone_svg(frames: np.ndarray, before: np.ndarray, after: np.ndarray, reference: float, filled: np.ndarray, *,
-             name: str, units: str, window: tuple[int, int] | None = None, max_points: int = 2000) -> str:
+             name: str, units: str, window: tuple[int, int] | None = None, max_points: int = 1000) -> str:
     """Length of one bone over time: in the input (breaks at gaps) and in the output, against its reference length
     (the BoLeRO paper's Figures 1 and 3).  frames, before, after : (n,); filled : (n,) bool (either end filled);
     window : (start, stop) indices to show (default the whole clip)."""
