@@ -326,3 +326,13 @@ def test_markers_never_observed_are_not_picked(clip):
     assert all(t.occlusions[0].markers == (0,) for t in trials)
     with pytest.raises(MocapfillError, match="nothing to hide"):
         make_occlusions(clip.with_positions(np.full_like(pos, np.nan)), "marker", trials=1, seed=0)
+
+
+def test_progress_and_save_occlusions_before_running(clip, tmp_path):
+    calls = []
+    path = tmp_path / "trials.json"
+    result = evaluate(clip, ["linear"], "marker", trials=3, seed=9, progress=lambda d, t: calls.append((d, t)),
+                      save_occlusions=path)
+    assert calls == [(0, 3), (1, 3), (2, 3), (3, 3)]
+    assert load_spec(path, clip) == result.trials
+    assert json.loads(path.read_text())["source"]["seed"] == 9

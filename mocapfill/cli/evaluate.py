@@ -177,7 +177,6 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
     per method and how often each method beats each other one.
     """
     from ..evaluate import evaluate as run_evaluation
-    from ..evaluate import save_spec
     from ..io import read
     from ..methods import get_method
 
@@ -215,13 +214,11 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
             result = run_evaluation(data, names, protocol, trials=trials, seed=seed, occlusions=occlusions,
                                     gap_min=gap_min, gap_max=gap_max, jobs=jobs, options=options,
                                     reject_outliers=reject_outliers, progress=progress,
+                                    save_occlusions=save_occlusions,
                                     **({"limb_size": limb_size} if protocol == "limb" and not occlusions else {}))
     for message in sorted({str(w.message) for w in caught}):
         out.print(f"[yellow]warning[/yellow] {message}", highlight=False)
     if save_occlusions:
-        source = {"file": clean_file, "protocol": result.protocol, "seed": result.seed,
-                  **{k: v for k, v in result.settings.items() if k.startswith("gap_")}}
-        save_spec(result.trials, data, save_occlusions, source=source)
         out.print(f"occlusions written to {save_occlusions}", highlight=False)
     _show(result, quiet)
     if as_json:

@@ -215,7 +215,8 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
              trials: int = 10, seed: int | None = None, occlusions: Sequence[Trial] | str | os.PathLike | dict | None
              = None, gap_min=None, gap_max=None, jobs: int = 1, options: dict[str, Any] | None = None,
              method_options: dict[str, dict[str, Any]] | None = None, reject_outliers: bool | str | None = None,
-             progress: Callable[[int, int], None] | None = None, **protocol_options: Any) -> EvaluationResult:
+             progress: Callable[[int, int], None] | None = None, save_occlusions: str | os.PathLike | None = None,
+             **protocol_options: Any) -> EvaluationResult:
     """Score ``methods`` on ``data`` by hiding known samples and filling them.
 
     Parameters
@@ -244,7 +245,10 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
         clip is its own reference (what ``fill`` does without a reference); "clean": the clean clip is the reference
         take of Holden's rule (its distance ranges, not its positions).
     progress : callable(done, total), optional
-        Called after each trial.
+        Called once before the first trial (done = 0) and after each trial.
+    save_occlusions : path, optional
+        Write the trials as a spec file (:func:`save_spec`) before running them, so that an interrupted run can be
+        replayed.
 
     Returns
     -------
@@ -292,6 +296,10 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
                                      **protocol_options)
     if not trial_list:
         raise MocapfillError("no trials to run")
+    if save_occlusions is not None:
+        source = {"file": data.path, "protocol": protocol, "seed": seed,
+                  **{k: v for k, v in settings.items() if k.startswith("gap_")}}
+        save_spec(trial_list, data, save_occlusions, source=source)
     # Method seeds: one per trial, from a stream independent of the occlusions' streams.
     seeds = [int(s.generate_state(1, np.uint32)[0]) for s in np.random.SeedSequence([seed, 1]).spawn(len(trial_list))]
     config = RunConfig(tuple(methods), per_method, reject_outliers, seeded)

@@ -152,6 +152,8 @@ def run_trials(truth: MarkerData, trials: list[Trial], seeds: list[int], config:
     jobs = min(jobs, total)
     results: list[list[TrialScore] | None] = [None] * total
     done = 0
+    if progress:
+        progress(0, total)
     if jobs <= 1:
         for i, (trial, seed) in enumerate(zip(trials, seeds)):
             results[i] = run_trial(light, i, trial, seed, config)
