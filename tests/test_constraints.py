@@ -52,6 +52,9 @@ def test_two_missing_markers_match_a_generic_constrained_solver():
     err = bone_errors(out, pairs, lengths)
     assert stats.n_infeasible == 0
     assert np.abs(err / lengths).max() < 1e-9
+    # Warm-started from its own solution, the solver stays there.
+    again, _ = solve_hard(est, pos, missing, pairs, lengths, start=out)
+    np.testing.assert_allclose(again, out, atol=1e-8)
     for t in range(pos.shape[0]):
         e = est[t, [1, 2]].ravel()
 

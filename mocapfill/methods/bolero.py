@@ -7,14 +7,16 @@ per-frame problem around the model's estimate e_t = G E[z_t] (:mod:`mocapfill.me
 - **BoLeRO-HC** (hard): the missing coordinates nearest e_t (the observation noise is isotropic, so its metric is
   the Euclidean one) with |x_u - x_v| = L for every bone touching a missing marker; where the bones cannot all hold,
   the least-squares point of the bone residuals.
-- **BoLeRO-SC** (soft): the paper's per-frame objective |x - e_t|^2 / sigma^2 + lambda * sum_b (|x_u - x_v|^2 -
-  L_b^2)^2 with a per-bone weight ``lambda_b = w / (4 sigma^2 L_b^2)``.  Then the objective is
-  ``(1/sigma^2) [ |x - e_t|^2 + w sum_b r_b^2 ]`` with r_b = (|d|^2 - L^2) / (2L) ~ |d| - L: a bone's length error
-  costs w times as much as the same displacement of a marker from the model.  This makes ``w`` dimensionless and
-  independent of the units (sigma and L scale together), of sigma^2 (which cancels from the minimiser) and of the
-  number of markers (the penalty is per bone and per frame, like the likelihood term is per marker and per frame).
-  The paper's fixed lambda = 10^6 (in metres) instead depends on units, on the noise level EM happens to reach and
-  on each bone's length.
+- **BoLeRO-SC** (soft): the paper's per-frame objective |x - e_t|^2 / sigma^2 + sum_b lambda_b (|x_u - x_v|^2 -
+  L_b^2)^2 with a per-bone weight ``lambda_b = w_b / (4 sigma^2 L_b^2)``.  Then the objective is
+  ``(1/sigma^2) [ |x - e_t|^2 + sum_b w_b r_b^2 ]`` with r_b = (|d|^2 - L^2) / (2L) ~ |d| - L: a bone's length error
+  costs w_b times as much as the same displacement of a marker from the model.  ``w_b = w (s_ref / s_b)^2``
+  (:func:`bone_weights`): s_b is the bone's spread (robust std of its length in the observed frames) and s_ref the
+  median spread of the set, i.e. the Gaussian bone-length model, so nearly-rigid pairs weigh less than rigid ones.
+  The weights are dimensionless, hence independent of the units (sigma, L and s scale together), of sigma^2 (which
+  cancels from the minimiser) and of the number of markers (the penalty is per bone and frame, the likelihood per
+  marker and frame).  The paper's fixed lambda = 10^6 (in metres) instead depends on the units, on the noise level
+  EM happens to reach and on each bone's length.  Default w = :data:`DEFAULT_PENALTY` (measured).
 
 Bones come from ``bones`` (a :class:`mocapfill.bones.BoneSet`) or, when None, from
 :func:`mocapfill.bones.estimate_bones` on the observed samples of the same input.
@@ -31,8 +33,12 @@ from .base import FillResult, ProgressFn, check_positions, finish
 from .constraints import SolveStats, bone_errors, frame_groups, solve_hard, solve_soft
 from .dynammo import DEFAULT_HIDDEN, DEFAULT_MAX_ITER, DEFAULT_TOL, bridge_residuals, run_dynammo
 
-#: Default dimensionless penalty weight w of BoLeRO-SC (chosen on 85_02 and the tennis serve: benchmarks/bench_bolero.py).
-DEFAULT_PENALTY = 100.0
+#: Default dimensionless penalty weight w of BoLeRO-SC.  Measured with ``benchmarks/bench_bolero.py --sweep-penalty``
+#: (10 trials x 2 protocols x 2 files, spread weighting): w = 1 / 3 / 10 / 100 gave the median RMSE ratio to DynaMMo
+#: 0.55 / 0.48 / 0.455 / 0.52, RMSE <= DynaMMo's in 95 / 95 / 95 / 90 % of trials and a mean bone error 6.9 / 11.4
+#: / 16 / (not measured) x lower.  Larger w pulls harder on bones that are only nearly rigid (a shoulder marker to
+#: the spine), which is where BoLeRO loses to DynaMMo.
+DEFAULT_PENALTY = 10.0
 
 #: Newton steps per EM iteration once BoLeRO-SC's per-frame solve is warm-started from the previous solution.
 WARM_NEWTON_STEPS = 2
@@ -41,9 +47,11 @@ WARM_NEWTON_STEPS = 2
 BONE_WEIGHTINGS = ("spread", "none")
 DEFAULT_BONE_WEIGHTING = "spread"
 
-#: First EM iteration whose imputation is constrained (measured: benchmarks/bench_bolero.py --sweep-start).
-PROJECT_START_SC = 2
-PROJECT_START_HC = 2
+#: First EM iteration whose imputation is constrained.  Measured (``--sweep-start 1,2,5,15``): 1 and 2 give the same
+#: RMSE to 3 digits on all 40 trials; 5 and 15 are no more accurate and sometimes let DynaMMo's objective-change test
+#: stop EM a few iterations after the constraints start (the objective jumps when they do), so: from the start.
+PROJECT_START_SC = 1
+PROJECT_START_HC = 1
 
 
 def _resolve_bones(positions: np.ndarray, bones: Any, units: str, labels: list[str] | None
@@ -233,6 +241,8 @@ def fill_bolero_hc(
     cache: dict = {}
 
     def solver(estimate, data, missing, pairs, lengths, spread, final=False):
+        # Always a cold start: warm-starting from the previous EM iteration's solution was measured to keep frames on
+        # a branch of the constraint set that is no longer the nearest to the estimate (worse RMSE, not faster).
         return solve_hard(estimate, data, missing, pairs, lengths, max_iter=solver_iter,
                           groups=_cached_groups(data, missing, pairs, lengths, cache))
 
@@ -266,8 +276,11 @@ def fill_bolero_sc(
     bones : BoneSet or None
         Bones to favour; None estimates them from the observed samples of ``positions``.
     penalty : float
-        Dimensionless weight w >= 0: lambda_b = w / (4 sigma^2 L_b^2) in the paper's objective, i.e. a bone's
-        length error costs w times a marker's displacement from the model.  0 gives plain DynaMMo.
+        Dimensionless weight w >= 0: lambda_b = w_b / (4 sigma^2 L_b^2) in the paper's objective, i.e. a bone's
+        length error costs w_b times a marker's displacement from the model (w_b = w, scaled by the bone's spread
+        under ``bone_weighting="spread"``).  0 gives plain DynaMMo (without its gap-end bridge).
+    bone_weighting : {"spread", "none"}
+        Per-bone weights from the bones' spreads (see :func:`bone_weights`), or w for every bone.
     project_start : int
         First EM iteration (1-based) whose imputation is penalised.
     solver_iter : int

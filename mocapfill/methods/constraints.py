@@ -291,6 +291,7 @@ def solve_hard(
     *,
     frames: np.ndarray | None = None,
     groups: list | None = None,
+    start: np.ndarray | None = None,
     max_iter: int = 50,
     tol: float = 1e-12,
 ) -> tuple[np.ndarray, SolveStats]:
@@ -309,6 +310,8 @@ def solve_hard(
         Restrict the solve to these frames (default: every frame with a missing marker).
     groups : list, optional
         :func:`frame_groups` of the same positions, missing mask and bones (saves regrouping on repeated solves).
+    start : ndarray, shape (n_frames, n_markers, 3), optional
+        A previous solution to start from (restoration + Newton only); frames where that fails start cold.
     max_iter : int
         Cap for each phase (restoration, then Newton on the KKT system).
     tol : float
@@ -331,38 +334,66 @@ def solve_hard(
         if not np.isfinite(target).all():
             continue
         before = _bone_error(group, target)
-        # Penalty continuation: the soft problem's minimiser moves from the estimate to the constrained optimum
-        # as the weight grows, following the branch nearest the estimate (Newton on the Lagrangian from a poor
-        # start can wander to a farther critical point).
-        y, iters = target.copy(), 0
-        for weight in 10.0 ** np.arange(0, 9, 2):
-            y, it = _soft_newton(group, target, weight, start=y, max_iter=15, tol=1e-6)
+        rows = np.arange(group.frames.size)
+        y = np.empty_like(target)
+        feasible = np.zeros(rows.size, dtype=bool)
+        iters = 0
+        if start is not None:
+            # Warm start (the previous EM iteration's solution): restoration + Newton from there; frames where that
+            # does not end feasible take the cold path below.
+            y0 = np.asarray(start, dtype=np.float64)[np.ix_(group.frames, group.var, np.arange(3))]
+            ok = np.isfinite(y0).all(axis=(1, 2))
+            if ok.any():
+                sub = rows[ok]
+                ys, fs, iters = _restore_and_newton(_subgroup(group, sub), y0[sub], target[sub], max_iter, tol)
+                y[sub[fs]] = ys[fs]
+                feasible[sub[fs]] = True
+        cold = rows[~feasible]
+        if cold.size:
+            sub_group = _subgroup(group, cold)
+            # Penalty continuation: the soft problem's minimiser moves from the estimate to the constrained
+            # optimum as the weight grows, following the branch nearest the estimate (Newton on the Lagrangian
+            # from a poor start can wander to a farther critical point).
+            yc = target[cold].copy()
+            for weight in 10.0 ** np.arange(0, 9, 2):
+                yc, it = _soft_newton(sub_group, target[cold], weight, start=yc, max_iter=15, tol=1e-6)
+                iters += it
+            yc, fc, it = _restore_and_newton(sub_group, yc, target[cold], max_iter, tol)
             iters += it
-        y1, it1 = _restore(group, y, max_iter=max_iter, tol=tol)
-        iters += it1
-        feasible = (np.abs(group.residual(group.diffs(y1))) <= FEASIBLE_RTOL * group.lengths).all(axis=1)
-        y = y1
-        if feasible.any():
-            sub = np.flatnonzero(feasible)
-            sub_group = _subgroup(group, sub)
-            # Newton on the KKT system from there, with the penalty's multiplier estimate, converges in a few
-            # steps to the exact constrained optimum; a final restoration step polishes to rounding.
-            y2, it2 = _kkt_newton(sub_group, y1[sub], target[sub], max_iter=max_iter, tol=tol)
-            y2, _ = _restore(sub_group, y2, max_iter=5, tol=tol)
-            iters += it2
-            r2 = sub_group.residual(sub_group.diffs(y2))
-            obj1 = ((y1[sub] - target[sub]) ** 2).sum(axis=(1, 2))
-            obj2 = ((y2 - target[sub]) ** 2).sum(axis=(1, 2))
-            # Near the optimum the objective is flat to rounding, so only a clearly worse point is refused.
-            nearer = obj2 <= obj1 * (1.0 + 1e-8) + (1e-9 * group.lengths.min()) ** 2
-            good = (np.abs(r2) <= FEASIBLE_RTOL * sub_group.lengths).all(axis=1) & nearer
-            y = y1.copy()
-            y[sub[good]] = y2[good]
+            y[cold] = yc
+            feasible[cold] = fc
         stats.n_infeasible += int((~feasible).sum())
         stats.infeasible.extend(int(f) for f in group.frames[~feasible])
         out[np.ix_(group.frames, group.var, np.arange(3))] = y
         stats.add(before, _bone_error(group, y), group.lengths, iters)
     return out, stats
+
+
+def _restore_and_newton(group: _Group, y0: np.ndarray, target: np.ndarray, max_iter: int, tol: float
+                        ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Restoration (LM on the bone residuals) from ``y0`` (n, k, 3), then Newton on the KKT system where feasible.
+
+    Returns the points (n, k, 3), which frames met every bone (n,) bool, and the iterations used.
+    """
+    y1, iters = _restore(group, y0, max_iter=max_iter, tol=tol)
+    feasible = (np.abs(group.residual(group.diffs(y1))) <= FEASIBLE_RTOL * group.lengths).all(axis=1)
+    y = y1.copy()
+    if feasible.any():
+        sub = np.flatnonzero(feasible)
+        sub_group = _subgroup(group, sub)
+        # Newton on the KKT system from there converges in a few steps to the exact constrained optimum; a final
+        # restoration step polishes to rounding.
+        y2, it2 = _kkt_newton(sub_group, y1[sub], target[sub], max_iter=max_iter, tol=tol)
+        y2, _ = _restore(sub_group, y2, max_iter=5, tol=tol)
+        iters += it2
+        r2 = sub_group.residual(sub_group.diffs(y2))
+        obj1 = ((y1[sub] - target[sub]) ** 2).sum(axis=(1, 2))
+        obj2 = ((y2 - target[sub]) ** 2).sum(axis=(1, 2))
+        # Near the optimum the objective is flat to rounding, so only a clearly worse point is refused.
+        nearer = obj2 <= obj1 * (1.0 + 1e-8) + (1e-9 * group.lengths.min()) ** 2
+        good = (np.abs(r2) <= FEASIBLE_RTOL * sub_group.lengths).all(axis=1) & nearer
+        y[sub[good]] = y2[good]
+    return y, feasible, iters
 
 
 def _subgroup(group: _Group, rows: np.ndarray) -> _Group:
