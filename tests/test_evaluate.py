@@ -336,3 +336,9 @@ def test_progress_and_save_occlusions_before_running(clip, tmp_path):
     assert calls == [(0, 3), (1, 3), (2, 3), (3, 3)]
     assert load_spec(path, clip) == result.trials
     assert json.loads(path.read_text())["source"]["seed"] == 9
+
+
+def test_percent_defaults_are_capped_on_long_takes():
+    assert gap_range("marker", 810, 120.0) == (81, 405)  # a short clip: 10 % to 50 %
+    assert gap_range("limb", 100_000, 100.0) == (100, 500)  # a long take: 1 s to 5 s
+    assert gap_range("marker", 100_000, 100.0, gap_min="10%", gap_max="20%") == (10_000, 20_000)  # as asked

@@ -8,11 +8,11 @@ fill is an interpolation problem; extrapolation past the clip's edges is another
 Protocols
 ---------
 ``marker``   one random marker, one contiguous gap of a random length in [gap_min, gap_max] (BoLeRO's statistical
-             test).  Default length 10 % to 50 % of the clip.
+             test).  Default length 10 % to 50 % of the clip, capped at 1 s and 5 s on long takes.
 ``limb``     ``limb_size`` (default 2) markers of one limb chain share one gap: a random marker, then a walk along
              its most rigid partners (smallest spread of the inter-marker distance over the clip), so neighbours on
              one body segment or across a joint (knee and shin) go missing together without a fixed marker set.
-             Default length 10 % to 50 %.
+             Default length as for ``marker``.
 ``blackout`` every marker, one short span (default 0.05 s to 0.25 s).
 ``random``   Holden's corruption, with contiguous stretches instead of single samples: per trial draw
              ``a_o ~ U(0, occlusion_rate)`` and ``a_s ~ U(0, shift_rate)`` (both 0.1 by default, as in Holden 2018);
@@ -46,6 +46,10 @@ DEFAULT_GAPS = {
     "blackout": ("0.05s", "0.25s"),
     "random": ("0.05s", "0.5s"),
 }
+
+#: Caps on the percent defaults of ``marker`` and ``limb`` (seconds), so that a long take is not tested with
+#: minutes-long gaps: the BoLeRO protocol was designed on clips of a few seconds.
+DEFAULT_CAPS_SECONDS = (1.0, 5.0)
 
 #: Holden's default shift scale: 50 cm, expressed per unit.
 _CM_PER_UNIT = {"mm": 0.1, "cm": 1.0, "m": 100.0}
@@ -140,6 +144,11 @@ def gap_range(protocol: str, n_frames: int, rate: float, gap_min=None, gap_max=N
     lo_default, hi_default = DEFAULT_GAPS[protocol]
     lo = parse_length(lo_default if gap_min is None else gap_min, n_frames, rate, name="--gap-min")
     hi = parse_length(hi_default if gap_max is None else gap_max, n_frames, rate, name="--gap-max")
+    if protocol in ("marker", "limb") and rate and rate > 0:
+        if gap_min is None:
+            lo = min(lo, max(1, round(DEFAULT_CAPS_SECONDS[0] * rate)))
+        if gap_max is None:
+            hi = min(hi, max(1, round(DEFAULT_CAPS_SECONDS[1] * rate)))
     longest = n_frames - 2
     if longest < 1:
         raise MocapfillError(f"the clip has {n_frames} frames: too short to hide an interior gap")
