@@ -142,7 +142,7 @@ def _show(result, quiet: bool) -> None:
                                                           "(default: drawn, and printed so a run can be repeated).")
 @click.option("--gap-min", default=None, metavar="LEN",
               help="Shortest gap: frames (40), seconds (0.5s) or percent of the clip (10%). Default per protocol: "
-                   "marker/limb 10%, blackout 0.05s, random 0.05s.")
+                   "marker/limb 10% (at most 1s), blackout 0.05s, random 0.05s.")
 @click.option("--gap-max", default=None, metavar="LEN",
               help="Longest gap (same forms). Default: marker/limb 50% (at most 5s), blackout 0.25s, random 0.5s.")
 @click.option("--limb-size", type=click.IntRange(min=2), default=2, show_default=True,
