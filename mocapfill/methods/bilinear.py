@@ -48,6 +48,7 @@ from ..errors import MethodError
 from ..gaps import all_missing_markers, blackout_frames, missing_mask, runs
 from .base import FillResult, finish
 from .interp import interpolate_linear
+from .lds import single_blas_thread
 from .msvd import energy_rank
 
 
@@ -210,8 +211,9 @@ def fill_bilinear(
         if not hole[a:b].any():
             continue
         length = b - a
-        fit = fit_window(centred[a:b], hole[a:b], shape_basis, n_trajectory_vectors(length, rate, cutoff),
-                         smooth=smooth, ridge=ridge)
+        with single_blas_thread():  # moderate sizes: threads on busy cores cost more than they give
+            fit = fit_window(centred[a:b], hole[a:b], shape_basis, n_trajectory_vectors(length, rate, cutoff),
+                             smooth=smooth, ridge=ridge)
         # Triangular weights favour each window's centre, where the DCT fit is least affected by the window edges.
         w = np.minimum(np.arange(1, length + 1), np.arange(length, 0, -1)).astype(np.float64)
         if a == 0:

@@ -27,6 +27,7 @@ from ..errors import ConvergenceWarning, MethodError
 from ..gaps import all_missing_markers, missing_mask
 from .base import FillResult, ProgressFn, finish
 from .interp import interpolate_linear
+from .lds import single_blas_thread
 
 
 def energy_rank(singular_values: np.ndarray, energy: float) -> int:
@@ -101,38 +102,40 @@ def fill_msvd(
     objective: list[float] = []
     converged = max_iter == 0
     n_iter = 0
-    for n_iter in range(1, max_iter + 1):
-        # The rank-r subspace is spanned by the top right singular vectors of the current matrix, i.e. the top
-        # eigenvectors of the small (3M x 3M) Gram matrix: far cheaper than an SVD of the tall matrix.
-        gram = x.T @ x
-        _, vecs = np.linalg.eigh((gram + gram.T) / 2)
-        basis = vecs[:, ::-1][:, :r]
-        old = x[hole]
-        sq_resid = 0.0
-        for pattern, rows in groups:
-            seen = ~pattern
-            if not seen.any():
-                # A blackout frame has nothing to fit: it keeps its interpolated start.
-                continue
-            # Least-squares coefficients of each row's observed entries on the subspace (a tiny ridge keeps rows
-            # with fewer observed entries than r well posed), then the missing entries from those coefficients.
-            v_seen = basis[seen]
-            lhs = v_seen.T @ v_seen + 1e-9 * np.eye(r)
-            coef = np.linalg.solve((lhs + lhs.T) / 2, v_seen.T @ x[np.ix_(rows, seen)].T)
-            x[np.ix_(rows, pattern)] = (basis[pattern] @ coef).T
-            sq_resid += float(np.sum((v_seen @ coef - x[np.ix_(rows, seen)].T) ** 2))
-        complete = ~hole.any(axis=1)
-        if complete.any():
-            low = x[complete] @ basis
-            sq_resid += float(np.sum((low @ basis.T - x[complete]) ** 2))
-        objective.append(float(np.sqrt(sq_resid / max(int((~hole).sum()), 1))))
-        new = x[hole]
-        if progress is not None:
-            progress(n_iter, max_iter, objective[-1])
-        change = np.linalg.norm(new - old) / max(np.linalg.norm(old), np.finfo(float).tiny)
-        if change < tol:
-            converged = True
-            break
+    # Many small LAPACK calls: BLAS threads gain nothing and, on busy cores, slow them down many times.
+    with single_blas_thread():
+        for n_iter in range(1, max_iter + 1):
+            # The rank-r subspace is spanned by the top right singular vectors of the current matrix, i.e. the top
+            # eigenvectors of the small (3M x 3M) Gram matrix: far cheaper than an SVD of the tall matrix.
+            gram = x.T @ x
+            _, vecs = np.linalg.eigh((gram + gram.T) / 2)
+            basis = vecs[:, ::-1][:, :r]
+            old = x[hole]
+            sq_resid = 0.0
+            for pattern, rows in groups:
+                seen = ~pattern
+                if not seen.any():
+                    # A blackout frame has nothing to fit: it keeps its interpolated start.
+                    continue
+                # Least-squares coefficients of each row's observed entries on the subspace (a tiny ridge keeps rows
+                # with fewer observed entries than r well posed), then the missing entries from those coefficients.
+                v_seen = basis[seen]
+                lhs = v_seen.T @ v_seen + 1e-9 * np.eye(r)
+                coef = np.linalg.solve((lhs + lhs.T) / 2, v_seen.T @ x[np.ix_(rows, seen)].T)
+                x[np.ix_(rows, pattern)] = (basis[pattern] @ coef).T
+                sq_resid += float(np.sum((v_seen @ coef - x[np.ix_(rows, seen)].T) ** 2))
+            complete = ~hole.any(axis=1)
+            if complete.any():
+                low = x[complete] @ basis
+                sq_resid += float(np.sum((low @ basis.T - x[complete]) ** 2))
+            objective.append(float(np.sqrt(sq_resid / max(int((~hole).sum()), 1))))
+            new = x[hole]
+            if progress is not None:
+                progress(n_iter, max_iter, objective[-1])
+            change = np.linalg.norm(new - old) / max(np.linalg.norm(old), np.finfo(float).tiny)
+            if change < tol:
+                converged = True
+                break
     if not converged:
         warnings.warn(f"msvd stopped after {max_iter} iterations before reaching tol={tol:g}",
                       ConvergenceWarning, stacklevel=2)
