@@ -8,8 +8,9 @@ Prints the machine, then:
 Data: the real CMU capture sample_data/85_02.c3d (810 frames, 41 markers, 120 Hz) tiled forward-backward-forward...
 to the length needed (no jumps at the seams), with occlusions of one marker for 0.5-2 s at random (seeded) until
 5 % of the samples are missing.  Each size runs in a fresh subprocess so that its peak RSS (ru_maxrss) is its own.
-BLAS threads: the figures are taken with OPENBLAS_NUM_THREADS=1 (set below unless already set): the per-frame
-H x H work gains nothing from threads, and on a loaded machine OpenBLAS threads make it 10-40x slower.
+BLAS threads: run_dynammo limits OpenBLAS to one thread while it runs (lds.single_blas_thread): the per-frame
+H x H work gains nothing from threads, and on a busy machine OpenBLAS threads make it 10-40x slower.  The
+one-iteration figure below runs the lds functions directly, inside the same limiter.
 """
 
 from __future__ import annotations
@@ -23,8 +24,6 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
 def make_data(n_frames: int, missing: float = 0.05, seed: int = 0):
@@ -100,14 +99,15 @@ def one_iteration() -> None:
         Xn = np.where(miss, fitted, X)
         return lds.m_step(stats, Xn.T @ stats.Ez, float((Xn ** 2).sum()), m, p)
 
-    fast()
-    reps = 30
-    t0, c0 = time.perf_counter(), time.process_time()
-    for _ in range(reps):
+    with lds.single_blas_thread():
         fast()
-    t_fast = (time.perf_counter() - t0) / reps
-    c_fast = (time.process_time() - c0) / reps
-    with warnings.catch_warnings():
+        reps = 30
+        t0, c0 = time.perf_counter(), time.process_time()
+        for _ in range(reps):
+            fast()
+        t_fast = (time.perf_counter() - t0) / reps
+        c_fast = (time.process_time() - c0) / reps
+    with warnings.catch_warnings(), lds.single_blas_thread():
         warnings.simplefilter("ignore")
         t0 = time.perf_counter()
         mh, Ezz, Ez1z0, Vh, _ = dense_e_step(p, X)
@@ -133,7 +133,7 @@ def main() -> None:
         pass
     print(f"machine: {cpu}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} "
           f"(1 min), Python {platform.python_version()}, NumPy {np.__version__}, SciPy {scipy.__version__}, "
-          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}")
+          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')} (EM runs single-threaded)")
     one_iteration()
     sizes = [1000, 10000] if quick else [1000, 10000, 72000]
     rows = []
