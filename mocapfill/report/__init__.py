@@ -20,23 +20,11 @@ __all__ = ["build_fill_report", "write_report", "load_schema", "SCHEMA_PATH", "r
 
 
 def _atomic_write_text(path: str | Path, text: str) -> None:
-    """Write ``text`` (UTF-8) to ``path`` through :func:`mocapfill.io.atomic.atomic_write` when it exists."""
-    try:
-        from ..io.atomic import atomic_write  # written by the I/O helper
-    except ImportError:  # pragma: no cover - fallback until the I/O module lands
-        atomic_write = None
-    if atomic_write is not None:
-        with atomic_write(path, "w", encoding="utf-8") as handle:
-            handle.write(text)
-        return
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        tmp.write_text(text, encoding="utf-8")
-        tmp.replace(path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise InputError(f"cannot write report {path}: {exc.strerror or exc}") from None
+    """Write ``text`` (UTF-8) to ``path`` through a temporary file renamed into place (no half-written report)."""
+    from ..io.atomic import atomic_write
+
+    with atomic_write(path, "w", encoding="utf-8") as handle:
+        handle.write(text)
 
 
 def write_report(report: dict[str, Any], path: str | Path, *, data, result, bones=None,
