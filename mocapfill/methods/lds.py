@@ -33,13 +33,12 @@ Shapes: ``T`` frames, ``m`` observed dimensions (3 x markers), ``H`` hidden dime
 
 from __future__ import annotations
 
-import contextlib
-import ctypes
-import sys
-from typing import Iterator, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from scipy import linalg as sla
+
+from ..blas import single_blas_thread  # noqa: F401  (re-exported: the EM engine's callers use it)
 
 #: Relative change below which a covariance recursion counts as having reached its steady state.
 STEADY_RTOL = 1e-13
@@ -153,45 +152,6 @@ class Stats(NamedTuple):
     Ezz_last: np.ndarray
     Sz1z0: np.ndarray
     V1: np.ndarray
-
-
-@contextlib.contextmanager
-def single_blas_thread() -> Iterator[None]:
-    """Run the enclosed code with the loaded OpenBLAS libraries limited to one thread, then restore them.
-
-    The EM loop is made of many small (H x H) LAPACK calls and tall-skinny products; OpenBLAS threads gain nothing
-    there and, on a machine whose cores are busy, make them 10-40x slower (measured: a 16 x 16 triangular solve
-    from 2 us to 12 ms).  Linux only (reads /proc/self/maps, as threadpoolctl does); elsewhere, or if anything
-    fails, it does nothing.
-    """
-    restore = []
-    try:
-        if sys.platform.startswith("linux"):
-            with open("/proc/self/maps") as fh:
-                paths = sorted({line.split()[-1] for line in fh if "openblas" in line.lower() and "/" in line})
-            for path in paths:
-                lib = ctypes.CDLL(path)
-                for prefix in ("scipy_openblas", "openblas"):
-                    for suffix in ("64_", ""):
-                        get = getattr(lib, f"{prefix}_get_num_threads{suffix}", None)
-                        put = getattr(lib, f"{prefix}_set_num_threads{suffix}", None)
-                        if get is not None and put is not None:
-                            restore.append((put, int(get())))
-                            put(1)
-                            break
-                    else:
-                        continue
-                    break
-    except Exception:  # pragma: no cover - best effort only
-        pass
-    try:
-        yield
-    finally:
-        for put, n in restore:
-            try:
-                put(n)
-            except Exception:  # pragma: no cover
-                pass
 
 
 def _sym(a: np.ndarray) -> np.ndarray:
