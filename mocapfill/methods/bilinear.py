@@ -8,6 +8,10 @@ means mu.  The model (sections 3.4-3.5 of the paper) writes it as ``S - mu = The
   centred, linearly pre-filled matrix (section 3.5.2 with a single training sequence);
 - C (K_t, K_s): coefficients fitted to the observed entries only (section 4.2), by least squares.
 
+B and mu are then re-learned up to ``refine`` times (default 20, until the fill changes by less than ``tol``) from the model's own completion (observed entries plus the model's
+reconstruction of the missing ones) and C refitted: the alternating estimation of section 3.5, which removes the
+bias of the linear pre-fill.
+
 The fit minimises ``sum over observed (i, j) of (S_ij - mu_j - (Theta C B^T)_ij)^2 + sum_k,s w_k C_ks^2`` with
 ``w_k = ridge + smooth * (pi k / L)^4``: ``(pi k / L)^4`` is the squared second difference of DCT vector k per frame
 (L the window length), so the penalty is the paper's W_0 (heavier weight on high frequencies, section 4.3) sized
@@ -135,16 +139,43 @@ def _windows(n_frames: int, window: int) -> list[tuple[int, int]]:
     return [(s, s + window) for s in sorted(set(starts))]
 
 
+def _fit_windows(centred: np.ndarray, hole: np.ndarray, shape_basis: np.ndarray, spans: list[tuple[int, int]], *,
+                 rate: float | None, cutoff: float, smooth: float, ridge: float) -> np.ndarray:
+    """Model reconstruction (F, D) of every window holding a missing entry, blended; 0 on frames no window solved."""
+    n_frames = centred.shape[0]
+    total = np.zeros_like(centred)
+    weight = np.zeros(n_frames)
+    for a, b in spans:
+        if not hole[a:b].any():
+            continue
+        length = b - a
+        with single_blas_thread():  # moderate sizes: threads on busy cores cost more than they give
+            fit = fit_window(centred[a:b], hole[a:b], shape_basis, n_trajectory_vectors(length, rate, cutoff),
+                             smooth=smooth, ridge=ridge)
+        # Triangular weights favour each window's centre, where the DCT fit is least affected by the window edges.
+        w = np.minimum(np.arange(1, length + 1), np.arange(length, 0, -1)).astype(np.float64)
+        if a == 0:
+            w[: length // 2] = w.max()
+        if b == n_frames:
+            w[length // 2:] = w.max()
+        total[a:b] += fit * w[:, None]
+        weight[a:b] += w
+    return np.where(weight[:, None] > 0, total / np.maximum(weight, 1e-300)[:, None], 0.0)
+
+
 def fill_bilinear(
     positions: np.ndarray,
     *,
     rate: float | None = None,
     cutoff: float = 6.0,
     shape_energy: float = 0.99,
+    n_shape: int | None = None,
     window: int | None = None,
     smooth: float = 100.0,
     ridge: float = 1e-8,
     bridge: bool = True,
+    refine: int = 20,
+    tol: float = 1e-4,
     seed: int | None = None,
 ) -> FillResult:
     """Fill gaps with the DCT-conditioned bilinear model fitted to the observed entries.
@@ -159,6 +190,8 @@ def fill_bilinear(
         Highest DCT frequency kept, Hz (K_t = ceil(2 L cutoff / rate) + 1 for a window of L frames).
     shape_energy : float in (0, 1]
         Energy of the centred shapes the shape basis keeps (sets K_s).
+    n_shape : int, optional
+        K_s given directly instead of by ``shape_energy`` (clipped to 1..3P).
     window : int, optional
         Frames per solved window (clips up to this length are solved in one piece); default 5 s of frames
         (``5 * rate``), or 500 frames without a rate.  K_t grows with it, and the cost with K_t^3.
@@ -169,6 +202,11 @@ def fill_bilinear(
     bridge : bool
         Add the model's residual, linearly interpolated across each gap from the observed samples around it, so
         that the fill joins the data continuously (see the module docstring).
+    refine : int
+        Most times the mean and shape basis are re-learned from the model's own completion (then C refitted); 0
+        keeps the basis of the linear pre-fill.
+    tol : float
+        Stop re-learning when the missing entries change by less than this, relative to their (centred) norm.
     seed : ignored (the method is deterministic); accepted for a uniform interface.
 
     Returns
@@ -198,31 +236,28 @@ def fill_bilinear(
     mean = start.mean(axis=0)
     centred = start - mean
     _, singular, vt = np.linalg.svd(centred, full_matrices=False)
-    n_shape = energy_rank(singular, shape_energy)
+    n_shape = energy_rank(singular, shape_energy) if n_shape is None else int(np.clip(n_shape, 1, singular.size))
     shape_basis = vt[:n_shape].T  # (3P, K_s)
 
     longest_blackout = max((length for _, length in runs(np.isin(np.arange(n_frames),
                                                                  blackout_frames(missing)))), default=0)
     window = int(max(window, 4 * longest_blackout))
     spans = _windows(n_frames, window)
-    total = np.zeros_like(centred)
-    weight = np.zeros(n_frames)
-    for a, b in spans:
-        if not hole[a:b].any():
-            continue
-        length = b - a
-        with single_blas_thread():  # moderate sizes: threads on busy cores cost more than they give
-            fit = fit_window(centred[a:b], hole[a:b], shape_basis, n_trajectory_vectors(length, rate, cutoff),
-                             smooth=smooth, ridge=ridge)
-        # Triangular weights favour each window's centre, where the DCT fit is least affected by the window edges.
-        w = np.minimum(np.arange(1, length + 1), np.arange(length, 0, -1)).astype(np.float64)
-        if a == 0:
-            w[: length // 2] = w.max()
-        if b == n_frames:
-            w[length // 2:] = w.max()
-        total[a:b] += fit * w[:, None]
-        weight[a:b] += w
-    fit = np.where(weight[:, None] > 0, total / np.maximum(weight, 1e-300)[:, None], 0.0)
+    fit = _fit_windows(centred, hole, shape_basis, spans, rate=rate, cutoff=cutoff, smooth=smooth, ridge=ridge)
+    rounds = 0
+    for rounds in range(1, refine + 1):
+        # Re-learn the mean and the shape basis from the model's completion instead of the linear pre-fill
+        # (alternating between B and C, as the paper's iterative bilinear estimation), then refit C.
+        completed = np.where(hole, fit, centred) + mean
+        mean = completed.mean(axis=0)
+        centred = np.where(hole, 0.0, start - mean)
+        _, _, vt = np.linalg.svd(completed - mean, full_matrices=False)
+        shape_basis = vt[:n_shape].T
+        before = completed[hole]
+        fit = _fit_windows(centred, hole, shape_basis, spans, rate=rate, cutoff=cutoff, smooth=smooth, ridge=ridge)
+        after = (fit + mean)[hole]
+        if np.linalg.norm(after - before) <= tol * max(np.linalg.norm(before - mean[np.nonzero(hole)[1]]), 1e-300):
+            break
     if bridge:
         # The low-rank model misses each observed sample by its residual; interpolating that residual across each
         # gap makes the fill meet the data at both ends instead of jumping to the model's reconstruction.
@@ -231,6 +266,6 @@ def fill_bilinear(
     estimate_live = fit + mean
     estimate = np.full_like(positions, np.nan)
     estimate[:, live] = estimate_live.reshape(n_frames, live.size, 3)
-    info.update(n_shape=int(n_shape), n_traj=n_trajectory_vectors(min(window, n_frames), rate, cutoff),
+    info.update(refine=int(rounds), n_shape=int(n_shape), n_traj=n_trajectory_vectors(min(window, n_frames), rate, cutoff),
                 window=int(min(window, n_frames)))
     return finish(positions, estimate, info=info)

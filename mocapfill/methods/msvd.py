@@ -4,7 +4,7 @@ The capture is a matrix X of shape (n_frames, 3 * n_markers) (one row per frame)
 per-marker linear interpolation (edges held), the columns are centred, and the rank r is fixed once as the smallest
 rank holding ``energy`` of the squared singular values of that initial matrix.  Each iteration then
 
-1. takes the rank-r right singular subspace V of the current (completed) matrix, and
+1. re-centres the columns and takes the rank-r right singular subspace V of the current (completed) matrix,
 2. re-estimates the missing entries of every frame from the least-squares fit of its observed entries on V,
 
 until the relative change of the missing entries falls below ``tol`` or ``max_iter`` is reached (then a
@@ -107,6 +107,10 @@ def fill_msvd(
         for n_iter in range(1, max_iter + 1):
             # The rank-r subspace is spanned by the top right singular vectors of the current matrix, i.e. the top
             # eigenvectors of the small (3M x 3M) Gram matrix: far cheaper than an SVD of the tall matrix.
+            # The model is mean + rank r: re-centre on the current completion (the pre-fill's mean is biased).
+            shift = x.mean(axis=0)
+            x -= shift
+            mean += shift
             gram = x.T @ x
             _, vecs = np.linalg.eigh((gram + gram.T) / 2)
             basis = vecs[:, ::-1][:, :r]
