@@ -1,0 +1,195 @@
+"""`mocapfill fill`: files and pipes, refusal to overwrite the input, usage errors, reports, bones, outliers,
+smoothing, one-line warnings."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import mocapfill
+from mocapfill.cli import cli
+from mocapfill.methods.lds import single_blas_thread
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_blas_thread():
+    with single_blas_thread():
+        yield
+
+
+@pytest.fixture()
+def runner() -> CliRunner:
+    return CliRunner()
+
+
+@pytest.fixture()
+def gappy(sample_data):
+    return sample_data / "kinematics_tennis_serve_nan.c3d"
+
+
+def test_fill_a_c3d_file(runner, gappy, tmp_path):
+    out = tmp_path / "filled.c3d"
+    result = runner.invoke(cli, ["fill", str(gappy), str(out), "--method", "spline"])
+    assert result.exit_code == 0, result.output
+    assert result.stdout == ""
+    assert "spline" in result.stderr and "filled 145 of 145" in result.stderr and "0 gaps left" in result.stderr
+    before, after = mocapfill.read(gappy), mocapfill.read(out)
+    assert not after.missing.any()
+    seen = ~before.missing
+    # The C3D writer stores float32 samples: observed samples round-trip to the same stored values.
+    np.testing.assert_array_equal(after.positions[seen], before.positions[seen])
+
+
+def test_pipe_csv_stdin_to_stdout(runner, gappy, tmp_path):
+    data = mocapfill.read(gappy)
+    source = tmp_path / "in.csv"
+    mocapfill.write(data, source)
+    result = runner.invoke(cli, ["fill", "-", "-", "--format", "csv", "--method", "linear"],
+                           input=source.read_bytes())
+    assert result.exit_code == 0, result.stderr
+    back = tmp_path / "back.csv"
+    back.write_bytes(result.stdout_bytes)
+    filled = mocapfill.read(back)
+    assert filled.positions.shape == data.positions.shape and not filled.missing.any()
+    assert "filled 145 of 145" in result.stderr and "filled" not in result.stdout.splitlines()[0]
+
+
+def test_output_equal_to_input_is_refused_unless_forced(runner, gappy, tmp_path):
+    copy = tmp_path / "copy.c3d"
+    shutil.copy(gappy, copy)
+    result = runner.invoke(cli, ["fill", str(copy), str(copy), "-m", "linear"])
+    assert result.exit_code == 1
+    assert "same file as the input" in result.stderr and "Traceback" not in result.output
+    result = runner.invoke(cli, ["fill", str(copy), str(copy), "-m", "linear", "--force", "-q"])
+    assert result.exit_code == 0, result.output
+    assert not mocapfill.read(copy).missing.any()
+
+
+def test_unknown_method_is_a_usage_error(runner, gappy, tmp_path):
+    result = runner.invoke(cli, ["fill", str(gappy), str(tmp_path / "o.c3d"), "--method", "magic"])
+    assert result.exit_code == 2
+    assert "magic" in result.stderr and "spline" in result.stderr
+
+
+def test_options_without_their_switch_are_usage_errors(runner, gappy, tmp_path):
+    out = str(tmp_path / "o.c3d")
+    assert runner.invoke(cli, ["fill", str(gappy), out, "--delta", "0.2"]).exit_code == 2
+    assert runner.invoke(cli, ["fill", str(gappy), out, "--smooth-window", "9"]).exit_code == 2
+    assert runner.invoke(cli, ["fill", str(gappy), out, "--report", str(tmp_path / "r.txt")]).exit_code == 2
+
+
+def test_missing_input_is_one_line(runner, tmp_path):
+    result = runner.invoke(cli, ["fill", str(tmp_path / "nope.c3d"), str(tmp_path / "o.c3d")])
+    assert result.exit_code == 1 and "nope.c3d" in result.stderr and "Traceback" not in result.output
+
+
+def test_json_report_lists_every_gap_with_uncertainty(runner, gappy, tmp_path):
+    report = tmp_path / "report.json"
+    result = runner.invoke(cli, ["fill", str(gappy), str(tmp_path / "o.c3d"), "-m", "dynammo", "--max-iter", "20",
+                                 "--seed", "1", "--report", str(report), "-q"])
+    assert result.exit_code == 0, result.output
+    doc = json.loads(report.read_text())
+    gaps = doc["gaps"]
+    assert len(gaps) == 10 and sum(g["length"] for g in gaps) == 145
+    for gap in gaps:
+        assert {"marker", "first_frame", "length"} <= set(gap)
+        assert gap["mean_std"] is not None and gap["mean_std"] >= 0
+    assert doc["summary"]["method"] == "dynammo"
+    assert doc["summary"]["settings"].get("max_iter") == 20
+
+
+def test_html_report(runner, gappy, tmp_path):
+    pytest.importorskip("matplotlib")
+    report = tmp_path / "report.html"
+    result = runner.invoke(cli, ["fill", str(gappy), str(tmp_path / "o.c3d"), "-m", "spline", "--report",
+                                 str(report), "-q"])
+    assert result.exit_code == 0, result.output
+    text = report.read_text()
+    assert text.lstrip().lower().startswith("<!doctype html") and "<svg" in text
+
+
+def test_convergence_warning_is_one_line(runner, gappy, tmp_path):
+    result = runner.invoke(cli, ["fill", str(gappy), str(tmp_path / "o.c3d"), "-m", "dynammo", "--max-iter", "2"])
+    assert result.exit_code == 0, result.output
+    lines = [line for line in result.stderr.splitlines() if "ConvergenceWarning" in line]
+    assert len(lines) == 1 and "Traceback" not in result.stderr
+    assert "not converged" in result.stderr
+    quiet = runner.invoke(cli, ["fill", str(gappy), str(tmp_path / "o2.c3d"), "-m", "dynammo", "--max-iter", "2",
+                                "-q"])
+    assert quiet.exit_code == 0 and quiet.stderr == ""
+
+
+def test_bones_option(runner, sample_data, tmp_path):
+    from mocapfill.bones import estimate_bones, save_bones
+
+    data = mocapfill.read(sample_data / "85_02.c3d")
+    bones = estimate_bones(data.positions, units=data.units, labels=data.labels)
+    bones_path = tmp_path / "bones.json"
+    save_bones(bones, bones_path, labels=data.labels, units=data.units)
+    hidden = data.positions.copy()
+    knee = data.labels.index("Male:RKNE")
+    hidden[300:400, knee] = np.nan
+    source = tmp_path / "hidden.c3d"
+    mocapfill.write(data.with_positions(hidden), source)
+    report = tmp_path / "r.json"
+    result = runner.invoke(cli, ["fill", str(source), str(tmp_path / "o.c3d"), "-m", "bolero-sc", "--max-iter", "10",
+                                 "--bones", str(bones_path), "--report", str(report), "-q"])
+    assert result.exit_code == 0, result.output
+    doc = json.loads(report.read_text())
+    assert doc["summary"]["settings"]["bones"] == str(bones_path)
+    assert doc["bones"]
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    result = runner.invoke(cli, ["fill", str(source), str(tmp_path / "o.c3d"), "--bones", str(bad)])
+    assert result.exit_code == 1 and "bad.json" in result.stderr
+
+
+def test_reject_outliers_turns_shifted_samples_into_filled_gaps(runner, sample_data, tmp_path):
+    data = mocapfill.read(sample_data / "85_02.c3d")
+    corrupted = data.positions.copy()
+    marker = data.labels.index("Male:LKNE")
+    frames = [200, 350, 500]
+    corrupted[frames, marker] += [300.0, 0.0, 0.0]  # 30 cm off in three single frames (the paper's corruption)
+    source = tmp_path / "bad.c3d"
+    mocapfill.write(data.with_positions(corrupted), source)
+    out, report = tmp_path / "o.c3d", tmp_path / "r.json"
+    result = runner.invoke(cli, ["fill", str(source), str(out), "-m", "spline", "--reject-outliers", "--report",
+                                 str(report)])
+    assert result.exit_code == 0, result.output
+    assert "outlier samples rejected" in result.stderr
+    doc = json.loads(report.read_text())
+    assert {(r["marker"], r["frame"] - data.first_frame) for r in doc["rejected"]} >= {
+        ("Male:LKNE", f) for f in frames}
+    filled = mocapfill.read(out)
+    error = np.linalg.norm(filled.positions[frames, marker] - data.positions[frames, marker], axis=-1)
+    assert error.max() < 100.0  # the 300 mm shift is gone
+    with_ref = runner.invoke(cli, ["fill", str(source), str(tmp_path / "o2.c3d"), "-m", "linear",
+                                   "--reject-outliers", "--reference", str(sample_data / "85_02.c3d"),
+                                   "--delta", "0.2", "-q"])
+    assert with_ref.exit_code == 0, with_ref.output
+
+
+def test_smooth_changes_observed_samples_and_is_reported(runner, gappy, tmp_path):
+    out, report = tmp_path / "o.c3d", tmp_path / "r.json"
+    result = runner.invoke(cli, ["fill", str(gappy), str(out), "-m", "spline", "--smooth", "--smooth-window", "7",
+                                 "--smooth-order", "2", "--report", str(report)])
+    assert result.exit_code == 0, result.output
+    assert "output smoothed" in result.stderr
+    before, after = mocapfill.read(gappy), mocapfill.read(out)
+    seen = ~before.missing
+    assert not np.array_equal(after.positions[seen], before.positions[seen])
+    change = np.linalg.norm(after.positions[seen] - before.positions[seen], axis=-1)
+    assert np.median(change) < 0.001 and change.max() < 0.1  # metres: smoothing (a fast serve), not damage
+    doc = json.loads(report.read_text())
+    assert doc["summary"].get("smoothed") is True
+
+
+def test_every_method_is_offered(runner):
+    result = runner.invoke(cli, ["fill", "--help"])
+    assert result.exit_code == 0
+    for name in mocapfill.methods.METHODS:
+        assert name in result.output
