@@ -193,3 +193,17 @@ def test_every_method_is_offered(runner):
     assert result.exit_code == 0
     for name in mocapfill.methods.METHODS:
         assert name in result.output
+
+
+def test_never_observed_marker_is_reported_and_left_empty(runner, gappy, tmp_path):
+    data = mocapfill.read(gappy)
+    pos = data.positions.copy()
+    pos[:, 3] = np.nan
+    source = tmp_path / "dead.csv"
+    mocapfill.write(data.with_positions(pos), source)
+    out = tmp_path / "o.csv"
+    result = runner.invoke(cli, ["fill", str(source), str(out), "-m", "spline"])
+    assert result.exit_code == 0, result.output
+    assert "never observed" in result.stderr and data.labels[3] in result.stderr
+    filled = mocapfill.read(out)
+    assert filled.missing[:, 3].all() and not np.delete(filled.missing, 3, axis=1).any()

@@ -222,7 +222,7 @@ def fill_command(input_path: str, output_path: str, method: str, hidden: int | N
 def _summary(data, work, result, method: str, seconds: float, rejected, smoothed: bool, report_path, quiet: bool
              ) -> None:
     """A few lines on stderr: method, filled samples, gaps left, time, convergence."""
-    from ..gaps import find_gaps
+    from ..gaps import all_missing_markers, find_gaps
 
     out = console(quiet)
     missing = work.missing
@@ -242,6 +242,6 @@ def _summary(data, work, result, method: str, seconds: float, rejected, smoothed
     if report_path:
         parts.append(f"report {report_path}")
     out.print(", ".join(parts), highlight=False, soft_wrap=True)
-    dead = [data.labels[m] for m in result.info.get("all_missing", []) if 0 <= int(m) < data.n_markers]
+    dead = [data.labels[m] for m in all_missing_markers(missing)]
     if dead:
         out.print(f"never observed, left empty: {', '.join(dead)}", markup=False, highlight=False)
