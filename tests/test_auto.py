@@ -107,13 +107,20 @@ def test_auto_records_which_method_filled_each_gap(sample_data):
 def test_fallback_and_never_observed_markers_are_reported():
     pos = tumbling_body(n_markers=5)
     pos[:, 4] = np.nan  # never observed
-    pos[50:60] = np.nan  # blackout: no neighbour to predict from
+    pos[50:60] = np.nan  # short blackout (0.1 s): no neighbour to predict from, a spline bridges it
     pos[100:140, 1] = np.nan
-    res = fill_auto(pos, labels=["a", "b", "c", "d", "e"])
+    pos[200:280] = np.nan  # long blackout (0.8 s): straight lines
+    res = fill_auto(pos, labels=["a", "b", "c", "d", "e"], rate=100.0)
     methods = {(r["marker"], r["start"]): r["method"] for r in res.info["gap_methods"]}
     assert methods[("e", 0)] == "none"
-    assert methods[("a", 50)] == "linear"
+    assert methods[("a", 50)] == "spline" and methods[("a", 200)] == "linear"
     assert methods[("b", 100)].startswith("local-pca")
+    assert res.info["spline_max_frames"] == 50
+    truth = tumbling_body(n_markers=5)
+    spline_err = np.linalg.norm(res.positions[50:60, :4] - truth[50:60, :4], axis=2).max()
+    linear = np.linspace(0, 1, 12)[1:-1, None, None]
+    straight = (1 - linear) * truth[49, :4] + linear * truth[60, :4]
+    assert spline_err < np.linalg.norm(straight - truth[50:60, :4], axis=2).max()
     assert np.isnan(res.positions[:, 4]).all() and np.isfinite(res.positions[:, :4]).all()
 
 

@@ -13,8 +13,12 @@ see ``benchmarks/bench_default.py`` and the README's figures):
    from anything hidden) unless given; each frame's filled markers move to the most probable positions given the
    PCA estimate (weighted by its uncertainty) and the bone lengths (weighted by their spread).  This keeps a limb
    rigid where the reconstruction drifts, which is where two-marker limb gaps lose.
-3. **Fallback**: a gap with fewer than three usable neighbours or ten training frames is filled by linear
-   interpolation (nearest value beyond the clip's ends).
+3. **Fallback**: a stretch with fewer than three usable neighbours or ten training frames (whole-body blackouts,
+   mostly) is filled by a cubic spline through the marker's own observations when it is at most 0.5 s long
+   (blackout protocol, 10 trials: median RMSE 8 mm on the CMU clip and 4 mm on the tennis serve, against 39 and
+   25 mm for straight lines), and by linear interpolation beyond (a cubic runs away over long stretches: median
+   624 mm on the 10-50 % one-marker gaps of the CMU clip); edges hold the nearest observed value.  These samples
+   carry no uncertainty (NaN) and are not moved by the bone refinement.
 
 Candidates measured and left out: the published PCA alone (``pca``) and its joint-marker strategy (less accurate),
 bone refinement with one global weight (BoLeRO-SC style; helps the CMU clip, hurts the tennis serve), DynaMMo and
@@ -41,6 +45,9 @@ from .pca import DEFAULT_SCALE_MM, unit_scale
 BONE_TRUST = 0.5
 #: Smallest bone spread used in the refinement, in mm (a bone is never an exact constraint).
 SPREAD_FLOOR_MM = 1.0
+#: Longest fallback stretch filled by a cubic spline instead of a straight line, in seconds (frames without a rate).
+SPLINE_SECONDS = 0.5
+SPLINE_FRAMES = 60
 
 
 def _resolve_bones(positions: np.ndarray, bones: Any, units: str, labels: Sequence[str] | None):
@@ -65,6 +72,7 @@ def fill_auto(
     seed: int | None = None,
     units: str = "mm",
     labels: Sequence[str] | None = None,
+    rate: float | None = None,
     bones: Any = None,
     knn: int = 10,
     refine: bool = True,
@@ -77,6 +85,7 @@ def fill_auto(
     seed : ignored (the pipeline is deterministic); accepted for a uniform signature.
     units : "mm", "cm" or "m"; converts every length default.
     labels : marker labels (n_markers,), used to name markers in ``info["gap_methods"]``.
+    rate : frame rate (Hz); converts the 0.5 s limit of the spline fallback (60 frames without it).
     bones : BoneSet, None (estimate from the observed frames) or False (no bone refinement).
     knn : neighbours of the nearest-pose residual correction (0 disables it).
     refine : apply the bone refinement (same as ``bones=False`` when False).
@@ -100,8 +109,10 @@ def fill_auto(
     missing = np.isnan(positions).any(axis=2)
     estimate, std, local_info = reconstruct_local(positions, scales=tuple(DEFAULT_SCALES_MM * mm),
                                                   align_scale=DEFAULT_ALIGN_MM * mm, knn=knn)
+    spline_max = int(round(SPLINE_SECONDS * rate)) if rate else SPLINE_FRAMES
+    estimate, splined = _spline_short_fallbacks(positions, estimate, missing & np.isnan(std), spline_max)
     info: dict[str, Any] = {"pipeline": "local-frame weighted PCA + bone refinement",
-                            "fallback": local_info["fallback"]}
+                            "fallback": local_info["fallback"], "spline_max_frames": spline_max}
     boneset = _resolve_bones(positions, bones if refine else False, units, labels)
     refined_markers = np.zeros(positions.shape[1], dtype=bool)
     if boneset is not None and len(boneset):
@@ -110,13 +121,41 @@ def fill_auto(
         info["bone_refinement"] = binfo
         refined_markers[np.unique(boneset.pairs)] = True
     info["bones"] = 0 if boneset is None else int(len(boneset))
-    info["gap_methods"] = _gap_methods(missing, std, local_info, boneset, labels, units)
+    info["gap_methods"] = _gap_methods(missing, std, local_info, boneset, labels, units, splined, spline_max)
     return finish(positions, estimate, std=std, info=info)
 
 
-def _gap_methods(missing: np.ndarray, std: np.ndarray, local_info: dict, boneset, labels, units: str) -> list[dict]:
+def _spline_short_fallbacks(positions: np.ndarray, estimate: np.ndarray, fallback: np.ndarray, longest: int
+                            ) -> tuple[np.ndarray, np.ndarray]:
+    """Replace the fallback (linear) fill of every interior stretch of at most ``longest`` frames by a cubic spline.
+
+    positions / estimate (n_frames, n_markers, 3); fallback (n_frames, n_markers) bool: samples the PCA could not
+    fill.  Returns the new estimate and the (n_frames, n_markers) mask of splined samples.
+    """
+    from ..gaps import runs
+    from .interp import fill_spline
+
+    splined = np.zeros_like(fallback)
+    if not fallback.any() or longest < 1:
+        return estimate, splined
+    n_frames = positions.shape[0]
+    spline = None
+    for m in np.flatnonzero(fallback.any(axis=0)):
+        for start, length in runs(fallback[:, m]):
+            interior = start > 0 and start + length < n_frames
+            if length <= longest and interior:
+                if spline is None:
+                    spline = fill_spline(positions).positions
+                splined[start:start + length, m] = True
+    if spline is not None:
+        estimate = estimate.copy()
+        estimate[splined] = spline[splined]
+    return estimate, splined
+
+
+def _gap_methods(missing: np.ndarray, std: np.ndarray, local_info: dict, boneset, labels, units: str,
+                 splined: np.ndarray, spline_max: int) -> list[dict]:
     """One record per gap: which method filled it and why (JSON-ready)."""
-    fallback = set(local_info["fallback"])
     cv = {}
     for g in local_info["groups"]:
         cv.setdefault(g["marker"], []).append(g)
@@ -131,10 +170,16 @@ def _gap_methods(missing: np.ndarray, std: np.ndarray, local_info: dict, boneset
         seg = std[gap.start:gap.stop, m]
         if missing[:, m].all():
             rec.update(method="none", reason="marker missing in every frame: nothing to learn from")
-        elif not np.isfinite(seg).any() and m in fallback:
-            rec.update(method="linear", reason="fewer than 3 observed neighbours or 10 training frames for PCA")
-        elif m in fallback and m not in cv:
-            rec.update(method="linear", reason="fewer than 3 observed neighbours or 10 training frames for PCA")
+        elif not np.isfinite(seg).all():
+            why = "fewer than 3 observed neighbours or 10 training frames for PCA"
+            if splined[gap.start:gap.stop, m].all():
+                rec.update(method="spline", reason=f"{why}; short (<= {spline_max} frames): cubic spline")
+            elif np.isfinite(seg).any():
+                rec.update(method="local-pca+interpolation",
+                           reason=f"{why} in part of the gap: that part interpolated (spline when short)")
+            else:
+                rec.update(method="linear", reason=f"{why}; too long for a spline or at the clip's edge: "
+                                                   f"linear interpolation, edges held")
         else:
             groups = cv.get(m, [])
             rms = [r for g in groups for r in g["cv_rms"] if np.isfinite(r)]
