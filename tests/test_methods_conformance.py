@@ -75,16 +75,13 @@ def with_gaps(truth: np.ndarray) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def real_clip(sample_data):
-    """200 frames of the tennis serve (metres, 50 Hz) with two gaps, one touching the end.
-
-    Blackouts are exercised on the synthetic clip: on this real clip a 3-frame blackout made bolero-hc take over a
-    minute (reported to its owner), too slow for a conformance test.
-    """
+    """200 frames of the tennis serve (metres, 50 Hz) with two gaps (one touching the end) and a 3-frame blackout."""
     data = mocapfill.read(sample_data / "kinematics_tennis_serve.c3d")
     truth = data.positions[300:500].copy()
     pos = truth.copy()
     pos[40:80, 4] = np.nan
     pos[150:200, 20] = np.nan
+    pos[100:103] = np.nan
     return pos, data.rate, data.units, list(data.labels)
 
 
