@@ -106,8 +106,8 @@ def main(argv=None) -> int:
     from mocapfill.methods.bolero import DEFAULT_MAX_ITER
 
     max_iter = args.max_iter or DEFAULT_MAX_ITER
-    print(f"# machine: {platform.node()} {platform.machine()} {os.cpu_count()} cpus, python {platform.python_version()}, "
-          f"numpy {np.__version__}")
+    print(f"# machine: {platform.node()} {platform.machine()} {os.cpu_count()} cpus, "
+          f"python {platform.python_version()}, numpy {np.__version__}")
     print(f"# trials={args.trials} max_iter={max_iter}")
 
     variants: list[tuple[str, str, dict]] = []
@@ -155,7 +155,8 @@ def main(argv=None) -> int:
             ok = np.isfinite(bone) & np.isfinite(b_bone)  # trials whose hidden marker has a bone
             msg += (f"{np.median(ratio):.3f}  <=dynammo on {100 * wins:.0f}% of {len(rmse)}  bone error: mean dyn /"
                     f" mean this {np.mean(b_bone[ok]) / np.mean(bone[ok]):.1f}x, median per-trial ratio"
-                    f" {np.median(b_bone[ok] / bone[ok]):.1f}x, >=3x on {100 * np.mean(b_bone[ok] >= 3 * bone[ok]):.0f}%"
+                    f" {np.median(b_bone[ok] / bone[ok]):.1f}x,"
+                    f" >=3x on {100 * np.mean(b_bone[ok] >= 3 * bone[ok]):.0f}%"
                     f" of {ok.sum()}  CPU-time ratio {np.sum(secs) / np.sum(b_time):.2f}")
         else:
             msg += "1 (baseline)"

@@ -234,7 +234,8 @@ def fill_bolero_hc(
         ``positions`` (n_frames, n_markers, 3); ``info`` holds ``bones`` (count), ``bone_error_mean`` /
         ``bone_error_max`` / ``bone_error_max_rel`` of the output on constrained (bone, frame) pairs,
         ``infeasible_frames`` (frames whose bones cannot all hold: least-squares there),
-        ``bone_error_max_rel_feasible`` (the largest relative bone error on the other frames), ``last_solve`` (the last per-frame solve: violations before/after, iterations, infeasible frames) and
+        ``bone_error_max_rel_feasible`` (the largest relative bone error on the other frames), ``last_solve``
+        (the last per-frame solve: violations before/after, iterations, infeasible frames) and
         ``solver_iterations`` (summed over EM iterations).
     """
 

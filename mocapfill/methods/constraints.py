@@ -130,9 +130,12 @@ class _Group:
 
     def curvature(self, coef: np.ndarray) -> np.ndarray:
         """sum_b coef_b * Hessian(r_b) = kron(S^T diag(coef / L) S, I3), shape (n, 3k, 3k), for coef (n, m)."""
-        c = np.einsum("bi,nb,bj->nij", self.S, coef / self.lengths, self.S)
+        c = np.matmul(self.S.T[None] * (coef / self.lengths)[:, None, :], self.S[None])  # S^T diag(.) S (BLAS)
         n, k = c.shape[0], self.k
-        return (c[:, :, None, :, None] * np.eye(3)[None, None, :, None, :]).reshape(n, 3 * k, 3 * k)
+        out = np.zeros((n, k, 3, k, 3))
+        for a in range(3):  # kron(c, I3) by three strided copies (cheaper than a broadcast product)
+            out[:, :, a, :, a] = c
+        return out.reshape(n, 3 * k, 3 * k)
 
 
 def frame_groups(positions: np.ndarray, missing: np.ndarray, pairs: np.ndarray, lengths: np.ndarray,
@@ -187,7 +190,8 @@ def _prepare(estimate, positions, missing, pairs, lengths):
     pairs = np.asarray(pairs, dtype=np.intp).reshape(-1, 2)
     lengths = np.asarray(lengths, dtype=np.float64).ravel()
     if estimate.shape != positions.shape or missing.shape != positions.shape[:2]:
-        raise ValueError("estimate, positions and missing must agree: (n_frames, n_markers, 3) and (n_frames, n_markers)")
+        raise ValueError("estimate, positions and missing must agree: (n_frames, n_markers, 3) and "
+                         "(n_frames, n_markers)")
     if not (np.isfinite(lengths) & (lengths > 0)).all():
         raise ValueError("bone lengths must be finite and positive")
     return estimate, positions, missing, pairs, lengths
@@ -205,12 +209,12 @@ def _restore(group: _Group, y: np.ndarray, *, max_iter: int, tol: float) -> tupl
     it = 0
     for it in range(1, max_iter + 1):
         jac = group.jacobian(d)
-        grad = np.einsum("nbp,nb->np", jac, r)
+        grad = np.matmul(r[:, None, :], jac)[:, 0]
         done = (np.abs(r) <= tol * group.lengths).all(axis=1) | (np.linalg.norm(grad, axis=1) <= tol * 1e-3 *
                                                                   group.lengths.min())
         if done.all():
             break
-        jtj = np.einsum("nbp,nbq->npq", jac, jac)
+        jtj = np.matmul(jac.transpose(0, 2, 1), jac)
         # J is dimensionless, so mu is too; plain mu*I (not Marquardt's diag(J^T J)) also damps the directions no
         # bone constrains, which keeps them at the estimate.
         step = _solve(jtj + mu[:, None, None] * eye, -grad)
@@ -239,13 +243,13 @@ def _kkt_newton(group: _Group, y: np.ndarray, target: np.ndarray, *, max_iter: i
     jac = group.jacobian(d)
     dev = (y - target).reshape(n, k3)
     # Least-squares multipliers: the best eta with y - e + J^T eta = 0.
-    jjt = np.einsum("nbp,ncp->nbc", jac, jac) + delta * np.eye(m)
-    eta = _solve(jjt, -np.einsum("nbp,np->nb", jac, dev))
+    jjt = np.matmul(jac, jac.transpose(0, 2, 1)) + delta * np.eye(m)
+    eta = _solve(jjt, -np.matmul(jac, dev[:, :, None])[:, :, 0])
 
     def kkt_residual(y_, eta_):
         d_ = group.diffs(y_)
         j_ = group.jacobian(d_)
-        g_ = (y_ - target).reshape(n, k3) + np.einsum("nbp,nb->np", j_, eta_)
+        g_ = (y_ - target).reshape(n, k3) + np.matmul(eta_[:, None, :], j_)[:, 0]
         r_ = group.residual(d_)
         return d_, j_, g_, r_, (g_ * g_).sum(axis=1) + (r_ * r_).sum(axis=1)
 
@@ -499,11 +503,12 @@ def _soft_newton(group: _Group, target: np.ndarray, weight, *, max_iter: int, to
     it = 0
     for it in range(1, max_iter + 1):
         jac = group.jacobian(d)
-        grad = (y - target).reshape(n, k3) + np.einsum("nbp,nb->np", jac, wb * r)
+        grad = (y - target).reshape(n, k3) + np.matmul((wb * r)[:, None, :], jac)[:, 0]
         # The exact Hessian; compressed bones (r < 0) add negative curvature, so where it is not safely positive
         # definite it is shifted by a multiple of the identity (dropping those terms instead converges only
         # linearly).  The identity block of the likelihood term sets the scale: eigenvalues >= 0.1.
-        hess = eye + np.einsum("nbp,b,nbq->npq", jac, wb, jac) + group.curvature(wb * r)
+        # (batched matmul goes through BLAS; a three-operand einsum does not, which matters for blackouts)
+        hess = eye + np.matmul(jac.transpose(0, 2, 1) * wb, jac) + group.curvature(wb * r)
         # S_b^T S_b has eigenvalues 0 and 2, so lambda_min >= 1 + 2 w sum_{r_b < 0} r_b / L_b: only frames where
         # that bound is below 0.1 need the eigenvalues.
         bound = 1.0 + 2.0 * (wb * np.minimum(r, 0.0) / group.lengths).sum(axis=1)
