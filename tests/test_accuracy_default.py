@@ -13,15 +13,12 @@ long takes), and asserts issue 6's thresholds per clip:
 Why not fewer trials: per-trial errors spread from 2 to 250 mm, so the median of a handful of trials is too noisy for
 a 20 % margin: the first 5 trials put the CMU limb ratio auto/pca at 0.84 and the first 8 the tennis limb ratio just
 above 0.80 (10 or 12 trials: 0.79), although the default wins 95 % of the 20 limb trials of each clip and its 20-trial
-medians are 30 % (tennis) and 63 % (CMU) lower.  With one BLAS thread the 80 fills take about
-20 s.
+medians are 30 % (tennis) and 63 % (CMU) lower.  The 160 fills take about 20 s (the fills run their BLAS on one
+thread, see :mod:`mocapfill.methods.hybrid_blas`).
 """
 
 from __future__ import annotations
 
-import ctypes
-import glob
-import os
 import warnings
 
 import numpy as np
@@ -32,31 +29,6 @@ from mocapfill.evaluate import evaluate
 
 TRIALS = 20
 SEED = 0
-
-
-@pytest.fixture(scope="module", autouse=True)
-def one_blas_thread():
-    """Run this module with one OpenBLAS thread (what threadpoolctl would do; it is not a dependency).
-
-    The fills work on many small matrices; on a loaded 2-core machine a multi-threaded BLAS made this module 10-50x
-    slower (threads spin waiting for cores), which says nothing about the accuracy under test.  No-op when NumPy's
-    bundled OpenBLAS is not found.
-    """
-    lib = None
-    for path in glob.glob(os.path.join(os.path.dirname(np.__file__), os.pardir, "numpy.libs", "*openblas*")):
-        try:
-            lib = ctypes.CDLL(path)
-            get, put = lib.scipy_openblas_get_num_threads64_, lib.scipy_openblas_set_num_threads64_
-            break
-        except (OSError, AttributeError):
-            lib = None
-    if lib is None:
-        yield
-        return
-    before = get()
-    put(1)
-    yield
-    put(before)
 
 
 @pytest.fixture(scope="module", params=["85_02.c3d", "kinematics_tennis_serve.c3d"])

@@ -36,6 +36,7 @@ import numpy as np
 from ..errors import MethodError
 from ..gaps import find_gaps
 from .base import FillResult, finish
+from .hybrid_blas import one_blas_thread
 from .hybrid_bones import refine_bones
 from .hybrid_local import DEFAULT_ALIGN_MM, DEFAULT_SCALES_MM, reconstruct_local
 from .pca import DEFAULT_SCALE_MM, unit_scale
@@ -105,6 +106,12 @@ def fill_auto(
         raise MethodError(f"positions must have shape (n_frames, n_markers, 3), got {positions.shape}")
     if labels is not None and len(labels) != positions.shape[1]:
         raise MethodError(f"{len(labels)} labels for {positions.shape[1]} markers")
+    with one_blas_thread():  # thousands of small decompositions: BLAS threads only add contention
+        return _fill_auto(positions, units=units, labels=labels, rate=rate, bones=bones, knn=knn, refine=refine)
+
+
+def _fill_auto(positions: np.ndarray, *, units: str, labels, rate, bones, knn: int, refine: bool) -> FillResult:
+    """The body of :func:`fill_auto` (positions (n_frames, n_markers, 3), already validated)."""
     mm = unit_scale(units, None) / DEFAULT_SCALE_MM  # data units per millimetre
     missing = np.isnan(positions).any(axis=2)
     estimate, std, local_info = reconstruct_local(positions, scales=tuple(DEFAULT_SCALES_MM * mm),
@@ -114,12 +121,10 @@ def fill_auto(
     info: dict[str, Any] = {"pipeline": "local-frame weighted PCA + bone refinement",
                             "fallback": local_info["fallback"], "spline_max_frames": spline_max}
     boneset = _resolve_bones(positions, bones if refine else False, units, labels)
-    refined_markers = np.zeros(positions.shape[1], dtype=bool)
     if boneset is not None and len(boneset):
         estimate, binfo = refine_bones(estimate, positions, std * BONE_TRUST, boneset.pairs, boneset.lengths,
                                        boneset.spread, spread_floor=SPREAD_FLOOR_MM * mm)
         info["bone_refinement"] = binfo
-        refined_markers[np.unique(boneset.pairs)] = True
     info["bones"] = 0 if boneset is None else int(len(boneset))
     info["gap_methods"] = _gap_methods(missing, std, local_info, boneset, labels, units, splined, spline_max)
     return finish(positions, estimate, std=std, info=info)

@@ -46,6 +46,7 @@ import numpy as np
 
 from ..errors import MethodError
 from .base import FillResult, finish
+from .hybrid_blas import one_blas_thread
 
 #: Default Gaussian width of the distance weights, per unit (200 mm).
 DEFAULT_SCALE_MM = 200.0
@@ -487,7 +488,8 @@ def fill_pca(
         raise MethodError(f"pca missing_weight must be positive, got {missing_weight!r}")
     positions = np.asarray(positions, dtype=np.float64)
     width = unit_scale(units, scale)
-    estimate, std, info = reconstruct(positions, scale=width, missing_weight=missing_weight, variance=variance,
-                                      strategy=strategy, normalise=normalise)
+    with one_blas_thread():  # many small decompositions: BLAS threads only add contention
+        estimate, std, info = reconstruct(positions, scale=width, missing_weight=missing_weight, variance=variance,
+                                          strategy=strategy, normalise=normalise)
     info.update({"scale": width, "missing_weight": missing_weight, "variance": variance})
     return finish(positions, estimate, std=std, info=info)
