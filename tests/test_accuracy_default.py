@@ -3,8 +3,8 @@
 The benchmark (``benchmarks/bench_default.py``) runs 20 seeded trials per clip and protocol and then an ablation and
 a speed test; this module runs only the accuracy part for ``pca`` and ``auto`` (the same 20 trials: seed 0,
 ``make_occlusions`` draws trial i from the i-th stream spawned from the seed) on both real clips (CMU flips in mm at
-120 Hz, a tennis serve in metres at 50 Hz) and both protocols with gaps of 10-50 % of the clip (given explicitly: evaluate's defaults cap them at 1 s / 5 s on
-long takes), and asserts issue 6's thresholds per clip:
+120 Hz, a tennis serve in metres at 50 Hz) and both protocols with gaps of 10-50 % of the clip (given explicitly:
+evaluate's defaults cap them at 1 s / 5 s on long takes), and asserts issue 6's thresholds per clip:
 
 - limb protocol: the default's median RMSE at least 20 % lower than the published PCA's;
 - one-marker protocol: no worse than the published PCA;

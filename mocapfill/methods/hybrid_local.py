@@ -74,7 +74,8 @@ def local_frames(
     """Weighted centroids (n, 3) and rotations (n, 3, 3) that bring ``anchors`` to a common pose in ``frames``.
 
     positions (n_frames, n_markers, 3); anchors (p,) marker indices observed in every one of ``frames``; weights
-    (p,); the reference shape is the (one-pass) Procrustes mean over ``reference_frames`` (a subset of ``frames`` positions).
+    (p,); the reference shape is the (one-pass) Procrustes mean over ``reference_frames`` (positions within
+    ``frames``).
     """
     pts = positions[frames][:, anchors]  # (n, p, 3)
     wsum = weights.sum()
