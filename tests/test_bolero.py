@@ -125,6 +125,16 @@ def test_no_bones_and_blackout(case):
     assert res.info["bones"] == 0 and np.isfinite(res.positions).all()
 
 
+def test_marker_missing_throughout_does_not_switch_constraints_off(case):
+    _, occluded, bones = case
+    occluded = occluded.copy()
+    occluded[:, 6] = np.nan  # the free marker, never observed
+    res = _run(fill_bolero_hc, occluded, bones=bones)
+    assert np.isnan(res.positions[:, 6]).all()
+    assert np.isfinite(res.positions[:, :6]).all()
+    assert res.info["bone_error_max_rel"] < 1e-6 and res.info["last_solve"]["frames"] > 0
+
+
 def test_bad_options(case):
     _, occluded, bones = case
     with pytest.raises(MethodError, match="penalty"):

@@ -89,12 +89,17 @@ def _run(positions, solver: Callable[..., tuple[np.ndarray, SolveStats]], *, var
         raise MethodError(f"project_start must be >= 1, got {project_start}")
     pairs, lengths, spread, source = _resolve_bones(positions, bones, units, labels)
     missing = np.isnan(positions).any(axis=2)
+    # A marker missing in every frame stays NaN (the engine does not model it): its bones hold nothing.
+    dead = missing.all(axis=0) if missing.size else np.zeros(positions.shape[1], dtype=bool)
+    alive = ~dead[pairs].any(axis=1) if pairs.size else np.zeros(0, dtype=bool)
+    pairs, lengths, spread = pairs[alive], lengths[alive], spread[alive]
+    missing = missing & ~dead
     record: dict[str, Any] = {"calls": 0, "iterations": 0, "last": None}
 
     def project(estimate: np.ndarray, missing_now: np.ndarray, sigma2: float, iteration: int) -> np.ndarray:
         # ``missing_now`` is the engine's mask (the input's gaps); the data's observed samples are the bones'
         # fixed partners, so they are taken from ``positions``, not from the model's estimate.
-        out, stats = solver(estimate, positions, missing_now, pairs, lengths, spread)
+        out, stats = solver(estimate, positions, missing_now & ~dead, pairs, lengths, spread)
         record["calls"] += 1
         record["iterations"] += stats.iterations
         record["last"] = stats
@@ -111,7 +116,7 @@ def _run(positions, solver: Callable[..., tuple[np.ndarray, SolveStats]], *, var
         out, stats = solver(estimate, positions, missing, pairs, lengths, spread, final=True)
         record["iterations"] += stats.iterations
         record["last"] = stats
-        polished = finish(positions, np.where(missing[:, :, None], out, positions), std=result.std,
+        polished = finish(positions, np.where(missing[:, :, None], out, result.positions), std=result.std,
                           n_iter=result.n_iter, converged=result.converged, objective=result.objective,
                           info=result.info)
         result = polished
