@@ -207,3 +207,11 @@ def test_never_observed_marker_is_reported_and_left_empty(runner, gappy, tmp_pat
     assert "never observed" in result.stderr and data.labels[3] in result.stderr
     filled = mocapfill.read(out)
     assert filled.missing[:, 3].all() and not np.delete(filled.missing, 3, axis=1).any()
+
+
+def test_report_checks_bones_estimated_from_the_observed_frames(runner, gappy, tmp_path):
+    report = tmp_path / "r.json"
+    result = runner.invoke(cli, ["fill", str(gappy), str(tmp_path / "o.c3d"), "-m", "spline", "--report",
+                                 str(report), "-q"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(report.read_text())["bones"]

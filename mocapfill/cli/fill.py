@@ -210,10 +210,19 @@ def fill_command(input_path: str, output_path: str, method: str, hidden: int | N
         if report_path is not None:
             from ..report import build_fill_report, write_report
 
+            report_bones = bones
+            if report_bones is None:
+                # The report's bone-length checks need bones: estimate them from the observed frames of the input
+                # (as the bone-aware methods do), never from filled samples.
+                from ..bones import estimate_bones
+
+                report_bones = estimate_bones(work.positions, units=data.units, labels=data.labels)
+                if len(report_bones) == 0:
+                    report_bones = None
             report = build_fill_report(data, result, method=method, settings=settings, seconds=seconds,
-                                       input_path=input_path, output_path=output_path, bones=bones,
+                                       input_path=input_path, output_path=output_path, bones=report_bones,
                                        rejected=rejected, smoothed=smooth)
-            write_report(report, report_path, data=data, result=result, bones=bones)
+            write_report(report, report_path, data=data, result=result, bones=report_bones)
 
     _show_warnings(caught, quiet)
     _summary(data, work, result, method, seconds, rejected, smooth, report_path, quiet)
