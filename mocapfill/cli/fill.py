@@ -86,11 +86,14 @@ def _read(path: str, fmt: str | None):
     return read(path, format=fmt)
 
 
-@cli.command("fill")
+_EPILOG = "\b\nMethods:\n" + "\n".join(f"  {spec.name:<10} {spec.summary}" for spec in METHODS.values())
+
+
+@cli.command("fill", epilog=_EPILOG)
 @click.argument("input_path", metavar="IN", type=str)
 @click.argument("output_path", metavar="OUT", type=str)
 @click.option("-m", "--method", type=click.Choice(list(METHODS)), default=DEFAULT_METHOD, show_default=True,
-              help="Fill method (see `mocapfill fill --help`; 'auto' is the most accurate measured).")
+              help="Fill method (listed below; 'auto' is the most accurate measured).")
 @click.option("--hidden", type=click.IntRange(min=1), default=None,
               help="Hidden dimension of the dynamical models (dynammo, bolero-*; default 16).")
 @click.option("--max-iter", type=click.IntRange(min=0), default=None, help="Iteration cap of iterative methods.")
