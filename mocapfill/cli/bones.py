@@ -108,7 +108,6 @@ def estimate_bones_command(input_path: str, output: str | None, fmt: str | None,
     bones = estimate_bones(data.positions, units=data.units, labels=data.labels,
                            max_rel_spread=DEFAULT_MAX_REL_SPREAD if max_rel_spread is None else max_rel_spread,
                            max_abs_spread=abs_spread, min_frames=min_frames, min_partners=min_partners)
-    _show(bones, data.labels, data.units, data.n_markers, min_partners, data.path or input_path, quiet)
     if output == "-":
         if fmt == "csv":
             text = bones_to_csv(bones, labels=data.labels, units=data.units)
@@ -118,4 +117,7 @@ def estimate_bones_command(input_path: str, output: str | None, fmt: str | None,
         sys.stdout.flush()
     else:
         save_bones(bones, output, labels=data.labels, units=data.units, format=fmt)
+    # The data is written before the table: a reader of stderr that goes away must not cost the output.
+    _show(bones, data.labels, data.units, data.n_markers, min_partners, data.path or input_path, quiet)
+    if output != "-":
         console(quiet).print(f"wrote {len(bones)} bones to {output}", markup=False)
