@@ -23,10 +23,10 @@ see ``benchmarks/bench_default.py`` and the README's figures):
 Candidates measured and left out (``benchmarks/bench_default.py``, 20 trials per clip and protocol, median RMSE in
 mm on the CMU clip / tennis serve; the default: 11.6 / 3.7 one-marker, 15.3 / 5.8 limb): the published PCA alone
 (29.7 / 5.4, 42.3 / 8.3) and its joint-marker strategy (no better); bone refinement with one global weight
-(BoLeRO-SC style on top of the local PCA: helped the CMU clip, hurt the tennis serve); DynaMMo (135 / 35, 138 / 149)
-and averaging with it by inverse variance (on three CMU limb trials its predictive std was 3-8x smaller than its
-error, so it would dominate
-the average and drag it down); BoLeRO-SC (48 / 20, 49 / 33, 0.5-0.8 s per fill).
+(BoLeRO-SC style on top of the local PCA: helped the CMU clip, hurt the tennis serve); DynaMMo (135 / 35,
+138 / 149) and averaging with it by inverse variance (on three CMU limb trials its predictive std was 3-8x smaller
+than its error, so it would dominate the average and drag it down); BoLeRO-SC (48 / 20, 49 / 33, 0.5-0.8 s per
+fill).
 
 ``info["gap_methods"]`` lists, for every gap (run of missing frames of one marker), which method filled it and why.
 """
