@@ -8,7 +8,7 @@ Prints the machine, then:
 Data: the real CMU capture sample_data/85_02.c3d (810 frames, 41 markers, 120 Hz) tiled forward-backward-forward...
 to the length needed (no jumps at the seams), with occlusions of one marker for 0.5-2 s at random (seeded) until
 5 % of the samples are missing.  Each size runs in a fresh subprocess so that its peak RSS (ru_maxrss) is its own.
-BLAS threads: run_dynammo limits OpenBLAS to one thread while it runs (lds.single_blas_thread): the per-frame
+BLAS threads: run_dynammo limits OpenBLAS to one thread while it runs (mocapfill.blas.single_blas_thread): the per-frame
 H x H work gains nothing from threads, and on a busy machine OpenBLAS threads make it 10-40x slower.  The
 one-iteration figure below runs the lds functions directly, inside the same limiter.
 """
@@ -82,6 +82,7 @@ def one_iteration() -> None:
     sys.path.insert(0, str(REPO / "tests"))
     from test_dynammo import dense_e_step, dense_m_step
 
+    from mocapfill.blas import single_blas_thread
     from mocapfill.methods import lds
     from mocapfill.methods.dynammo import initial_params, interpolate_columns
 
@@ -99,7 +100,7 @@ def one_iteration() -> None:
         Xn = np.where(miss, fitted, X)
         return lds.m_step(stats, Xn.T @ stats.Ez, float((Xn ** 2).sum()), m, p)
 
-    with lds.single_blas_thread():
+    with single_blas_thread():
         fast()
         reps = 30
         t0, c0 = time.perf_counter(), time.process_time()
@@ -107,7 +108,7 @@ def one_iteration() -> None:
             fast()
         t_fast = (time.perf_counter() - t0) / reps
         c_fast = (time.process_time() - c0) / reps
-    with warnings.catch_warnings(), lds.single_blas_thread():
+    with warnings.catch_warnings(), single_blas_thread():
         warnings.simplefilter("ignore")
         t0 = time.perf_counter()
         mh, Ezz, Ez1z0, Vh, _ = dense_e_step(p, X)

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from mocapfill.blas import single_blas_thread
+
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE_DATA = REPO / "sample_data"
 TEST_DATA = REPO / "tests" / "data"
@@ -30,3 +32,10 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip("../shared/data is not present")
     return SHARED_DATA
+
+
+@pytest.fixture(scope="session", autouse=True)
+def one_blas_thread():
+    """Small matrices everywhere: BLAS threads only add contention on a busy 2-core machine (10-50x slower fills)."""
+    with single_blas_thread():
+        yield

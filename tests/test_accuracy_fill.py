@@ -14,17 +14,11 @@ import numpy as np
 import pytest
 
 import mocapfill
-from mocapfill.methods.lds import single_blas_thread
 
 TRIALS = 7
 SEED = 0
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_blas_thread():
-    """Small matrices: BLAS threads only add contention on a busy machine (it made fills 10-50x slower)."""
-    with single_blas_thread():
-        yield
 
 
 def occlusion(n_frames: int, n_markers: int, rate: float, rng: np.random.Generator) -> tuple[int, int, int]:

@@ -138,15 +138,3 @@ def test_bones_option(sample_data):
         fill_auto(pos, bones=[(5, 6)])
     metres = fill_auto(pos / 1000.0, units="m", bones=given)  # the bones are converted to the data's units
     assert np.allclose(metres.positions * 1000.0, res.positions, atol=1e-3)
-
-
-def test_fills_run_their_blas_on_one_thread_and_restore_it():
-    from mocapfill.methods.hybrid_blas import _bundled_openblas, one_blas_thread
-
-    funcs = _bundled_openblas()
-    before = funcs[0]() if funcs else None
-    with one_blas_thread():
-        if funcs:
-            assert funcs[0]() == 1
-    if funcs:
-        assert funcs[0]() == before

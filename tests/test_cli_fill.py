@@ -12,13 +12,7 @@ from click.testing import CliRunner
 
 import mocapfill
 from mocapfill.cli import cli
-from mocapfill.methods.lds import single_blas_thread
 
-
-@pytest.fixture(scope="module", autouse=True)
-def one_blas_thread():
-    with single_blas_thread():
-        yield
 
 
 @pytest.fixture()

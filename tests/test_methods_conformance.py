@@ -22,7 +22,6 @@ import pytest
 
 import mocapfill
 from mocapfill.methods import METHODS
-from mocapfill.methods.lds import single_blas_thread
 
 #: Methods allowed to leave whole-body blackout frames unfilled (name -> reason).  None today.
 BLACKOUT_EXEMPT: dict[str, str] = {}
@@ -30,11 +29,6 @@ BLACKOUT_EXEMPT: dict[str, str] = {}
 FAST = {"max_iter": 15}
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_blas_thread():
-    """Small matrices: BLAS threads only add contention on a busy machine."""
-    with single_blas_thread():
-        yield
 
 
 def _options(name: str) -> dict:

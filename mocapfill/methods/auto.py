@@ -40,7 +40,7 @@ import numpy as np
 from ..errors import MethodError
 from ..gaps import find_gaps
 from .base import FillResult, finish
-from .hybrid_blas import one_blas_thread
+from ..blas import single_blas_thread
 from .hybrid_bones import refine_bones
 from .hybrid_local import DEFAULT_ALIGN_MM, DEFAULT_SCALES_MM, reconstruct_local
 from .pca import DEFAULT_SCALE_MM, unit_scale
@@ -110,7 +110,7 @@ def fill_auto(
         raise MethodError(f"positions must have shape (n_frames, n_markers, 3), got {positions.shape}")
     if labels is not None and len(labels) != positions.shape[1]:
         raise MethodError(f"{len(labels)} labels for {positions.shape[1]} markers")
-    with one_blas_thread():  # thousands of small decompositions: BLAS threads only add contention
+    with single_blas_thread():  # thousands of small decompositions: BLAS threads only add contention
         return _fill_auto(positions, units=units, labels=labels, rate=rate, bones=bones, knn=knn, refine=refine)
 
 

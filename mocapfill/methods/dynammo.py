@@ -51,6 +51,7 @@ import numpy as np
 
 from ..errors import ConvergenceWarning, MethodError
 from ..gaps import runs
+from ..blas import single_blas_thread
 from . import lds
 from .base import FillResult, ProgressFn, check_positions, finish
 
@@ -252,7 +253,7 @@ def run_dynammo(
     ``hidden``, ``sigma2`` (data units^2), ``scale``, ``markers_modelled``, ``markers_all_missing``,
     ``steady_state_frames`` (frames the filter needed to reach its steady state in the last E-step).
     """
-    with lds.single_blas_thread():
+    with single_blas_thread():
         return _run_dynammo(positions, hidden=hidden, max_iter=max_iter, tol=tol, seed=seed, progress=progress,
                             project=project, project_start=project_start, energy=energy, isotropic=isotropic,
                             uncertainty=uncertainty, body_frame=body_frame, bridge=bridge)

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..errors import MethodError
 from .base import FillResult, finish
-from .hybrid_blas import one_blas_thread
+from ..blas import single_blas_thread
 from .pca import (
     DEFAULT_SCALE_MM,
     MIN_TRAINING_FRAMES,
@@ -330,7 +330,7 @@ def fill_local_pca(
     align = DEFAULT_ALIGN_MM * mm if align_scale is None else float(align_scale)
     if not scales or min(scales) <= 0 or align <= 0:
         raise MethodError(f"scales and align_scale must be positive lengths, got {scales!r}, {align!r}")
-    with one_blas_thread():
+    with single_blas_thread():
         estimate, std, info = reconstruct_local(positions, scales=scales, align_scale=align,
                                                 missing_weight=missing_weight, normalise=normalise, knn=knn,
                                                 edge=edge)

@@ -38,8 +38,6 @@ from typing import NamedTuple
 import numpy as np
 from scipy import linalg as sla
 
-from ..blas import single_blas_thread  # noqa: F401  (re-exported: the EM engine's callers use it)
-
 #: Relative change below which a covariance recursion counts as having reached its steady state.
 STEADY_RTOL = 1e-13
 

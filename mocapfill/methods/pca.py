@@ -46,7 +46,7 @@ import numpy as np
 
 from ..errors import MethodError
 from .base import FillResult, finish
-from .hybrid_blas import one_blas_thread
+from ..blas import single_blas_thread
 
 #: Default Gaussian width of the distance weights, per unit (200 mm).
 DEFAULT_SCALE_MM = 200.0
@@ -488,7 +488,7 @@ def fill_pca(
         raise MethodError(f"pca missing_weight must be positive, got {missing_weight!r}")
     positions = np.asarray(positions, dtype=np.float64)
     width = unit_scale(units, scale)
-    with one_blas_thread():  # many small decompositions: BLAS threads only add contention
+    with single_blas_thread():  # many small decompositions: BLAS threads only add contention
         estimate, std, info = reconstruct(positions, scale=width, missing_weight=missing_weight, variance=variance,
                                           strategy=strategy, normalise=normalise)
     info.update({"scale": width, "missing_weight": missing_weight, "variance": variance})
