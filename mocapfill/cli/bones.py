@@ -4,15 +4,14 @@ from __future__ import annotations
 
 import re
 import sys
-import warnings
 
 import click
 from rich import box
 from rich.table import Table
 
-from ..errors import DataWarning, MocapfillError
+from ..errors import MocapfillError
 from . import cli
-from .common import FORMATS, console, quiet_option
+from .common import FORMATS, console, quiet_option, read_input
 
 _LENGTH = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(mm|cm|m)?\s*$")
 
@@ -85,7 +84,6 @@ def estimate_bones_command(input_path: str, output: str | None, fmt: str | None,
     """
     from ..bones import (DEFAULT_MAX_REL_SPREAD, DEFAULT_MIN_PARTNERS, bones_to_csv, bones_to_dict,
                          estimate_bones, save_bones)
-    from ..io import read
     from ..io.atomic import check_output_path
     import json
 
@@ -93,9 +91,7 @@ def estimate_bones_command(input_path: str, output: str | None, fmt: str | None,
     check_output_path(output, input_path)
     if fmt is None:
         fmt = "csv" if output.lower().endswith(".csv") else "json"
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DataWarning)
-        data = read(input_path, format=input_format)
+    data = read_input(input_path, input_format, quiet=quiet)
     min_partners = DEFAULT_MIN_PARTNERS if min_partners is None else min_partners
     for name, value in (("--min-frames", min_frames), ("--min-partners", min_partners)):
         if value is not None and value < 0:

@@ -29,3 +29,23 @@ def format_options(func: Callable) -> Callable:
 def console(quiet: bool = False) -> Console:
     """The stderr console for people: tables, progress, warnings.  Plain when stderr is not a terminal."""
     return Console(stderr=True, quiet=quiet, highlight=False)
+
+
+def read_input(path: str, input_format: str | None, *, quiet: bool = False, show_notes: bool = True):
+    """Read a capture for a command.
+
+    What the reader repaired (renamed duplicate labels, a truncated file, ...) is kept in ``data.notes``; it is shown
+    here as one line each on stderr (``show_notes``), never as a Python warning with a source line.
+    """
+    import warnings
+
+    from ..errors import DataWarning
+    from ..io import read
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DataWarning)
+        data = read(path, format=input_format)
+    if show_notes:
+        for note in data.notes:
+            console(quiet).print(f"note: {path}: {note}", markup=False, highlight=False, soft_wrap=True)
+    return data

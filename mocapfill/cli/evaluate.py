@@ -12,9 +12,9 @@ import warnings
 import click
 from rich.table import Table
 
-from ..errors import DataWarning, MocapfillError
+from ..errors import MocapfillError
 from . import cli
-from .common import FORMATS, console, quiet_option
+from .common import FORMATS, console, quiet_option, read_input
 
 PROTOCOL_CHOICES = ("marker", "limb", "blackout", "random")
 
@@ -177,7 +177,6 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
     per method and how often each method beats each other one.
     """
     from ..evaluate import evaluate as run_evaluation
-    from ..io import read
     from ..methods import get_method
 
     if as_json and as_csv:
@@ -194,9 +193,7 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
             raise click.BadParameter("give at least one method", param_hint="'--methods'")
         for name in names:
             get_method(name)  # unknown names fail here, before the file is read
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DataWarning)
-        data = read(clean_file, format=input_format)
+    data = read_input(clean_file, input_format, quiet=quiet)
     if data.missing.all():
         raise MocapfillError(f"{clean_file}: every sample is missing; nothing to hide")
 

@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import ConvergenceWarning, DataWarning
 from ..methods import DEFAULT_METHOD, METHODS, get_method
 from . import cli
-from .common import console, format_options, quiet_option
+from .common import console, format_options, quiet_option, read_input
 
 _PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -78,12 +78,6 @@ class _ProgressBar:
     def __call__(self, iteration: int, n_max: int, objective: float) -> None:
         if self._bar is not None:
             self._bar.update(self._task, completed=iteration, total=n_max, objective=f"{objective:.6g}")
-
-
-def _read(path: str, fmt: str | None):
-    from ..io import read
-
-    return read(path, format=fmt)
 
 
 _EPILOG = "\b\nMethods:\n" + "\n".join(f"  {spec.name:<10} {spec.summary}" for spec in METHODS.values())
@@ -147,7 +141,7 @@ def fill_command(input_path: str, output_path: str, method: str, hidden: int | N
     caught: list[warnings.WarningMessage] = []
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        data = _read(input_path, input_format)
+        data = read_input(input_path, input_format, quiet=quiet)
         work = data
 
         rejected = None
@@ -160,7 +154,7 @@ def fill_command(input_path: str, output_path: str, method: str, hidden: int | N
                 options["delta"] = delta
             if reference_path is not None:
                 check_output_path(output_path, reference_path)
-                ref = _read(reference_path, None)
+                ref = read_input(reference_path, None, quiet=quiet)
                 options.update(reference=ref.positions, reference_labels=list(ref.labels),
                                reference_units=ref.units)
             outcome = reject(data.positions, **options)

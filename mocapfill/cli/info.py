@@ -4,15 +4,13 @@ from __future__ import annotations
 
 import json
 import sys
-import warnings
 
 import click
 from rich import box
 from rich.table import Table
 
-from ..errors import DataWarning
 from . import cli
-from .common import FORMATS, console, quiet_option
+from .common import FORMATS, console, quiet_option, read_input
 
 
 def _frames(n: int, rate: float) -> str:
@@ -86,13 +84,9 @@ def info(file: str, as_json: bool, input_format: str | None, quiet: bool) -> Non
     Per marker: percent missing, number of gaps, the longest gap (frames and seconds), gaps touching the start or
     the end, markers missing throughout; and the blackout frames (every marker missing).
     """
-    from ..io import read
     from ..summary import summarize
 
-    with warnings.catch_warnings():
-        # What the readers repaired is in data.notes and printed below; no second copy as a Python warning.
-        warnings.simplefilter("ignore", DataWarning)
-        data = read(file, format=input_format)
+    data = read_input(file, input_format, show_notes=False)  # the notes are part of the table below
     summary = summarize(data)
     if as_json:
         sys.stdout.write(json.dumps(summary, indent=2, allow_nan=False) + "\n")
