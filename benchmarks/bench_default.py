@@ -2,7 +2,7 @@
 
 What it measures, on the repository's real complete clips (``sample_data/85_02.c3d``: CMU, 41 markers, 810 frames
 at 120 Hz, jumps and flips; ``sample_data/kinematics_tennis_serve.c3d``: OptiTrack, 39 markers, 1,092 frames at
-50 Hz, metres), with :func:`mocapfill.evaluate.evaluate`:
+50 Hz, metres), with :func:`mocapfill.evaluation.evaluate`:
 
 - ``marker`` protocol (one random marker hidden for 10-50 % of the clip) and ``limb`` protocol (two neighbouring
   markers of one limb chain hidden together for 10-50 %), 20 seeded trials each by default;
@@ -46,7 +46,7 @@ sys.path.insert(0, str(REPO))
 
 from mocapfill import api  # noqa: E402
 from mocapfill.bones import estimate_bones  # noqa: E402
-from mocapfill.evaluate import evaluate, make_occlusions, score  # noqa: E402
+from mocapfill.evaluation import evaluate, make_occlusions, score  # noqa: E402
 from mocapfill.io import read  # noqa: E402
 from mocapfill.methods.hybrid_local import fill_local_pca  # noqa: E402
 
@@ -70,7 +70,7 @@ def machine() -> str:
 
 
 def accuracy(trials: int, seed: int, extra: list[str]) -> dict:
-    """Main table through mocapfill.evaluate; returns {(clip, protocol): {method: rmse array (mm)}}."""
+    """Main table through mocapfill.evaluation; returns {(clip, protocol): {method: rmse array (mm)}}."""
     methods = ["pca", "auto", *extra]
     out = {}
     print(f"\n## Accuracy: {trials} trials per protocol, seed {seed}, gaps 10-50 % of the clip (errors in mm)")

@@ -21,7 +21,7 @@ _LAZY = {
     "fill": "mocapfill.api:fill",
     "fill_data": "mocapfill.api:fill_data",
     "estimate_bones": "mocapfill.bones:estimate_bones",
-    "evaluate": "mocapfill.evaluate:evaluate",
+    "evaluate": "mocapfill.evaluation:evaluate",
     "MarkerData": "mocapfill.markers:MarkerData",
     "FillResult": "mocapfill.methods.base:FillResult",
     "MocapfillError": "mocapfill.errors:MocapfillError",

@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 import mocapfill
-from mocapfill.evaluate import evaluate
+from mocapfill.evaluation import evaluate
 
 TRIALS = 20
 SEED = 0

@@ -12,7 +12,7 @@ import pytest
 import mocapfill
 from mocapfill.errors import MethodError, MocapfillError
 from mocapfill.markers import MarkerData
-from mocapfill.evaluate import (EvaluationResult, Occlusion, Trial, evaluate, gap_range, load_spec,
+from mocapfill.evaluation import (EvaluationResult, Occlusion, Trial, evaluate, gap_range, load_spec,
                                 make_occlusions, parse_length, save_spec, score, spec_of, trials_from_spec)
 from mocapfill.methods import METHODS, MethodSpec
 from mocapfill.methods.base import finish

@@ -76,3 +76,11 @@ def test_import_has_no_side_effects_and_is_lazy():
     code = "import sys, mocapfill; print('mocapfill.io' in sys.modules, 'click' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.split() == ["False", "False"]
+
+
+def test_every_public_name_resolves():
+    import mocapfill.cli  # noqa: F401  (imports every subpackage the commands use)
+
+    for name in mocapfill.__all__:
+        assert getattr(mocapfill, name) is not None
+    assert callable(mocapfill.evaluate) and callable(mocapfill.estimate_bones) and callable(mocapfill.read)

@@ -176,7 +176,7 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
     frames (bones estimated from the occluded input), and seconds.  The table on stderr gives the mean and median
     per method and how often each method beats each other one.
     """
-    from ..evaluate import evaluate as run_evaluation
+    from ..evaluation import evaluate as run_evaluation
     from ..methods import get_method
 
     if as_json and as_csv:

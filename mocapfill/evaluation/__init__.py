@@ -4,10 +4,10 @@ Public API
 ----------
 - :func:`evaluate` (data, methods, protocol, trials, seed, ...) -> :class:`EvaluationResult`
 - :func:`make_occlusions` (data, protocol, trials, seed, ...) -> list of :class:`Trial`: the protocols
-  (``marker``, ``limb``, ``blackout``, ``random``; see :mod:`mocapfill.evaluate.occlusions`)
+  (``marker``, ``limb``, ``blackout``, ``random``; see :mod:`mocapfill.evaluation.occlusions`)
 - :func:`load_spec` / :func:`save_spec` / :func:`trials_from_spec` / :func:`spec_of`: replayable occlusion specs
-  (see :mod:`mocapfill.evaluate.spec` and ``docs/occlusions.md``)
-- metrics in :mod:`mocapfill.evaluate.metrics` (RMSE, max error, the BoLeRO paper's MSE, bone-length error)
+  (see :mod:`mocapfill.evaluation.spec` and ``docs/occlusions.md``)
+- metrics in :mod:`mocapfill.evaluation.metrics` (RMSE, max error, the BoLeRO paper's MSE, bone-length error)
 """
 
 from __future__ import annotations
