@@ -53,7 +53,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from .bones import UNIT_MM, default_min_frames, unit_scale
-from .distances import pair_distance_stats
+from .distances import all_pairs, pair_distance_stats
 from .errors import MocapfillError
 
 #: Default margin floor (mm, converted to the data's units).
@@ -123,11 +123,13 @@ def pair_strain(positions: np.ndarray, pairs: np.ndarray, dmin: np.ndarray, dmax
     return d
 
 
-def _greedy(strain: np.ndarray, weight: np.ndarray, pairs: np.ndarray, n_markers: int) -> np.ndarray:
+def _greedy(strain: np.ndarray, weight: np.ndarray, pairs: np.ndarray, n_markers: int, min_count: int = 1
+            ) -> np.ndarray:
     """Greedy removal per frame.
 
     ``strain`` (F, P) from :func:`pair_strain` (NaN = unobserved pair); ``weight`` (P,) how much a pair says about
-    its markers (1 / width of its widened range: rigid pairs speak loudest).  Returns removed (F, n_markers) bool.
+    its markers (1 / width of its widened range: rigid pairs speak loudest).  A frame stops when its worst marker
+    holds fewer than ``min_count`` violated pairs.  Returns removed (F, n_markers) bool.
     """
     n_frames = strain.shape[0]
     removed = np.zeros((n_frames, n_markers), dtype=bool)
@@ -148,6 +150,9 @@ def _greedy(strain: np.ndarray, weight: np.ndarray, pairs: np.ndarray, n_markers
         mean_strain = np.nan_to_num(mean_strain, nan=0.0)
         # lexicographic (count, mean strain): mean_strain / (1 + mean_strain) < 1 keeps the order of counts
         worst = np.argmax(counts + mean_strain / (1.0 + mean_strain), axis=1)
+        if min_count > 1:
+            enough = counts[np.arange(len(active)), worst] >= min_count
+            active, worst, va, oa = active[enough], worst[enough], va[enough], oa[enough]
         removed[active, worst] = True
         # pairs touching the removed marker no longer count in that frame
         gone = (a[None, :] == worst[:, None]) | (b[None, :] == worst[:, None])
@@ -198,6 +203,102 @@ def _apply(positions: np.ndarray, pairs: np.ndarray, dmin: np.ndarray, dmax: np.
     return rejected
 
 
+def _pair_dist(positions: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """Distances (n_frames, P) of ``pairs`` (P, 2) in ``positions`` (n_frames, n_markers, 3); NaN where missing."""
+    diff = positions[:, pairs[:, 0], :] - positions[:, pairs[:, 1], :]
+    return np.sqrt(np.einsum("tpc,tpc->tp", diff, diff))
+
+
+def _jump_scale(positions: np.ndarray, pairs: np.ndarray, chunk_bytes: int) -> np.ndarray:
+    """Robust scale (1.4826 MAD) of each pair's frame-to-frame distance change, shape (P,); NaN if never seen."""
+    n_frames = positions.shape[0]
+    scale = np.full(len(pairs), np.nan)
+    step = max(1, int(chunk_bytes // (5 * 8 * max(n_frames, 1))))
+    for start in range(0, len(pairs), step):
+        jump = np.abs(np.diff(_pair_dist(positions, pairs[start:start + step]), axis=0))
+        ok = ~np.isnan(jump).all(axis=0)
+        if ok.any():
+            scale[start:start + step][ok] = 1.4826 * np.nanmedian(jump[:, ok], axis=0)
+    return scale
+
+
+def _stiff_pairs(pairs: np.ndarray, n_markers: int, spread: np.ndarray, k: int) -> np.ndarray:
+    """Rows of ``pairs`` (P, 2) that are among the ``k`` smallest ``spread`` (P,) of either marker; NaN = never."""
+    cost = np.full((n_markers, n_markers), np.inf)
+    row = np.full((n_markers, n_markers), -1, dtype=np.intp)
+    spread = np.where(np.isnan(spread), np.inf, spread)
+    cost[pairs[:, 0], pairs[:, 1]] = cost[pairs[:, 1], pairs[:, 0]] = spread
+    row[pairs[:, 0], pairs[:, 1]] = row[pairs[:, 1], pairs[:, 0]] = np.arange(len(pairs))
+    k = min(k, n_markers - 1)
+    best = np.argsort(cost, axis=1, kind="stable")[:, :k]
+    picked = row[np.arange(n_markers)[:, None], best]
+    finite = np.isfinite(cost[np.arange(n_markers)[:, None], best])
+    return np.unique(picked[finite & (picked >= 0)])
+
+
+def shifted_runs(positions: np.ndarray, *, rate: float, max_run: float = 0.3, units: str = "mm",
+                 jump_k: float = 8.0, jump_floor_mm: float = 5.0, min_pairs: int = 3, partners: int = 6,
+                 cancel: float = 0.3, chunk_bytes: int = 64 * 2**20) -> np.ndarray:
+    """Markers displaced for a stretch of frames (label swaps, ghosts, bumped markers), shape (n_frames, n_markers).
+
+    A displaced stretch starts and ends with a *step*: in one frame the marker's distances to its stiffest
+    partners all change by far more than they ever change between two clean frames, and at the end of the stretch
+    they come back.  Clean motion, even fast, changes those distances smoothly (several consecutive large changes,
+    going one way), and soft tissue moves one pair at a time.  So:
+
+    1. jumps: ``J = D[t+1] - D[t]`` for each marker's ``partners`` stiffest pairs (smallest robust scale ``s`` of
+       ``J``: 1.4826 x its median absolute value); a pair jumps when ``|J| > jump_k * s + jump_floor_mm``;
+    2. the greedy rule of :func:`reject_outliers` on those jumps, with a marker blamed only while it holds at least
+       ``min_pairs`` jumping pairs: an *event* of that marker between frames t and t+1;
+    3. a stretch from an event to a later one at most ``max_run`` seconds away is displaced when the marker comes
+       back: summed over its stiff pairs, ``|D[end + 1] - D[start - 1]|`` is below ``cancel`` times the two steps'
+       sizes ``|J_in| + |J_out|``.  Events are taken in order; a stretch found is skipped past.
+
+    ``positions`` (n_frames, n_markers, 3), NaN = missing; ``rate`` in Hz.  Single-frame spikes come out too
+    (a stretch of one frame).  Returns bool (n_frames, n_markers), True on displaced observed samples.
+    """
+    n_frames, n_markers, _ = positions.shape
+    found = np.zeros((n_frames, n_markers), dtype=bool)
+    if n_frames < 3 or n_markers < 2:
+        return found
+    floor = jump_floor_mm * unit_scale("mm", units)
+    pairs = all_pairs(n_markers)
+    scale = _jump_scale(positions, pairs, chunk_bytes)
+    sel = _stiff_pairs(pairs, n_markers, scale, partners)
+    if sel.size == 0:
+        return found
+    pairs, tol = pairs[sel], jump_k * scale[sel] + floor
+    dist = _pair_dist(positions, pairs)  # (n_frames, P'): P' <= n_markers * partners
+    jump = np.diff(dist, axis=0)
+    events = _greedy(np.abs(jump) / tol, 1.0 / tol, pairs, n_markers, min_count=min_pairs)  # (n_frames - 1, M)
+    longest = max(1, int(round(max_run * rate)))
+    for m in np.flatnonzero(events.sum(axis=0) >= 2):
+        cols = np.flatnonzero((pairs[:, 0] == m) | (pairs[:, 1] == m))
+        e = np.flatnonzero(events[:, m])
+        d, j = dist[:, cols], np.abs(jump[:, cols])
+        k = 0
+        while k < len(e) - 1:
+            start, hit = e[k], None
+            # the first later event that brings the marker back closes the stretch; events in between are the
+            # displaced marker's own distances changing fast (no longer a stiff pair while it is displaced)
+            for q in range(k + 1, len(e)):
+                end = e[q]
+                if end - start > longest:
+                    break
+                back = np.abs(d[end + 1] - d[start])
+                size = j[start] + j[end]
+                ok = ~(np.isnan(back) | np.isnan(size))
+                if ok.any() and back[ok].sum() < cancel * size[ok].sum():
+                    hit = q
+                    break
+            if hit is None:
+                k += 1
+            else:
+                found[start + 1:e[hit] + 1, m] = True
+                k = hit + 1
+    return found & ~np.isnan(positions).any(axis=2)
+
+
 def _align(reference: np.ndarray, labels: Sequence[str] | None, reference_labels: Sequence[str] | None,
            n_markers: int) -> np.ndarray:
     reference = np.asarray(reference, dtype=np.float64)
@@ -232,7 +333,8 @@ def reject_outliers(positions: np.ndarray, *, reference: np.ndarray | None = Non
                     min_margin: float | None = None, min_frames: int | None = None,
                     labels: Sequence[str] | None = None, reference_labels: Sequence[str] | None = None,
                     reference_units: str | None = None, chunk_bytes: int = 64 * 2**20, window: int = 3,
-                    two_stage: bool = True, stage1_passes: int = 3) -> OutlierResult:
+                    two_stage: bool = True, stage1_passes: int = 3, rate: float | None = None,
+                    runs: bool = True, max_run: float = 0.3) -> OutlierResult:
     """Remove markers that break the inter-marker distance ranges (Holden's rule; see the module docstring).
 
     Parameters
@@ -269,6 +371,13 @@ def reject_outliers(positions: np.ndarray, *, reference: np.ndarray | None = Non
         Units of ``reference`` when they differ from ``units``: it is converted (mm / cm / m).
     chunk_bytes : int
         Working-memory budget of one chunk of frames x pairs.
+    rate : float, optional
+        Frame rate in Hz (default 120), for ``max_run``.
+    runs : bool
+        Self-reference only: first find markers displaced for a stretch of frames with :func:`shifted_runs`
+        (default True); they are rejected and left out of the ranges.
+    max_run : float
+        Longest displaced stretch looked for, in seconds (default 0.3).
 
     Returns
     -------
@@ -287,6 +396,7 @@ def reject_outliers(positions: np.ndarray, *, reference: np.ndarray | None = Non
     if min_margin is None:
         min_margin = DEFAULT_MIN_MARGIN_MM * unit_scale("mm", units)
     observed = ~np.isnan(positions).any(axis=2)
+    original, displaced = positions, None
     if n_markers < 2 or n_frames == 0:
         return OutlierResult(positions.copy(), np.zeros((n_frames, n_markers), dtype=bool))
     if reference is not None:
@@ -296,6 +406,13 @@ def reject_outliers(positions: np.ndarray, *, reference: np.ndarray | None = Non
         mf = default_min_frames(ref.shape[0]) if min_frames is None else min_frames
         pairs, dmin, dmax = _ranges(ref, 0.0, mf)
     else:
+        if runs:
+            # displaced stretches would widen the ranges they should break: find them first, then treat them as gaps
+            displaced = shifted_runs(positions, rate=120.0 if rate is None else float(rate), max_run=max_run,
+                                     units=units, chunk_bytes=chunk_bytes)
+            if displaced.any():
+                positions = positions.copy()
+                positions[displaced] = np.nan
         mf = default_min_frames(n_frames) if min_frames is None else min_frames
         pairs, lo, hi = _ranges(positions, percentile, mf, window)
         if two_stage:
@@ -316,6 +433,9 @@ def reject_outliers(positions: np.ndarray, *, reference: np.ndarray | None = Non
         else:
             dmin, dmax = lo, hi
     rejected = _apply(positions, pairs, dmin, dmax, delta=delta, min_margin=min_margin, chunk_bytes=chunk_bytes)
+    if displaced is not None:
+        rejected |= displaced
+        positions = original
     rejected &= observed
     out = positions.copy()
     out[rejected] = np.nan
