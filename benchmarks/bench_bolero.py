@@ -88,8 +88,8 @@ def run_trial(method: str, occluded, units, labels, bones, *, max_iter, seed, **
         # The engine with an identity projection: what BoLeRO pays the engine for its hook, before any solve.
         from mocapfill.methods.dynammo import run_dynammo
 
-        res = run_dynammo(occluded, max_iter=max_iter, seed=seed, project=lambda est, miss, s2, it: est,
-                          project_start=1, bridge=True)
+        res = run_dynammo(occluded, max_iter=max_iter, seed=seed, project=lambda step: step.estimate,
+                          project_start=1)
     elif method == "bolero-hc":
         res = fill_bolero_hc(occluded, bones=bones, units=units, labels=labels, max_iter=max_iter, seed=seed,
                              **extra)

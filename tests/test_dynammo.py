@@ -143,7 +143,7 @@ def test_fast_engine_matches_reference_implementation(body_frame):
     X = with_gaps(P)
     n_iter = 12
     ref, ref_obj = reference_dynammo(X, hidden=3, n_iter=n_iter, body_frame=body_frame)
-    res = run_quiet(X, hidden=3, max_iter=n_iter, tol=0.0, seed=0, body_frame=body_frame)
+    res = run_quiet(X, hidden=3, max_iter=n_iter, tol=0.0, seed=0, body_frame=body_frame, bridge=False)
     assert res.n_iter == n_iter and not res.converged
     miss = np.isnan(X).any(axis=2)
     span = np.abs(P).max()
@@ -223,21 +223,36 @@ def test_project_hook_and_progress():
     P, _ = lds_markers(T=100, M=4, H=3, seed=6)
     X = with_gaps(P)
     miss = np.isnan(X).any(axis=2)
+    frames = np.flatnonzero(miss.any(axis=1))
     calls, ticks = [], []
 
-    def project(estimate, missing, sigma2, iteration):
-        calls.append(iteration)
-        assert estimate.shape == X.shape and missing.shape == miss.shape and (missing == miss).all()
-        assert sigma2 > 0 and np.isfinite(estimate).all()
-        out = estimate.copy()
-        out[missing] = 123.0
+    def project(step):
+        calls.append((step.iteration, step.final))
+        n = frames.size
+        assert step.estimate.shape == (n, 4, 3) and (step.frames == frames).all()
+        assert (step.missing == miss[frames]).all()
+        assert step.sigma2 > 0 and np.isfinite(step.estimate).all()
+        np.testing.assert_array_equal(step.estimate[~step.missing], X[frames][~step.missing])  # the data there
+        out = step.estimate.copy()
+        out[step.missing] = 123.0
         return out
 
     res = run_quiet(X, hidden=3, max_iter=6, tol=0.0, project=project, project_start=3,
                     progress=lambda i, n, obj: ticks.append((i, n, obj)))
-    assert calls == [3, 4, 5, 6]
+    assert calls == [(3, False), (4, False), (5, False), (6, False), (6, True)]  # + the final, bridged call
     assert [t[0] for t in ticks] == [1, 2, 3, 4, 5, 6] and all(t[1] == 6 for t in ticks)
     np.testing.assert_allclose(res.positions[miss], 123.0, rtol=1e-9)
+
+
+@pytest.mark.parametrize("bridge", [False, True])
+def test_identity_hook_is_plain_dynammo(bridge):
+    """The hook sees G E[z] in data units and its answer goes back through the inverse transform exactly."""
+    P, _ = lds_markers(T=120, M=5, H=3, seed=9)
+    X = with_gaps(P)
+    plain = run_quiet(X, hidden=3, max_iter=8, tol=0.0, bridge=bridge)
+    hooked = run_quiet(X, hidden=3, max_iter=8, tol=0.0, bridge=bridge, project=lambda step: step.estimate)
+    np.testing.assert_allclose(hooked.positions, plain.positions, rtol=0, atol=1e-9 * np.abs(P).max())
+    np.testing.assert_allclose(hooked.objective, plain.objective, rtol=1e-9)
 
 
 def test_convergence_warning_at_the_cap():

@@ -29,9 +29,9 @@ from typing import Any, Callable
 import numpy as np
 
 from ..errors import MethodError
-from .base import FillResult, ProgressFn, check_positions, finish
+from .base import FillResult, ProgressFn, check_positions
 from .constraints import SolveStats, bone_errors, frame_groups, solve_hard, solve_soft
-from .dynammo import DEFAULT_HIDDEN, DEFAULT_MAX_ITER, DEFAULT_TOL, bridge_residuals, run_dynammo
+from .dynammo import DEFAULT_HIDDEN, DEFAULT_MAX_ITER, DEFAULT_TOL, ProjectStep, run_dynammo
 
 #: Default dimensionless penalty weight w of BoLeRO-SC.  Measured with ``benchmarks/bench_bolero.py --sweep-penalty``
 #: (10 trials x 2 protocols x 2 files, spread weighting): w = 1 / 3 / 10 / 100 gave the median RMSE ratio to DynaMMo
@@ -95,32 +95,27 @@ def _run(positions, solver: Callable[..., tuple[np.ndarray, SolveStats]], *, var
     alive = ~dead[pairs].any(axis=1) if pairs.size else np.zeros(0, dtype=bool)
     pairs, lengths, spread = pairs[alive], lengths[alive], spread[alive]
     missing = missing & ~dead
-    record: dict[str, Any] = {"calls": 0, "iterations": 0, "last": None}
+    record: dict[str, Any] = {"calls": 0, "iterations": 0, "last": None, "frames": None}
 
-    def project(estimate: np.ndarray, missing_now: np.ndarray, sigma2: float, iteration: int) -> np.ndarray:
-        # ``missing_now`` is the engine's mask (the input's gaps); the data's observed samples are the bones'
-        # fixed partners, so they are taken from ``positions``, not from the model's estimate.
-        out, stats = solver(estimate, positions, missing_now & ~dead, pairs, lengths, spread)
+    def project(step: ProjectStep) -> np.ndarray:
+        # The engine passes only the frames with a missing marker; the data's observed samples there are the
+        # bones' fixed partners, so they are taken from ``positions``, not from the model's estimate.
+        if record["frames"] is None:
+            record["frames"] = step.frames
+            record["data"] = positions[step.frames]
+            record["missing"] = step.missing & ~dead
+        out, stats = solver(step.estimate, record["data"], record["missing"], pairs, lengths, spread,
+                            final=step.final)
         record["calls"] += 1
         record["iterations"] += stats.iterations
         record["last"] = stats
-        record["estimate"] = estimate
         return out
 
     use = project if pairs.shape[0] and missing.any() else None
-    # Same engine settings as fill_dynammo, except that the gap-end residual bridge is applied here, to the model's
-    # estimate *before* the last constraint solve, so that the output still meets its bones.
+    # The engine's own settings, as fill_dynammo runs it (gap-end bridge included: the bridged estimate goes
+    # through the solver once more, so the output still meets its bones).
     result = run_dynammo(positions, hidden=hidden, max_iter=max_iter, tol=tol, seed=seed, progress=progress,
-                         project=use, project_start=int(project_start), bridge=use is None)
-    if use is not None and "estimate" in record:
-        estimate = _bridged(record["estimate"], positions, missing)
-        out, stats = solver(estimate, positions, missing, pairs, lengths, spread, final=True)
-        record["iterations"] += stats.iterations
-        record["last"] = stats
-        polished = finish(positions, np.where(missing[:, :, None], out, result.positions), std=result.std,
-                          n_iter=result.n_iter, converged=result.converged, objective=result.objective,
-                          info=result.info)
-        result = polished
+                         project=use, project_start=int(project_start))
     info = dict(result.info)
     info.update(extra_info)
     info["variant"] = variant
@@ -136,7 +131,7 @@ def _run(positions, solver: Callable[..., tuple[np.ndarray, SolveStats]], *, var
     if last is not None and variant == "hard":
         # Exactness where the bones can all hold: the frames the last solve did not report as infeasible.
         feasible = missing.copy()
-        feasible[np.asarray(last.infeasible, dtype=np.intp)] = False
+        feasible[record["frames"][np.asarray(last.infeasible, dtype=np.intp)]] = False  # solver rows -> frames
         info["infeasible_frames"] = int(last.n_infeasible)
         info["bone_error_max_rel_feasible"] = _violations(result.positions, feasible, pairs, lengths)[
             "bone_error_max_rel"]
@@ -163,21 +158,6 @@ def bone_weights(penalty: float, lengths: np.ndarray, spread: np.ndarray, mode: 
     ratio = np.ones(lengths.shape)
     ratio[known] = np.clip((ref / spread[known]) ** 2, 1e-2, 1e2)
     return weight * ratio
-
-
-def _bridged(estimate: np.ndarray, positions: np.ndarray, missing: np.ndarray) -> np.ndarray:
-    """The estimate (n_frames, n_markers, 3) with DynaMMo's gap-end residual bridge added at the missing samples.
-
-    The bridge (:func:`mocapfill.methods.dynammo.bridge_residuals`) adds, across each gap, the linear blend of the
-    model's residuals ``x - G E[z]`` at the observed frames on either side, so the fill joins the observed
-    trajectory without a jump.  Here it runs in data units with G = I on the completed data.
-    """
-    n_frames, n_markers, _ = estimate.shape
-    est = np.nan_to_num(estimate.reshape(n_frames, 3 * n_markers), nan=0.0)
-    data = np.where(missing[:, :, None], np.nan_to_num(estimate, nan=0.0), positions).reshape(n_frames, -1)
-    bridge_residuals(data, est, np.eye(3 * n_markers), missing)
-    out = data.reshape(n_frames, n_markers, 3)
-    return np.where(np.isnan(estimate), np.nan, out)
 
 
 def _cached_groups(data, missing, pairs, lengths, cache: dict) -> list:
@@ -285,7 +265,7 @@ def fill_bolero_sc(
     penalty : float
         Dimensionless weight w >= 0: lambda_b = w_b / (4 sigma^2 L_b^2) in the paper's objective, i.e. a bone's
         length error costs w_b times a marker's displacement from the model (w_b = w, scaled by the bone's spread
-        under ``bone_weighting="spread"``).  0 gives plain DynaMMo (without its gap-end bridge).
+        under ``bone_weighting="spread"``).  0 gives plain DynaMMo.
     bone_weighting : {"spread", "none"}
         Per-bone weights from the bones' spreads (see :func:`bone_weights`), or w for every bone.
     project_start : int

@@ -20,10 +20,12 @@ Algorithm (BoLeRO paper section 3.1 and Appendix A; the authors' code as describ
    ``Lambda`` and ``sigma2`` from the residuals.  Only when H exceeds the data's rank are the extra columns of ``G``
    drawn from ``seed`` (small values).
 4. Repeat: E-step (Kalman filter + RTS smoother, :mod:`.lds`) on the completed data -> objective -> replace the
-   missing entries by ``G E[z_t]`` (or by ``project(...)``, BoLeRO's hook) -> stop if converged -> M-step.
-5. ``fill_dynammo`` only (``bridge=True``): add the model's residual at each gap's observed neighbours, blended
+   missing entries by ``G E[z_t]`` (or by ``project(...)``, BoLeRO's hook, which sees only the frames with a
+   missing marker, converted sample by sample) -> stop if converged -> M-step.
+5. ``bridge=True`` (the default): add the model's residual at each gap's observed neighbours, blended
    linearly across the gap, so the fill meets the observed trajectory without a jump (an LDS with H = 16 does not
-   reproduce 123 coordinates exactly; on CMU 85_02 this cut the RMSE of 0.9-1.7 s gaps by 10-45 %).
+   reproduce 123 coordinates exactly; on CMU 85_02 this cut the RMSE of 0.9-1.7 s gaps by 10-45 %); with a
+   ``project`` hook the bridged estimate is projected once more.
 
 Objective and monotonicity: ``objective[k]`` is the negative log-likelihood ``-log p(X_k | Theta_k)`` of the
 *completed* data (observed + the imputation current at iteration k), per scalar entry, in the data's units (nats per
@@ -45,7 +47,7 @@ Speed: see :mod:`.lds` (isotropic noise + Woodbury, steady-state covariances, ve
 from __future__ import annotations
 
 import warnings
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -65,8 +67,73 @@ DEFAULT_HIDDEN = 16
 DEFAULT_MAX_ITER = 200
 DEFAULT_TOL = 1e-4
 
-#: ``project(estimate, missing, sigma2, iteration) -> ndarray`` (see :func:`run_dynammo`).
-ProjectFn = Callable[[np.ndarray, np.ndarray, float, int], np.ndarray]
+
+
+class ProjectStep(NamedTuple):
+    """What :func:`run_dynammo` hands its ``project`` hook (BoLeRO's constraint solve), one call per EM iteration.
+
+    Only the frames with a missing (modelled) marker are passed, so a hook costs nothing where there is nothing to
+    impute.  ``n`` = ``len(frames)``.
+
+    estimate : (n, n_markers, 3) data units: the model's estimate ``G E[z_t]`` at the missing samples (with the
+        gap-end residual bridge added in the ``final`` call), the observed data at the observed samples, NaN for
+        markers missing throughout.  A fresh array: the hook may modify it and return it.
+    frames : (n,) int, ascending: which frames of the input the rows are (the same array at every call).
+    missing : (n, n_markers) bool: the input's missing mask at those frames (the same array at every call).
+    sigma2 : isotropic observation-noise variance of the current model, data units squared.
+    iteration : EM iteration (1-based); in the ``final`` call, the last one.
+    final : True for the one call after EM, on the bridged estimate; its answer is the method's output.
+    """
+
+    estimate: np.ndarray
+    frames: np.ndarray
+    missing: np.ndarray
+    sigma2: float
+    iteration: int
+    final: bool
+
+
+#: ``project(step: ProjectStep) -> ndarray (n, n_markers, 3)`` whose missing samples become the new imputation
+#: (see :func:`run_dynammo`).
+ProjectFn = Callable[[ProjectStep], np.ndarray]
+
+
+class _ProjectHook:
+    """Calls ``project`` on the missing samples only: internal <-> data conversion of those samples, not of X.
+
+    ``X`` (T, m) is the engine's completed data (internal units, C-contiguous), updated in place at its missing
+    entries; the other arguments are the engine's transform (see :func:`_run_dynammo`).
+    """
+
+    def __init__(self, project, positions, missing, keep, miss_k, X, scale, centre, rot, shift):
+        self.project = project
+        self.X = X.reshape(-1)  # a view: writes go to X
+        self.frames = np.flatnonzero(miss_k.any(axis=1))
+        self.missing = missing[self.frames]
+        rows, marks = np.nonzero(miss_k[self.frames])  # missing samples, row-major: the order of X[miss_cols]
+        t = self.frames[rows]
+        self.idx = (t * X.shape[1] + 3 * marks)[:, None] + np.arange(3)  # (S, 3) flat indices into X
+        self.at = (rows, np.flatnonzero(keep)[marks])  # the same samples in the hook's (n, n_markers) arrays
+        self.base = positions[self.frames]  # observed samples (and NaN for markers missing throughout)
+        self.scale = scale
+        self.centre = centre.reshape(-1, 3)[marks]  # (S, 3)
+        self.rot = None if rot is None else np.ascontiguousarray(rot[t])  # (S, 3, 3)
+        self.shift = None if shift is None else shift[t]  # (S, 3)
+
+    def __call__(self, sigma2: float, iteration: int, *, final: bool) -> None:
+        v = self.X[self.idx] * self.scale + self.centre  # (S, 3) body frame, data units
+        if self.rot is not None:
+            v = np.einsum("sij,sj->si", self.rot, v) + self.shift
+        est = self.base.copy()
+        est[self.at] = v
+        out = np.asarray(self.project(ProjectStep(est, self.frames, self.missing, float(sigma2), int(iteration),
+                                                  bool(final))), dtype=np.float64)
+        if out.shape != est.shape:
+            raise MethodError(f"project returned shape {out.shape}, expected {est.shape}")
+        d = out[self.at]
+        if self.rot is not None:
+            d = np.einsum("sji,sj->si", self.rot, d - self.shift)
+        self.X[self.idx] = (d - self.centre) / self.scale
 
 
 def interpolate_columns(X: np.ndarray, miss: np.ndarray) -> np.ndarray:
@@ -213,7 +280,7 @@ def run_dynammo(
     isotropic: bool = True,
     uncertainty: bool = True,
     body_frame: bool = True,
-    bridge: bool = False,
+    bridge: bool = True,
 ) -> FillResult:
     """The DynaMMo EM engine (reused by BoLeRO through ``project``).
 
@@ -226,12 +293,13 @@ def run_dynammo(
     seed : int or None
         Only used when H exceeds the rank of the data (random extra columns of G); otherwise the start is PCA.
     progress : ``progress(iteration, max_iter, objective)`` called once per EM iteration.
-    project : ``project(estimate, missing, sigma2, iteration) -> ndarray``, optional
-        Called after each E-step from iteration ``project_start`` on (iterations count from 1) with ``estimate`` =
-        G E[z_t | all] in the data's units (n_frames, n_markers, 3) (NaN for markers missing throughout),
-        ``missing`` (n_frames, n_markers) bool (the input's missing mask), ``sigma2`` the isotropic observation-noise
-        variance in data units squared and ``iteration``; its return value (n_frames, n_markers, 3) at the missing
-        samples becomes the new imputation.  Without it the imputation is ``estimate``.
+    project : ``project(step: ProjectStep) -> ndarray``, optional
+        Called after each E-step from iteration ``project_start`` on (iterations count from 1) with a
+        :class:`ProjectStep`: the frames with a missing marker only, ``step.estimate`` (n, n_markers, 3) = G E[z_t]
+        in the data's units at the missing samples and the data elsewhere; its return value (n, n_markers, 3) at
+        the missing samples becomes the new imputation.  With ``bridge`` it is called once more after EM
+        (``step.final``) on the bridged estimate, and that answer is the output.  Without it the imputation is
+        G E[z_t].
     energy : float in (0, 1], optional
         Choose H as the number of principal components of the interpolated data holding this share of variance.
     isotropic : bool
@@ -241,8 +309,9 @@ def run_dynammo(
     bridge : bool
         After EM, add to each filled gap the model's residual ``x - G E[z]`` at the observed frames on either side
         of the gap, blended linearly across it (held at a capture edge), so the fill joins the observed
-        trajectory without a jump (:func:`bridge_residuals`).  ``fill_dynammo`` turns it on; off by default here so
-        that a ``project`` result is returned as projected.
+        trajectory without a jump (:func:`bridge_residuals`); with ``project``, the bridged model estimate goes
+        through the hook once more (``final``), so its answer still meets the hook's constraints.  On by default:
+        ``fill_dynammo`` and BoLeRO both run the engine with its defaults, so their settings cannot drift.
     uncertainty : bool
         Compute ``std`` (one extra covariance pass); False gives ``std=None``.
 
@@ -309,12 +378,6 @@ def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, p
             out = np.matmul(out, rot_t) + shift[:, None, :]
         return out
 
-    def from_data(D: np.ndarray) -> np.ndarray:
-        """Data units (T, Mk, 3) -> internal (T, m)."""
-        if rot is not None:
-            D = np.matmul(D - shift[:, None, :], rot)
-        return (D.reshape(T, m) - centre) / scale
-
     H = choose_hidden(X, energy) if energy is not None else int(hidden)
     params = initial_params(X, H, rng)
     log_scale = float(np.log(scale))
@@ -335,6 +398,8 @@ def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, p
             if len(r):
                 X[r, 3 * j:3 * j + 3] = Ez[r] @ G[3 * j:3 * j + 3].T
 
+    if project is not None:
+        hook = _ProjectHook(project, positions, missing, keep, miss_k, X, scale, centre, rot, shift)
     objective: list[float] = []
     converged = False
     n_iter = 0
@@ -347,17 +412,9 @@ def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, p
         objective.append(obj + log_scale)
         if progress is not None:
             progress(it, max_iter, obj + log_scale)
+        impute(stats.Ez, params.G)  # missing entries <- G E[z_t]
         if project is not None and it >= project_start:
-            fitted = stats.Ez @ params.G.T  # (T, m) = G E[z_t]
-            est = np.full((T, M, 3), np.nan)
-            est[:, keep, :] = to_data(fitted)
-            out = np.asarray(project(est, missing, params.sigma2 * scale ** 2, it), dtype=np.float64)
-            if out.shape != (T, M, 3):
-                raise MethodError(f"project returned shape {out.shape}, expected {(T, M, 3)}")
-            sub = np.where(miss_k[:, :, None], out[:, keep, :], est[:, keep, :])  # observed samples: unused
-            X[miss_cols] = from_data(sub)[miss_cols]
-        else:
-            impute(stats.Ez, params.G)  # missing entries <- G E[z_t]
+            hook(params.sigma2 * scale ** 2, it, final=False)  # ... or the hook's answer
         if it >= 2 and abs(objective[-1] - objective[-2]) <= tol * max(1.0, abs(objective[-2] - log_scale)):
             converged = True
             break
@@ -365,7 +422,11 @@ def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, p
             break
         params = lds.m_step(stats, X.T @ stats.Ez, float(row_norms().sum()), m, params, isotropic=isotropic)
     if bridge:
+        if project is not None:
+            impute(stats.Ez, params.G)  # bridge the model's estimate, then let the hook have the last word
         bridge_residuals(X, stats.Ez, params.G, miss_k)
+        if project is not None:
+            hook(params.sigma2 * scale ** 2, n_iter, final=True)
     if not converged:
         warnings.warn(f"DynaMMo stopped at max_iter={max_iter} before the objective changed by less than "
                       f"tol={tol:g}", ConvergenceWarning, stacklevel=4)
@@ -399,4 +460,4 @@ def fill_dynammo(
     in the data's units.
     """
     return run_dynammo(positions, hidden=hidden, max_iter=max_iter, tol=tol, seed=seed, progress=progress,
-                       energy=energy, bridge=True)
+                       energy=energy)
