@@ -209,13 +209,21 @@ def _pair_dist(positions: np.ndarray, pairs: np.ndarray) -> np.ndarray:
     return np.sqrt(np.einsum("tpc,tpc->tp", diff, diff))
 
 
-def _jump_scale(positions: np.ndarray, pairs: np.ndarray, chunk_bytes: int) -> np.ndarray:
-    """Robust scale (1.4826 MAD) of each pair's frame-to-frame distance change, shape (P,); NaN if never seen."""
+def _jump_scale(positions: np.ndarray, pairs: np.ndarray, chunk_bytes: int, most: int = 20_000) -> np.ndarray:
+    """Robust scale (1.4826 MAD) of each pair's frame-to-frame distance change, shape (P,); NaN if never seen.
+
+    A median needs no more than ``most`` jumps: longer takes are sampled at evenly spaced frames.
+    """
     n_frames = positions.shape[0]
+    t = np.arange(n_frames - 1)
+    if t.size > most:
+        t = t[np.linspace(0, t.size - 1, most).astype(np.intp)]
+    now, nxt = positions[t], positions[t + 1]
     scale = np.full(len(pairs), np.nan)
-    step = max(1, int(chunk_bytes // (5 * 8 * max(n_frames, 1))))
+    step = max(1, int(chunk_bytes // (6 * 8 * max(t.size, 1))))
     for start in range(0, len(pairs), step):
-        jump = np.abs(np.diff(_pair_dist(positions, pairs[start:start + step]), axis=0))
+        chunk = pairs[start:start + step]
+        jump = np.abs(_pair_dist(nxt, chunk) - _pair_dist(now, chunk))
         ok = ~np.isnan(jump).all(axis=0)
         if ok.any():
             scale[start:start + step][ok] = 1.4826 * np.nanmedian(jump[:, ok], axis=0)
@@ -236,7 +244,25 @@ def _stiff_pairs(pairs: np.ndarray, n_markers: int, spread: np.ndarray, k: int) 
     return np.unique(picked[finite & (picked >= 0)])
 
 
-def shifted_runs(positions: np.ndarray, *, rate: float, max_run: float = 0.3, units: str = "mm",
+def _held(positions: np.ndarray, pairs: np.ndarray, first: int, last: int, before: np.ndarray, after: np.ndarray,
+          steps: np.ndarray, share: float = 0.8) -> bool:
+    """Whether the stretch of frames ``first + 1 .. last`` stays displaced from its surroundings.
+
+    Two short spikes of one marker, the first's way back missed, would look like one stretch from the first's
+    step to the second's way back; the frames between them sit where the marker belongs.  A displaced stretch
+    keeps its stiff distances (``pairs`` (P_m, 2)) away from the line joining ``before`` and ``after`` (P_m,)
+    (the distances at ``first`` and ``last + 1``) in at least ``share`` of its frames, by at least a tenth of
+    ``steps`` (P_m,: the sizes of the two steps) summed over the pairs.
+    """
+    inside = _pair_dist(positions[first + 1:last + 1], pairs)  # (L, P_m)
+    w = (np.arange(1, last - first + 1) / (last - first + 1))[:, None]
+    off = np.abs(inside - ((1 - w) * before + w * after))
+    ok = ~np.isnan(steps)
+    away = np.nansum(np.where(ok, off, 0.0), axis=1)
+    return bool((away > 0.1 * np.nansum(steps[ok])).mean() >= share)
+
+
+def shifted_runs(positions: np.ndarray, *, rate: float, max_run: float = 0.5, units: str = "mm",
                  jump_k: float = 8.0, jump_floor_mm: float = 5.0, min_pairs: int = 3, partners: int = 6,
                  cancel: float = 0.3, chunk_bytes: int = 64 * 2**20) -> np.ndarray:
     """Markers displaced for a stretch of frames (label swaps, ghosts, bumped markers), shape (n_frames, n_markers).
@@ -252,7 +278,8 @@ def shifted_runs(positions: np.ndarray, *, rate: float, max_run: float = 0.3, un
        ``min_pairs`` jumping pairs: an *event* of that marker between frames t and t+1;
     3. a stretch from an event to a later one at most ``max_run`` seconds away is displaced when the marker comes
        back: summed over its stiff pairs, ``|D[end + 1] - D[start - 1]|`` is below ``cancel`` times the two steps'
-       sizes ``|J_in| + |J_out|``.  Events are taken in order; a stretch found is skipped past.
+       sizes, and the frames inside stay away from the line joining those two levels (:func:`_held`).  Shortest
+       stretches first; a longer one may not reuse their events or frames.
 
     ``positions`` (n_frames, n_markers, 3), NaN = missing; ``rate`` in Hz.  Single-frame spikes come out too
     (a stretch of one frame).  Returns bool (n_frames, n_markers), True on displaced observed samples.
@@ -268,34 +295,41 @@ def shifted_runs(positions: np.ndarray, *, rate: float, max_run: float = 0.3, un
     if sel.size == 0:
         return found
     pairs, tol = pairs[sel], jump_k * scale[sel] + floor
-    dist = _pair_dist(positions, pairs)  # (n_frames, P'): P' <= n_markers * partners
-    jump = np.diff(dist, axis=0)
-    events = _greedy(np.abs(jump) / tol, 1.0 / tol, pairs, n_markers, min_count=min_pairs)  # (n_frames - 1, M)
+    # events[t, m]: marker m steps between frames t and t + 1; chunks of frames (P' <= n_markers * partners)
+    events = np.zeros((n_frames - 1, n_markers), dtype=bool)
+    step = max(2, int(chunk_bytes // (8 * 8 * len(pairs))))
+    for start in range(0, n_frames - 1, step):
+        stop = min(n_frames - 1, start + step)
+        jump = np.abs(np.diff(_pair_dist(positions[start:stop + 1], pairs), axis=0))
+        events[start:stop] = _greedy(jump / tol, 1.0 / tol, pairs, n_markers, min_count=min_pairs)
     longest = max(1, int(round(max_run * rate)))
     for m in np.flatnonzero(events.sum(axis=0) >= 2):
-        cols = np.flatnonzero((pairs[:, 0] == m) | (pairs[:, 1] == m))
+        mine = pairs[(pairs[:, 0] == m) | (pairs[:, 1] == m)]
         e = np.flatnonzero(events[:, m])
-        d, j = dist[:, cols], np.abs(jump[:, cols])
-        k = 0
-        while k < len(e) - 1:
-            start, hit = e[k], None
-            # the first later event that brings the marker back closes the stretch; events in between are the
-            # displaced marker's own distances changing fast (no longer a stiff pair while it is displaced)
+        # distances of m's stiff pairs just before and just after every event: (n_events, P_m) each
+        before, after = _pair_dist(positions[e], mine), _pair_dist(positions[e + 1], mine)
+        size = np.abs(after - before)
+        # every pair of events (k, q) at most `longest` apart whose second brings the marker back is a candidate;
+        # events in between are the displaced marker's own distances changing fast (no longer stiff while it is
+        # displaced).  The shortest candidates win and the others may not share their events or frames, so that a
+        # clean event before a displaced stretch cannot borrow that stretch's first step as its way back.
+        candidates = []
+        for k in range(len(e) - 1):
             for q in range(k + 1, len(e)):
-                end = e[q]
-                if end - start > longest:
+                if e[q] - e[k] > longest:
                     break
-                back = np.abs(d[end + 1] - d[start])
-                size = j[start] + j[end]
-                ok = ~(np.isnan(back) | np.isnan(size))
-                if ok.any() and back[ok].sum() < cancel * size[ok].sum():
-                    hit = q
-                    break
-            if hit is None:
-                k += 1
-            else:
-                found[start + 1:e[hit] + 1, m] = True
-                k = hit + 1
+                back = np.abs(after[q] - before[k])
+                steps = size[k] + size[q]
+                ok = ~(np.isnan(back) | np.isnan(steps))
+                if ok.any() and back[ok].sum() < cancel * steps[ok].sum():
+                    candidates.append((e[q] - e[k], k, q))
+        used = np.zeros(len(e), dtype=bool)
+        for _, k, q in sorted(candidates):
+            if used[k] or used[q] or found[e[k] + 1:e[q] + 1, m].any():
+                continue
+            if _held(positions, mine, e[k], e[q], before[k], after[q], size[k] + size[q]):
+                found[e[k] + 1:e[q] + 1, m] = True
+                used[k] = used[q] = True
     return found & ~np.isnan(positions).any(axis=2)
 
 
@@ -334,7 +368,7 @@ def reject_outliers(positions: np.ndarray, *, reference: np.ndarray | None = Non
                     labels: Sequence[str] | None = None, reference_labels: Sequence[str] | None = None,
                     reference_units: str | None = None, chunk_bytes: int = 64 * 2**20, window: int = 3,
                     two_stage: bool = True, stage1_passes: int = 3, rate: float | None = None,
-                    runs: bool = True, max_run: float = 0.3) -> OutlierResult:
+                    runs: bool = True, max_run: float = 0.5) -> OutlierResult:
     """Remove markers that break the inter-marker distance ranges (Holden's rule; see the module docstring).
 
     Parameters
@@ -377,7 +411,7 @@ def reject_outliers(positions: np.ndarray, *, reference: np.ndarray | None = Non
         Self-reference only: first find markers displaced for a stretch of frames with :func:`shifted_runs`
         (default True); they are rejected and left out of the ranges.
     max_run : float
-        Longest displaced stretch looked for, in seconds (default 0.3).
+        Longest displaced stretch looked for, in seconds (default 0.5).
 
     Returns
     -------
