@@ -4,6 +4,7 @@ Usage::
 
     python benchmarks/bench_distances.py [--markers 200] [--frames 72000] [--missing 0.05]
     python benchmarks/bench_distances.py --outliers 20     # also: outlier-rejection precision / recall, 20 seeds
+    python benchmarks/bench_distances.py --outliers 20 --outliers-only   # only those
 
 Each measurement runs in a fresh subprocess, so the peak resident set size (``ru_maxrss`` of the child) is that of
 one call (including the input array itself and the interpreter, about 30 MB), not of this driver.  The synthetic
@@ -65,11 +66,15 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--outliers", type=int, default=0, metavar="SEEDS",
                         help="also score reject_outliers on the sample captures with SEEDS corruption seeds")
+    parser.add_argument("--outliers-only", action="store_true", help="skip the pair_distance_stats timing")
     args = parser.parse_args()
     print(f"machine: {platform.machine()} {platform.processor() or ''} {os.cpu_count()} cpus, "
           f"python {platform.python_version()}, {platform.system()} {platform.release()}")
     import numpy
     print(f"numpy {numpy.__version__}")
+    if args.outliers_only:
+        outlier_trials(max(1, args.outliers))
+        return
     load = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "positions.npy")
@@ -86,8 +91,52 @@ def main() -> None:
         outlier_trials(args.outliers)
 
 
+def corrupt(positions, seed: int, kind: str, scale: float, rate: float):
+    """One corrupted copy of ``positions`` (n_frames, n_markers, 3) and its truth mask (n_frames, n_markers).
+
+    ``single``: Holden's corruption (3 % of the frames, 1-3 markers each thrown 5-50 cm).  ``runs``: 8 stretches of
+    2-30 frames at 120 Hz (the same duration at other rates), one marker moved by one 5-50 cm offset throughout.
+    ``swaps``: 8 such stretches where two markers at least 5 cm apart exchange positions.  ``long``: as ``runs``
+    with 1-60 frames (to 0.5 s).  Lengths in mm are multiplied by ``scale`` (the file's units per mm).
+    """
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    out = positions.copy()
+    n_frames, n_markers, _ = positions.shape
+    truth = np.zeros((n_frames, n_markers), dtype=bool)
+    if kind == "single":
+        for t in rng.choice(n_frames, int(round(0.03 * n_frames)), replace=False):
+            for m in rng.choice(n_markers, rng.integers(1, 4), replace=False):
+                direction = rng.normal(size=3)
+                out[t, m] += direction / np.linalg.norm(direction) * rng.uniform(50, 500) * scale
+                truth[t, m] = True
+        return out, truth
+    shortest, longest = (1, 60) if kind == "long" else (2, 30)
+    shortest = max(1, round(shortest * rate / 120.0))
+    longest = max(shortest, round(longest * rate / 120.0))
+    done = 0
+    while done < 8:
+        length = int(rng.integers(shortest, longest + 1))
+        t0 = int(rng.integers(1, n_frames - length - 1))
+        span = slice(t0, t0 + length)
+        if kind == "swaps":
+            a, b = rng.choice(n_markers, 2, replace=False)
+            if np.linalg.norm(positions[span, a] - positions[span, b], axis=1).min() < 50 * scale:
+                continue
+            out[span, a], out[span, b] = positions[span, b], positions[span, a]
+            truth[span, [a, b]] = True
+        else:
+            m = rng.integers(n_markers)
+            direction = rng.normal(size=3)
+            out[span, m] = positions[span, m] + direction / np.linalg.norm(direction) * rng.uniform(50, 500) * scale
+            truth[span, m] = True
+        done += 1
+    return out, truth
+
+
 def outlier_trials(n_seeds: int) -> None:
-    """Holden's corruption (3 % of frames, 1-3 markers thrown 5-50 cm) on the complete sample captures."""
+    """reject_outliers (self-reference) on the complete sample captures: clean, and four corruptions x seeds."""
     import time
     from pathlib import Path
 
@@ -98,32 +147,27 @@ def outlier_trials(n_seeds: int) -> None:
     from mocapfill.outliers import reject_outliers
 
     root = Path(__file__).resolve().parents[1] / "sample_data"
-    print(f"reject_outliers (self-reference, defaults), {n_seeds} seeds; 3 % of frames, 1-3 markers thrown 5-50 cm")
+    print(f"reject_outliers (self-reference, defaults, the file's frame rate), {n_seeds} seeds per corruption")
     for name in ("85_02.c3d", "kinematics_tennis_serve.c3d"):
         data = mocapfill.read(root / name)
         scale = unit_scale("mm", data.units)
-        clean = reject_outliers(data.positions, units=data.units).rejected.sum()
-        precision, recall, seconds = [], [], []
-        for seed in range(n_seeds):
-            rng = np.random.default_rng(seed)
-            corrupted = data.positions.copy()
-            truth = np.zeros(data.missing.shape, dtype=bool)
-            for t in rng.choice(data.n_frames, int(round(0.03 * data.n_frames)), replace=False):
-                for m in rng.choice(data.n_markers, rng.integers(1, 4), replace=False):
-                    direction = rng.normal(size=3)
-                    corrupted[t, m] += direction / np.linalg.norm(direction) * rng.uniform(50, 500) * scale
-                    truth[t, m] = True
-            t0 = time.perf_counter()
-            rejected = reject_outliers(corrupted, units=data.units).rejected
-            seconds.append(time.perf_counter() - t0)
-            tp = (rejected & truth).sum()
-            precision.append(tp / max(rejected.sum(), 1))
-            recall.append(tp / truth.sum())
-        p, r = np.array(precision), np.array(recall)
-        print(f"  {name}: {data.n_frames} frames x {data.n_markers} markers; uncorrupted file: {clean} samples "
-              f"rejected; precision min {p.min():.3f} median {np.median(p):.3f}; recall min {r.min():.3f} median "
-              f"{np.median(r):.3f}; seeds with both >= 0.95: {int(((p >= 0.95) & (r >= 0.95)).sum())}/{n_seeds}; "
-              f"{np.median(seconds):.2f} s per call")
+        t0 = time.perf_counter()
+        clean = reject_outliers(data.positions, units=data.units, rate=data.rate).rejected.sum()
+        seconds = time.perf_counter() - t0
+        print(f"  {name}: {data.n_frames} frames x {data.n_markers} markers at {data.rate:g} Hz; uncorrupted file: "
+              f"{clean} of {data.n_frames * data.n_markers} samples rejected ({seconds:.2f} s per call)")
+        for kind in ("single", "runs", "swaps", "long"):
+            precision, recall = [], []
+            for seed in range(n_seeds):
+                corrupted, truth = corrupt(data.positions, seed, kind, scale, data.rate)
+                rejected = reject_outliers(corrupted, units=data.units, rate=data.rate).rejected
+                tp = (rejected & truth).sum()
+                precision.append(tp / max(rejected.sum(), 1))
+                recall.append(tp / truth.sum())
+            p, r = np.array(precision), np.array(recall)
+            print(f"    {kind:6s} precision min {p.min():.3f} median {np.median(p):.3f}; recall min {r.min():.3f} "
+                  f"median {np.median(r):.3f}; seeds with both >= 0.95: {int(((p >= 0.95) & (r >= 0.95)).sum())}"
+                  f"/{n_seeds}")
 
 
 if __name__ == "__main__":

@@ -53,7 +53,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from .bones import UNIT_MM, default_min_frames, unit_scale
-from .distances import all_pairs, pair_distance_stats
+from .distances import pair_distance_stats
 from .errors import MocapfillError
 
 #: Default margin floor (mm, converted to the data's units).
@@ -231,7 +231,8 @@ def _jump_scale(positions: np.ndarray, pairs: np.ndarray, chunk_bytes: int, most
 
 
 def _stiff_pairs(pairs: np.ndarray, n_markers: int, spread: np.ndarray, k: int) -> np.ndarray:
-    """Rows of ``pairs`` (P, 2) that are among the ``k`` smallest ``spread`` (P,) of either marker; NaN = never."""
+    """Each marker's ``k`` partners with the smallest ``spread`` (P,; NaN = never seen together), as rows of
+    ``pairs`` (P, 2): shape (n_markers, k) int, -1 where a marker has fewer partners."""
     cost = np.full((n_markers, n_markers), np.inf)
     row = np.full((n_markers, n_markers), -1, dtype=np.intp)
     spread = np.where(np.isnan(spread), np.inf, spread)
@@ -240,8 +241,7 @@ def _stiff_pairs(pairs: np.ndarray, n_markers: int, spread: np.ndarray, k: int) 
     k = min(k, n_markers - 1)
     best = np.argsort(cost, axis=1, kind="stable")[:, :k]
     picked = row[np.arange(n_markers)[:, None], best]
-    finite = np.isfinite(cost[np.arange(n_markers)[:, None], best])
-    return np.unique(picked[finite & (picked >= 0)])
+    return np.where(np.isfinite(cost[np.arange(n_markers)[:, None], best]), picked, -1)
 
 
 def _held(positions: np.ndarray, pairs: np.ndarray, first: int, last: int, before: np.ndarray, after: np.ndarray,
@@ -272,8 +272,9 @@ def shifted_runs(positions: np.ndarray, *, rate: float, max_run: float = 0.5, un
     they come back.  Clean motion, even fast, changes those distances smoothly (several consecutive large changes,
     going one way), and soft tissue moves one pair at a time.  So:
 
-    1. jumps: ``J = D[t+1] - D[t]`` for each marker's ``partners`` stiffest pairs (smallest robust scale ``s`` of
-       ``J``: 1.4826 x its median absolute value); a pair jumps when ``|J| > jump_k * s + jump_floor_mm``;
+    1. jumps: ``J = D[t+1] - D[t]`` for each marker's ``partners`` stiffest pairs (narrowest 10th-90th percentile
+       band of ``D``); a pair jumps when ``|J| > jump_k * s + jump_floor_mm``, ``s`` the robust scale of its ``J``
+       (1.4826 x the median of ``|J|``);
     2. the greedy rule of :func:`reject_outliers` on those jumps, with a marker blamed only while it holds at least
        ``min_pairs`` jumping pairs: an *event* of that marker between frames t and t+1;
     3. a stretch from an event to a later one at most ``max_run`` seconds away is displaced when the marker comes
@@ -289,12 +290,17 @@ def shifted_runs(positions: np.ndarray, *, rate: float, max_run: float = 0.5, un
     if n_frames < 3 or n_markers < 2:
         return found
     floor = jump_floor_mm * unit_scale("mm", units)
-    pairs = all_pairs(n_markers)
-    scale = _jump_scale(positions, pairs, chunk_bytes)
-    sel = _stiff_pairs(pairs, n_markers, scale, partners)
+    # stiff = the distance keeps within a narrow band over the clip (10th to 90th percentile: a stretch displaced
+    # in a few percent of the frames does not widen it)
+    stats = pair_distance_stats(positions, percentiles=(10.0, 90.0), chunk_bytes=chunk_bytes)
+    spread = stats.percentiles[:, 1] - stats.percentiles[:, 0]
+    own = _stiff_pairs(stats.pairs, n_markers, spread, partners)  # (n_markers, partners) rows of stats.pairs
+    sel = np.unique(own[own >= 0])
     if sel.size == 0:
         return found
-    pairs, tol = pairs[sel], jump_k * scale[sel] + floor
+    pairs = stats.pairs[sel]
+    own = np.where(own >= 0, np.searchsorted(sel, own), -1)  # now rows of `pairs`
+    tol = jump_k * _jump_scale(positions, pairs, chunk_bytes) + floor
     # events[t, m]: marker m steps between frames t and t + 1; chunks of frames (P' <= n_markers * partners)
     events = np.zeros((n_frames - 1, n_markers), dtype=bool)
     step = max(2, int(chunk_bytes // (8 * 8 * len(pairs))))
@@ -304,7 +310,7 @@ def shifted_runs(positions: np.ndarray, *, rate: float, max_run: float = 0.5, un
         events[start:stop] = _greedy(jump / tol, 1.0 / tol, pairs, n_markers, min_count=min_pairs)
     longest = max(1, int(round(max_run * rate)))
     for m in np.flatnonzero(events.sum(axis=0) >= 2):
-        mine = pairs[(pairs[:, 0] == m) | (pairs[:, 1] == m)]
+        mine = pairs[own[m][own[m] >= 0]]  # the return test listens to m's own stiffest partners only
         e = np.flatnonzero(events[:, m])
         # distances of m's stiff pairs just before and just after every event: (n_events, P_m) each
         before, after = _pair_dist(positions[e], mine), _pair_dist(positions[e + 1], mine)
