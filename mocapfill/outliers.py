@@ -244,17 +244,28 @@ def _stiff_pairs(pairs: np.ndarray, n_markers: int, spread: np.ndarray, k: int) 
     return np.where(np.isfinite(cost[np.arange(n_markers)[:, None], best]), picked, -1)
 
 
-def _held(positions: np.ndarray, pairs: np.ndarray, first: int, last: int, before: np.ndarray, after: np.ndarray,
+LOCAL_K = 5.0
+
+
+def _median5(x: np.ndarray) -> np.ndarray:
+    """Running median over five frames along axis 0 of ``x`` (F, P), edges padded with the edge values."""
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    padded = np.pad(x, ((2, 2), (0, 0)), mode="edge")
+    return np.median(sliding_window_view(padded, 5, axis=0), axis=2)
+
+
+def _held(positions: np.ndarray, pairs: np.ndarray, weight: np.ndarray, first: int, last: int, before: np.ndarray, after: np.ndarray,
           steps: np.ndarray, share: float = 0.8) -> bool:
     """Whether the stretch of frames ``first + 1 .. last`` stays displaced from its surroundings.
 
     Two short spikes of one marker, the first's way back missed, would look like one stretch from the first's
     step to the second's way back; the frames between them sit where the marker belongs.  A displaced stretch
-    keeps its stiff distances (``pairs`` (P_m, 2)) away from the line joining ``before`` and ``after`` (P_m,)
+    keeps its stiff distances (``pairs`` (P_m, 2), each times ``weight`` (P_m,)) away from the line joining ``before`` and ``after`` (P_m,)
     (the distances at ``first`` and ``last + 1``) in at least ``share`` of its frames, by at least a tenth of
     ``steps`` (P_m,: the sizes of the two steps) summed over the pairs.
     """
-    inside = _pair_dist(positions[first + 1:last + 1], pairs)  # (L, P_m)
+    inside = weight * _pair_dist(positions[first + 1:last + 1], pairs)  # (L, P_m)
     w = (np.arange(1, last - first + 1) / (last - first + 1))[:, None]
     off = np.abs(inside - ((1 - w) * before + w * after))
     ok = ~np.isnan(steps)
@@ -301,19 +312,29 @@ def shifted_runs(positions: np.ndarray, *, rate: float, max_run: float = 0.5, un
     pairs = stats.pairs[sel]
     own = np.where(own >= 0, np.searchsorted(sel, own), -1)  # now rows of `pairs`
     tol = jump_k * _jump_scale(positions, pairs, chunk_bytes) + floor
+    # a marker's partners are not all rigid (a wrist's sixth stiffest may be across the elbow): in the return test
+    # each pair counts in units of its own band, so a rigid partner's step outweighs an elbow's swing
+    weight = 1.0 / (spread[sel] + floor)
     # events[t, m]: marker m steps between frames t and t + 1; chunks of frames (P' <= n_markers * partners)
     events = np.zeros((n_frames - 1, n_markers), dtype=bool)
     step = max(2, int(chunk_bytes // (8 * 8 * len(pairs))))
     for start in range(0, n_frames - 1, step):
         stop = min(n_frames - 1, start + step)
-        jump = np.abs(np.diff(_pair_dist(positions[start:stop + 1], pairs), axis=0))
-        events[start:stop] = _greedy(jump / tol, 1.0 / tol, pairs, n_markers, min_count=min_pairs)
+        lo, hi = max(0, start - 2), min(n_frames - 1, stop + 2)  # two jumps of context on each side
+        jump = np.abs(np.diff(_pair_dist(positions[lo:hi + 1], pairs), axis=0))
+        # fast clean motion moves stiff distances several frames running; a step is one frame (two for a spike),
+        # which a running median of five ignores: the threshold rises with that local level
+        level = _median5(np.where(np.isnan(jump), 0.0, jump))
+        strain = jump / (tol + LOCAL_K * level)
+        cut = slice(start - lo, start - lo + stop - start)
+        events[start:stop] = _greedy(strain[cut], 1.0 / tol, pairs, n_markers, min_count=min_pairs)
     longest = max(1, int(round(max_run * rate)))
     for m in np.flatnonzero(events.sum(axis=0) >= 2):
-        mine = pairs[own[m][own[m] >= 0]]  # the return test listens to m's own stiffest partners only
+        rows = own[m][own[m] >= 0]
+        mine, w = pairs[rows], weight[rows]  # the return test listens to m's own stiffest partners only
         e = np.flatnonzero(events[:, m])
         # distances of m's stiff pairs just before and just after every event: (n_events, P_m) each
-        before, after = _pair_dist(positions[e], mine), _pair_dist(positions[e + 1], mine)
+        before, after = w * _pair_dist(positions[e], mine), w * _pair_dist(positions[e + 1], mine)
         size = np.abs(after - before)
         # every pair of events (k, q) at most `longest` apart whose second brings the marker back is a candidate;
         # events in between are the displaced marker's own distances changing fast (no longer stiff while it is
@@ -333,7 +354,7 @@ def shifted_runs(positions: np.ndarray, *, rate: float, max_run: float = 0.5, un
         for _, k, q in sorted(candidates):
             if used[k] or used[q] or found[e[k] + 1:e[q] + 1, m].any():
                 continue
-            if _held(positions, mine, e[k], e[q], before[k], after[q], size[k] + size[q]):
+            if _held(positions, mine, w, e[k], e[q], before[k], after[q], size[k] + size[q]):
                 found[e[k] + 1:e[q] + 1, m] = True
                 used[k] = used[q] = True
     return found & ~np.isnan(positions).any(axis=2)
