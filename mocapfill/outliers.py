@@ -248,10 +248,11 @@ LOCAL_K = 5.0
 
 
 def _median5(x: np.ndarray) -> np.ndarray:
-    """Running median over five frames along axis 0 of ``x`` (F, P), edges padded with the edge values."""
+    """Running median over five frames along axis 0 of ``x`` (F, P), edges mirrored (a step in the first jump
+    is not repeated into its own window)."""
     from numpy.lib.stride_tricks import sliding_window_view
 
-    padded = np.pad(x, ((2, 2), (0, 0)), mode="edge")
+    padded = np.pad(x, ((2, 2), (0, 0)), mode="reflect" if x.shape[0] >= 3 else "edge")
     return np.median(sliding_window_view(padded, 5, axis=0), axis=2)
 
 
@@ -348,6 +349,10 @@ def shifted_runs(positions: np.ndarray, *, rate: float, max_run: float = 0.5, un
                 back = np.abs(after[q] - before[k])
                 steps = size[k] + size[q]
                 ok = ~(np.isnan(back) | np.isnan(steps))
+                if ok.sum() >= 4:
+                    # a partner displaced itself at one end (another swap, a ghost) must not veto: drop the pair
+                    # that comes back least
+                    ok[np.argmax(np.where(ok, back, -np.inf))] = False
                 if ok.any() and back[ok].sum() < cancel * steps[ok].sum():
                     candidates.append((e[q] - e[k], k, q))
         used = np.zeros(len(e), dtype=bool)
