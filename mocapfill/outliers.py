@@ -44,12 +44,14 @@ The reference
   markers >= 5 cm apart exchange positions; "long": 1-60 frames).  CMU 85_02 (120 Hz): uncorrupted, nothing
   rejected; single frames (the paper's corruption) precision >= 0.98 and recall >= 0.979 in every seed; runs
   precision 1.000, recall median 1.000, min 0.860 (16 of 20 seeds >= 0.95 on both); swaps precision >= 0.941,
-  recall median 1.000, min 0.857 (16/20); long runs recall median 1.000, min 0.782 (15/20).  The misses are
+  recall median 1.000, min 0.857 (17/20); long runs recall median 1.000, min 0.782 (16/20); ``mocapfill evaluate
+  --protocol random`` trials (many markers displaced at once, 0.05-0.5 s) shifted samples found median 0.867, min
+  0.736, precision >= 0.98 (without step 0: none found).  The misses are
   stretches during the clip's acrobatics (frames 430-720), where the stiff partners' distances change by several
   centimetres within the stretch, and overlapping swaps.  The "complete" tennis serve (50 Hz) loses 11 of its
   42,588 samples uncorrupted: the racket arm at the serves, several inside vendor-interpolated stretches (equal
   steps) that do break its bone lengths, and two head-marker samples; corrupted, precision over the other samples
-  >= 0.97 and recall median 1.000 (min 0.78-0.97 by corruption).  Give a clean ``reference`` when the file may
+  >= 0.967 and recall median 1.000 (min 0.78-0.97 by corruption; random protocol median 0.865).  Give a clean ``reference`` when the file may
   hold errors longer than ``max_run`` or when even these few clean extremes must stay.
 
 Pairs seen together in fewer than ``min_frames`` reference frames have no range and never violate.
