@@ -51,8 +51,9 @@ The reference
   centimetres within the stretch, and overlapping swaps.  The "complete" tennis serve (50 Hz) loses 11 of its
   42,588 samples uncorrupted: the racket arm at the serves, several inside vendor-interpolated stretches (equal
   steps) that do break its bone lengths, and two head-marker samples; corrupted, precision over the other samples
-  >= 0.967 and recall median 1.000 (min 0.78-0.97 by corruption; random protocol median 0.865).  Give a clean ``reference`` when the file may
-  hold errors longer than ``max_run`` or when even these few clean extremes must stay.
+  >= 0.967 and recall median 1.000 (min 0.78-0.97 by corruption; random protocol median 0.865).  Give a clean
+  ``reference`` when the file may hold errors longer than ``max_run`` or when even these few clean extremes must
+  stay.
 
 Pairs seen together in fewer than ``min_frames`` reference frames have no range and never violate.
 Everything is vectorised across frames (chunks of frames x pairs of about ``chunk_bytes``); the greedy loop runs
