@@ -68,6 +68,15 @@ def test_hc_bones_exact_and_observed_untouched(case):
     assert res.info["solver_iterations"] > 0 and res.info["constraint_solves"] > 0
 
 
+def test_hc_holds_the_bones_through_a_whole_body_blackout(case):
+    truth, _, bones = case
+    occluded = truth.copy()
+    occluded[40:70] = np.nan  # every marker, 30 frames
+    res = _run(fill_bolero_hc, occluded, bones=bones)
+    assert np.isfinite(res.positions).all()
+    assert res.info["infeasible_frames"] == 0 and res.info["bone_error_max_rel"] < 1e-6
+
+
 def test_sc_keeps_bones_better_than_dynammo(case):
     truth, occluded, bones = case
     dyn = _run(fill_dynammo, occluded)

@@ -162,3 +162,36 @@ def test_soft_weight_zero_and_units_invariance():
     mm, _ = solve_soft(est, pos, missing, pairs, lengths, weight=5.0)
     m, _ = solve_soft(est / 1000, pos / 1000, missing, pairs, lengths / 1000, weight=5.0)
     np.testing.assert_allclose(m * 1000, mm, rtol=1e-9, atol=1e-9)
+
+
+def test_unanchored_warm_start_follows_the_estimate_and_matches_cold():
+    """In a whole-body blackout (no observed partner) a warm start from a moved, rotated earlier solution is first
+    carried rigidly onto the estimate, then converges to the same constrained optimum as the cold start."""
+    from scipy.spatial.transform import Rotation
+
+    base = _scene(n_frames=1, n_markers=5, seed=11)[0]
+    pos = _rigid_frames(base, 4, seed=12)
+    missing = np.ones(pos.shape[:2], bool)
+    pairs = np.array([[0, 1], [1, 2], [2, 0], [2, 3], [3, 4]])
+    lengths = np.linalg.norm(base[pairs[:, 0]] - base[pairs[:, 1]], axis=1)
+    est = pos + np.random.default_rng(13).normal(size=pos.shape) * 5.0
+    cold, _ = solve_hard(est, pos, missing, pairs, lengths)
+    turn = Rotation.from_rotvec([0.0, 0.0, 0.7]).as_matrix()
+    start = cold @ turn.T + 400.0  # the right shape, far away and turned
+    warm, stats = solve_hard(est, pos, missing, pairs, lengths, start=start, start_unanchored_only=True)
+    assert stats.n_infeasible == 0
+    np.testing.assert_allclose(warm, cold, rtol=0, atol=1e-6)
+
+
+def test_start_unanchored_only_leaves_anchored_frames_cold():
+    pos = _scene(n_frames=4, seed=14)
+    missing = np.zeros(pos.shape[:2], bool)
+    missing[:, 1] = True
+    pairs = np.array([[0, 1]])
+    lengths = np.array([50.0])
+    est = pos + 7.0
+    cold, _ = solve_hard(est, pos, missing, pairs, lengths)
+    start = cold.copy()
+    start[:, 1] = 2 * pos[:, 0] - cold[:, 1]  # the far point of the sphere: a warm start would stay there
+    out, _ = solve_hard(est, pos, missing, pairs, lengths, start=start, start_unanchored_only=True)
+    np.testing.assert_allclose(out, cold, rtol=0, atol=1e-9)

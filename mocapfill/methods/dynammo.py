@@ -67,6 +67,11 @@ DEFAULT_HIDDEN = 16
 DEFAULT_MAX_ITER = 200
 DEFAULT_TOL = 1e-4
 
+#: With a ``project`` hook, the objective-change stop test fires from iteration ``project_start + 2`` on, so that it
+#: compares two completed data sets the hook has shaped: the objective jumps when the hook starts, and the old test
+#: (from iteration 2) could stop EM right when it started, or before (``project_start > 2``).
+STOP_TEST_AFTER_PROJECT = 2
+
 
 
 class ProjectStep(NamedTuple):
@@ -400,6 +405,7 @@ def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, p
 
     if project is not None:
         hook = _ProjectHook(project, positions, missing, keep, miss_k, X, scale, centre, rot, shift)
+    first_test = 2 if project is None else max(2, project_start + STOP_TEST_AFTER_PROJECT)
     objective: list[float] = []
     converged = False
     n_iter = 0
@@ -415,7 +421,9 @@ def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, p
         impute(stats.Ez, params.G)  # missing entries <- G E[z_t]
         if project is not None and it >= project_start:
             hook(params.sigma2 * scale ** 2, it, final=False)  # ... or the hook's answer
-        if it >= 2 and abs(objective[-1] - objective[-2]) <= tol * max(1.0, abs(objective[-2] - log_scale)):
+        # With a hook, compare only objectives of two completed data the hook has shaped (from project_start + 2):
+        # the first one after it starts jumps, and may by chance be close to the last unprojected one.
+        if it >= first_test and abs(objective[-1] - objective[-2]) <= tol * max(1.0, abs(objective[-2] - log_scale)):
             converged = True
             break
         if it == max_iter:
