@@ -149,7 +149,8 @@ def fill_command(input_path: str, output_path: str, method: str, hidden: int | N
         if reject_outliers:
             from ..outliers import reject_outliers as reject
 
-            options: dict[str, Any] = {"units": data.units, "labels": list(data.labels)}
+            options: dict[str, Any] = {"units": data.units, "labels": list(data.labels),
+                                       "rate": data.rate}
             if delta is not None:
                 options["delta"] = delta
             if reference_path is not None:

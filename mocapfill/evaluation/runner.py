@@ -91,7 +91,8 @@ def run_trial(truth: MarkerData, index: int, trial: Trial, method_seed: int, con
 
         # "clean": the clean clip plays Holden's reference take of the same marker set (distance ranges only).
         reference = positions if config.reject_outliers == "clean" else None
-        res = reject_outliers(corrupted, reference=reference, units=truth.units, labels=truth.labels)
+        res = reject_outliers(corrupted, reference=reference, units=truth.units, labels=truth.labels,
+                              rate=truth.rate)
         corrupted = np.asarray(res.positions, dtype=float)
         rejected = np.asarray(res.rejected, dtype=bool)
         if shifted.any():
