@@ -2,7 +2,10 @@
 
 Both variants run the DynaMMo EM engine (:func:`mocapfill.methods.dynammo.run_dynammo`) and, after each E-step from
 iteration ``project_start`` on, replace the imputation of every frame with a missing marker by the solution of a
-per-frame problem around the model's estimate e_t = G E[z_t] (:mod:`mocapfill.methods.constraints`):
+per-frame problem around the model's estimate e_t = G E[z_t] (:mod:`mocapfill.methods.constraints`), and once more
+after EM on the estimate with DynaMMo's gap-end residual bridge added (that solve is the output).  The engine runs
+with ``fill_dynammo``'s settings (its defaults) and hands the hook only the frames with a missing marker
+(:class:`mocapfill.methods.dynammo.ProjectStep`):
 
 - **BoLeRO-HC** (hard): the missing coordinates nearest e_t (the observation noise is isotropic, so its metric is
   the Euclidean one) with |x_u - x_v| = L for every bone touching a missing marker; where the bones cannot all hold,
@@ -53,6 +56,8 @@ DEFAULT_BONE_WEIGHTING = "spread"
 #: stop EM a few iterations after the constraints start (the objective jumps when they do), so: from the start.
 PROJECT_START_SC = 1
 PROJECT_START_HC = 1
+
+HC_WARM_NEWTON_STEPS = 2
 
 
 def _resolve_bones(positions: np.ndarray, bones: Any, units: str, labels: list[str] | None
@@ -236,6 +241,7 @@ def fill_bolero_hc(
         # blackouts it is as accurate and the cold start is what makes HC slow (the final solve is always cold).
         out, stats = solve_hard(estimate, data, missing, pairs, lengths, max_iter=solver_iter,
                                 start=previous[0] if previous and not final else None, start_unanchored_only=True,
+                                warm_newton_iter=HC_WARM_NEWTON_STEPS,
                                 groups=_cached_groups(data, missing, pairs, lengths, cache))
         previous[:] = [out]
         return out, stats

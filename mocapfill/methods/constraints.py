@@ -238,7 +238,10 @@ def _restore(group: _Group, y: np.ndarray, *, max_iter: int, tol: float) -> tupl
         ok = (cost_new < cost) & ~done
         # Inconsistent bones: the least-squares cost stops falling (relative gain below 1e-9) or the damping
         # saturates; that frame is done.
-        stalled |= (ok & (cost - cost_new <= 1e-9 * cost)) | (~ok & (mu >= 1e8))
+        # A Gauss-Newton-sized step below 1e-9 of the shortest bone that does not lower the cost means the frame
+        # is at its least-squares point to rounding (raising the damping through 14 decades would only confirm it).
+        tiny = np.abs(step).max(axis=1) <= 1e-9 * group.lengths.min()
+        stalled |= (ok & (cost - cost_new <= 1e-9 * cost)) | (~ok & ((mu >= 1e8) | tiny))
         y = np.where(ok[:, None, None], y_new, y)
         d = np.where(ok[:, None, None], d_new, d)
         r = np.where(ok[:, None], r_new, r)
@@ -331,6 +334,7 @@ def solve_hard(
     groups: list | None = None,
     start: np.ndarray | None = None,
     start_unanchored_only: bool = False,
+    warm_newton_iter: int | None = None,
     max_iter: int = 50,
     tol: float = 1e-12,
 ) -> tuple[np.ndarray, SolveStats]:
@@ -356,6 +360,10 @@ def solve_hard(
         marker is unknown, which makes the cold start (penalty continuation on the full system) the expensive
         part, while with an observed partner a warm start was measured to keep frames on a branch that is no
         longer the nearest (see :mod:`mocapfill.methods.bolero`).
+    warm_newton_iter : int, optional
+        Cap on the KKT Newton steps from a warm start (default ``max_iter``): the answer still meets its bones
+        (restoration polishes it), but may stop short of the nearest point, which is what an EM iteration that
+        re-solves next time can afford.
     max_iter : int
         Cap for each phase (restoration, then Newton on the KKT system).
     tol : float
@@ -396,7 +404,8 @@ def solve_hard(
                     # Without anchors the problem is invariant under rigid motions: move the start rigidly onto the
                     # estimate first (bone residuals unchanged), so it follows the estimate's pose.
                     y0 = _rigid_onto(y0, target[sub])
-                ys, fs, iters = _restore_and_newton(_subgroup(group, sub), y0, target[sub], max_iter, tol)
+                ys, fs, iters = _restore_and_newton(_subgroup(group, sub), y0, target[sub], max_iter, tol,
+                                                    warm_newton_iter)
                 # Without anchors, a frame whose bones cannot all hold keeps the least-squares point restoration
                 # reached from the aligned start: the cold path would cost the full continuation on every EM
                 # iteration (whole-body blackouts of an over-determined bone set); the final solve is cold anyway.
@@ -418,6 +427,10 @@ def solve_hard(
             iters += it
             y[cold] = yc
             feasible[cold] = fc
+        # A missing marker no active bone touches is free: the estimate (the cold paths leave it there; a warm start
+        # would leave it where the previous solution had it).
+        free = ~group.S.any(axis=0)
+        y[:, free] = target[:, free]
         stats.n_infeasible += int((~feasible).sum())
         stats.infeasible.extend(int(f) for f in group.frames[~feasible])
         out[np.ix_(group.frames, group.var, np.arange(3))] = y
@@ -433,8 +446,8 @@ def _rigid_onto(y: np.ndarray, target: np.ndarray) -> np.ndarray:
     return np.matmul(p, rot.transpose(0, 2, 1)) + ct
 
 
-def _restore_and_newton(group: _Group, y0: np.ndarray, target: np.ndarray, max_iter: int, tol: float
-                        ) -> tuple[np.ndarray, np.ndarray, int]:
+def _restore_and_newton(group: _Group, y0: np.ndarray, target: np.ndarray, max_iter: int, tol: float,
+                        newton_iter: int | None = None) -> tuple[np.ndarray, np.ndarray, int]:
     """Restoration (LM on the bone residuals) from ``y0`` (n, k, 3), then Newton on the KKT system where feasible.
 
     Returns the points (n, k, 3), which frames met every bone (n,) bool, and the iterations used.
@@ -447,7 +460,7 @@ def _restore_and_newton(group: _Group, y0: np.ndarray, target: np.ndarray, max_i
         sub_group = _subgroup(group, sub)
         # Newton on the KKT system from there converges in a few steps to the exact constrained optimum; a final
         # restoration step polishes to rounding.
-        y2, it2 = _kkt_newton(sub_group, y1[sub], target[sub], max_iter=max_iter, tol=tol)
+        y2, it2 = _kkt_newton(sub_group, y1[sub], target[sub], max_iter=newton_iter or max_iter, tol=tol)
         y2, _ = _restore(sub_group, y2, max_iter=5, tol=tol)
         iters += it2
         r2 = sub_group.residual(sub_group.diffs(y2))
