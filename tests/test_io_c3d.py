@@ -223,15 +223,17 @@ def test_filled_rewrite_keeps_everything_else(request, tmp_path, folder, name, v
     np.testing.assert_array_equal(residual[kept], old_points[:, mp, 3][kept])
 
 
-def test_integer_storage_out_of_range_is_refused(test_data, tmp_path):
+def test_fills_outside_the_integer_storage_range_stay_missing_with_a_warning(test_data, tmp_path):
     data = _read(test_data / "newwalk.c3d")
     pos = data.positions.copy()
-    t, k = np.argwhere(data.missing)[0]
-    pos[t, k] = [1e9, 0, 0]
-    with pytest.raises(FormatError, match="integer storage"):
+    (t, k), (t2, k2) = np.argwhere(data.missing)[:2]
+    pos[t, k] = [1e9, 0, 0]  # cannot be stored as int16 x scale
+    pos[t2, k2] = [1.0, 2.0, 3.0]  # an ordinary fill
+    with pytest.warns(DataWarning, match=f"1 sample.*{data.labels[k]}.*integer storage range"):
         mocapfill.write(data.with_positions(pos), tmp_path / "x.c3d")
-    assert not (tmp_path / "x.c3d").exists()
-    assert list(tmp_path.iterdir()) == []
+    back = _read(tmp_path / "x.c3d")
+    assert back.missing[t, k] and not back.missing[t2, k2]
+    assert np.allclose(back.positions[t2, k2], [1.0, 2.0, 3.0], atol=abs(back.extra.file.scale))
 
 
 def test_c3d_to_csv_to_c3d_keeps_positions(sample_data, tmp_path):

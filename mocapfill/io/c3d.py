@@ -179,10 +179,16 @@ def _rewrite(data: MarkerData, extra: C3DExtra, name: str) -> bytes:
         counts = np.rint(xyz / abs(f.scale))
         bad = ~((counts >= -32768) & (counts <= 32767)).all(axis=1)
         if bad.any():
-            t, k = np.argwhere(moved)[np.flatnonzero(bad)[0]]
-            raise FormatError(f"{name}: marker {data.labels[k]!r} frame {t + data.first_frame}: value "
-                              f"{xyz[np.flatnonzero(bad)[0]].tolist()} exceeds the integer storage range of the "
-                              f"original C3D (scale {f.scale:g}); write to CSV or TRC instead")
+            # Integer storage cannot hold these values; the file keeps its storage, so these samples keep what the
+            # original had (missing stays missing) and the user is told where, rather than losing the whole write.
+            rows, cols = np.argwhere(moved)[bad].T
+            markers = sorted({data.labels[k] for k in cols})
+            warnings.warn(f"{name}: {int(bad.sum())} sample(s) of {', '.join(markers)} (first at frame "
+                          f"{int(rows.min()) + data.first_frame}) lie outside the integer storage range of the "
+                          f"original C3D (+-32767 x {abs(f.scale):g} {data.units}) and were not written; write CSV "
+                          "or TRC to keep them", DataWarning, stacklevel=3)
+            moved[rows, cols] = False
+            counts = counts[~bad]
         xyz = counts
     put(moved, 0, xyz)
     # Newly filled: residual 0, camera mask 0 (valid, so other software shows them).
