@@ -153,7 +153,7 @@ def main() -> None:
         a, b = rows[0], rows[-1]
         print(f"per-iteration time ratio {b['frames']}/{a['frames']} frames: "
               f"{b['per_iter_ms'] / a['per_iter_ms']:.1f}x for {b['frames'] / a['frames']:.0f}x the frames")
-    print(f"targets: 1 iteration <= 10 ms (1.5k frames); 72k fill <= 30 s and <= 1536 MB")
+    print("targets: 1 iteration <= 10 ms (1.5k frames); 72k fill <= 30 s and <= 1536 MB")
 
 
 if __name__ == "__main__":

@@ -138,7 +138,6 @@ def fill_command(input_path: str, output_path: str, method: str, hidden: int | N
             raise click.BadParameter("must end in .json or .html", param_hint="--report")
         check_output_path(report_path, input_path, output_path)
 
-    caught: list[warnings.WarningMessage] = []
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         data = read_input(input_path, input_format, quiet=quiet)
