@@ -138,3 +138,67 @@ def test_bones_option(sample_data):
         fill_auto(pos, bones=[(5, 6)])
     metres = fill_auto(pos / 1000.0, units="m", bones=given)  # the bones are converted to the data's units
     assert np.allclose(metres.positions * 1000.0, res.positions, atol=1e-3)
+
+
+def walk_out(seed: int) -> np.ndarray:
+    """A wobbling marker cloud (mm, 300 frames at 100 Hz, 9 markers) leaving the volume: marker 0 vanishes at frame
+    200, five neighbours at 220, one at 240, the last two at 260, so the local PCA of marker 0 ends up defined by
+    only three neighbours.  (n_frames, n_markers, 3), NaN = missing."""
+    rng = np.random.default_rng(seed)
+    pos = tumbling_body(n_markers=9, seed=seed)
+    pos = pos + 0.3 * rng.normal(scale=8.0, size=pos.shape).cumsum(axis=0)  # non-rigid: the PCA is not exact
+    pos[200:, 0] = np.nan
+    pos[220:, 1:6] = np.nan
+    pos[240:, 6] = np.nan
+    pos[260:, 7:] = np.nan
+    return pos
+
+
+def _worst_step_ratio(filled: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """Per marker (n_markers,): largest frame-to-frame step touching a filled sample over the largest observed one."""
+    missing = np.isnan(positions).any(axis=2)
+    step = np.linalg.norm(np.diff(filled, axis=0), axis=2)
+    touched = missing[1:] | missing[:-1]
+    seen = ~touched
+    out = np.zeros(positions.shape[1])
+    for m in range(positions.shape[1]):
+        if touched[:, m].any():
+            out[m] = step[touched[:, m], m].max() / step[seen[:, m], m].max()
+    return out
+
+
+def test_markers_vanishing_one_by_one_give_no_jumps():
+    # Without the trust check (every PCA sample believed) these fills stepped 2-9x the largest observed step.
+    from mocapfill.methods.auto import STEP_BOUND
+
+    for seed in (0, 2):
+        pos = walk_out(seed)
+        res = fill_auto(pos, rate=100.0)
+        assert (_worst_step_ratio(res.positions, pos) < STEP_BOUND).all()
+        rec = next(r for r in res.info["gap_methods"] if r["marker_index"] == 0)
+        assert rec["method"].endswith("+fallback") and "blended smoothly" in rec["reason"]
+        assert np.isfinite(res.positions[:, :9]).all()
+
+
+def test_trust_ramps_instead_of_switching():
+    from mocapfill.methods.auto import limit_trust_changes
+
+    trust = np.zeros((40, 1))
+    trust[:20] = 1.0
+    gap = np.ones((40, 1), dtype=bool)
+    alpha = limit_trust_changes(trust, np.full((40, 1), 100.0), np.array([10.0]), gap)
+    assert alpha[0, 0] == 1.0 and alpha[20:].max() == 0.0
+    assert np.abs(np.diff(alpha[:, 0])).max() <= 0.1 + 1e-12  # 10 units per frame over a 100-unit disagreement
+    assert (alpha <= trust).all()  # trust is only ever lowered
+
+
+def test_walk_out_of_the_volume_real_capture(shared_data):
+    # VER4C3D: the left toe is last seen at frame 231 of 281 while the other markers vanish one by one; the local
+    # PCA, defined by the last few neighbours, jumped by up to 700 mm between frames.
+    data = mocapfill.read(shared_data / "c3d-org" / "sample_09" / "VER4C3D.c3d")
+    toe = data.labels.index("LTOE")
+    pos = data.positions[150:]
+    res = fill_auto(pos, labels=data.labels, rate=data.rate)
+    assert _worst_step_ratio(res.positions[:, [toe]], pos[:, [toe]])[0] <= 1.5
+    rec = next(r for r in res.info["gap_methods"] if r["marker"] == "LTOE" and r["start"] == 232 - 150)
+    assert rec["method"].endswith("+fallback")

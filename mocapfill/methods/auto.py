@@ -19,6 +19,18 @@ see ``benchmarks/bench_default.py`` and the README's figures):
    25 mm for straight lines), and by linear interpolation beyond (a cubic runs away over long stretches: median
    624 mm on the 10-50 % one-marker gaps of the CMU clip); edges hold the nearest observed value.  These samples
    carry no uncertainty (NaN) and are not moved by the bone refinement.
+4. **Trust check and smooth blend** (:func:`pca_trust`, :func:`limit_trust_changes`).  With few neighbours left
+   (a subject walking out of the volume) the local frame rests on three far points and the PCA jumped by up to
+   700 mm between frames (VER4C3D's toe).  Each PCA sample gets a trust in [0, 1]: lowered by its uncertainty
+   (50-150 mm), by its step to the neighbouring frames (1.5-3x the larger of the marker's largest observed step and
+   the body's largest step at that frame) and when only three neighbours define its frame (at most 0.5).  The
+   fallback path then runs through the observations and the fully trusted samples (spline over short stretches,
+   linear over long ones, held at the clip's edges); trust is lowered further so that it changes by at most half a
+   largest observed step per frame, and each filled sample is trust x PCA + (1 - trust) x fallback.  A final guard
+   distrusts an ever wider stretch around any filled step still above 3x the reference step.  On the benchmark's
+   trials nothing changed (same medians and means); over the 55 C3D files in the shared data the worst filled step
+   fell from up to 137x the marker's largest observed step to below 5x (above that only markers whose own
+   observations jump, unlabelled ``*`` markers seen in a few frames).
 
 Candidates measured and left out (``benchmarks/bench_default.py``, 20 trials per clip and protocol, median RMSE in
 mm on the CMU clip / tennis serve; the default: 11.6 / 3.7 one-marker, 15.3 / 5.8 limb): the published PCA alone
@@ -28,7 +40,8 @@ mm on the CMU clip / tennis serve; the default: 11.6 / 3.7 one-marker, 15.3 / 5.
 than its error, so it would dominate the average and drag it down); BoLeRO-SC (48 / 20, 49 / 33, 0.5-0.8 s per
 fill).
 
-``info["gap_methods"]`` lists, for every gap (run of missing frames of one marker), which method filled it and why.
+``info["gap_methods"]`` lists, for every gap (run of missing frames of one marker), which method filled it and why
+(``+fallback`` when part of it was blended into the fallback, with the count of frames per reason).
 """
 
 from __future__ import annotations
@@ -53,6 +66,26 @@ SPREAD_FLOOR_MM = 1.0
 #: Longest fallback stretch filled by a cubic spline instead of a straight line, in seconds (frames without a rate).
 SPLINE_SECONDS = 0.5
 SPLINE_FRAMES = 60
+#: Trust in a local PCA sample falls from 1 to 0 as its uncertainty grows from the first to the second value (mm):
+#: the default's median errors are 4-15 mm, and a PCA that doubts itself by decimetres is no better than a guess.
+TRUST_STD_MM = 50.0
+DISTRUST_STD_MM = 150.0
+#: ... and as its step to a neighbouring frame grows from FAST to STEP_BOUND times the reference step (the larger of
+#: the marker's largest observed step and the body's largest step at that frame); STEP_BOUND is also the final guard: no filled step longer than it keeps any PCA trust.
+FAST = 1.5
+STEP_BOUND = 3.0
+#: Trust when only the minimum of three observed neighbours defines the local frame (its rotation is then set by
+#: three points, often far from the marker: the walk-out of VER4C3D's toe gave jumps of 700 mm).
+FEW_ANCHORS_TRUST = 0.5
+#: Blending moves a fill by at most this fraction of the marker's largest observed step per frame (a ramp, not a
+#: switch, between the PCA and the fallback).
+BLEND_STEP = 0.5
+#: Below this trust a sample is the fallback's (no uncertainty, not moved by the bones).
+MIN_ALPHA = 0.05
+#: Observed steps needed to know a marker's speed; slowest speed limit (mm per frame); passes of the final guard.
+MIN_STEPS = 10
+MIN_SPEED_MM = 1.0
+JUMP_PASSES = 6
 
 
 def _resolve_bones(positions: np.ndarray, bones: Any, units: str, labels: Sequence[str] | None):
@@ -99,7 +132,8 @@ def fill_auto(
     -------
     FillResult
         ``std`` (n_frames, n_markers): per-coordinate RMS uncertainty of each filled sample (cross-validated, grown
-        with the frame's leverage, shrunk next to observations; the bone refinement does not change it).
+        with the frame's leverage, shrunk next to observations, divided by the trust given to the PCA there; NaN
+        where the fallback filled the sample; the bone refinement does not change it).
         ``info``: ``gap_methods`` (one dict per gap: ``marker`` (label or index), ``marker_index``, ``start``,
         ``length``, ``method``, ``reason``), ``bones`` (number used), ``bone_refinement`` (frames refined, mean
         |bone error| before/after), ``fallback`` (marker indices filled by interpolation).
@@ -118,87 +152,267 @@ def _fill_auto(positions: np.ndarray, *, units: str, labels, rate, bones, knn: i
     """The body of :func:`fill_auto` (positions (n_frames, n_markers, 3), already validated)."""
     mm = unit_scale(units, None) / DEFAULT_SCALE_MM  # data units per millimetre
     missing = np.isnan(positions).any(axis=2)
-    estimate, std, local_info = reconstruct_local(positions, scales=tuple(DEFAULT_SCALES_MM * mm),
-                                                  align_scale=DEFAULT_ALIGN_MM * mm, knn=knn)
+    pca, pca_std, local_info = reconstruct_local(positions, scales=tuple(DEFAULT_SCALES_MM * mm),
+                                                 align_scale=DEFAULT_ALIGN_MM * mm, knn=knn)
     spline_max = int(round(SPLINE_SECONDS * rate)) if rate else SPLINE_FRAMES
-    estimate, splined = _spline_short_fallbacks(positions, estimate, missing & np.isnan(std), spline_max)
-    info: dict[str, Any] = {"pipeline": "local-frame weighted PCA + bone refinement",
+    info: dict[str, Any] = {"pipeline": "local-frame weighted PCA + bone refinement, checked against a "
+                                        "smooth fallback",
                             "fallback": local_info["fallback"], "spline_max_frames": spline_max}
     boneset = _resolve_bones(positions, bones if refine else False, units, labels)
     if boneset is not None and len(boneset):
-        estimate, binfo = refine_bones(estimate, positions, std * BONE_TRUST, boneset.pairs, boneset.lengths,
-                                       boneset.spread, spread_floor=SPREAD_FLOOR_MM * mm)
+        # samples without a PCA estimate (NaN std) stay fixed here; the blend below decides what they become
+        pca, binfo = refine_bones(pca, positions, pca_std * BONE_TRUST, boneset.pairs, boneset.lengths,
+                                  boneset.spread, spread_floor=SPREAD_FLOOR_MM * mm)
         info["bone_refinement"] = binfo
     info["bones"] = 0 if boneset is None else int(len(boneset))
-    info["gap_methods"] = _gap_methods(missing, std, local_info, boneset, labels, units, splined, spline_max)
+    speed = observed_speed(positions, missing, floor=MIN_SPEED_MM * mm)
+    limit = step_reference(positions, missing, speed)
+    trust, why = pca_trust(positions, pca, pca_std, local_info["anchors"], limit, mm)
+    gap = missing & ~missing.all(axis=0)
+    for attempt in range(JUMP_PASSES):
+        fallback, splined = fallback_path(positions, pca, trust >= 1.0, spline_max)
+        alpha = limit_trust_changes(trust, np.linalg.norm(np.nan_to_num(pca - fallback), axis=2),
+                                    BLEND_STEP * speed, gap)
+        estimate, std = blend(positions, pca, pca_std, fallback, alpha)
+        # last guard: a filled step beyond the bound drops the PCA's trust within 2^attempt frames of it (a step
+        # inside the fallback means the trusted estimates it bridges disagree with each other or with the
+        # observations: distrust a wider stretch each pass, so the fallback bridges from farther away)
+        jump = jumps(estimate, gap, limit * STEP_BOUND)
+        if not jump.any():
+            break
+        jump = _dilate(jump, 2 ** attempt) & gap & (trust > 0)
+        if not jump.any():
+            break
+        trust[jump] = 0.0
+        why["jump"] |= jump
+    splined &= alpha == 0
+    info["gap_methods"] = _gap_methods(missing, std, local_info, boneset, labels, units, splined, spline_max,
+                                       alpha, why)
     return finish(positions, estimate, std=std, info=info)
 
 
-def _spline_short_fallbacks(positions: np.ndarray, estimate: np.ndarray, fallback: np.ndarray, longest: int
-                            ) -> tuple[np.ndarray, np.ndarray]:
-    """Replace the fallback (linear) fill of every interior stretch of at most ``longest`` frames by a cubic spline.
+def observed_speed(positions: np.ndarray, missing: np.ndarray, *, floor: float) -> np.ndarray:
+    """Each marker's largest observed frame-to-frame step (n_markers,), in data units per frame.
 
-    positions / estimate (n_frames, n_markers, 3); fallback (n_frames, n_markers) bool: samples the PCA could not
-    fill.  Returns the new estimate and the (n_frames, n_markers) mask of splined samples.
+    positions (n_frames, n_markers, 3); missing (n_frames, n_markers).  Markers with fewer than ``MIN_STEPS``
+    observed steps (too few to know how fast they move) get the largest over the markers; every value is at least
+    ``floor`` and a quarter of the markers' median (a nearly still marker's noise is no speed limit).
+    """
+    both = ~missing[1:] & ~missing[:-1]
+    step = np.where(both, np.linalg.norm(np.nan_to_num(np.diff(positions, axis=0)), axis=2), 0.0)
+    speed = step.max(axis=0) if len(step) else np.zeros(positions.shape[1])
+    known = both.sum(axis=0) >= MIN_STEPS
+    if known.any():
+        speed[~known] = speed[known].max()
+        lower = 0.25 * np.median(speed[known])
+    else:
+        speed[:] = floor
+        lower = floor
+    return np.maximum(speed, max(floor, lower))
+
+
+def step_reference(positions: np.ndarray, missing: np.ndarray, speed: np.ndarray) -> np.ndarray:
+    """The step each filled sample is judged against: (n_frames - 1, n_markers), data units per frame.
+
+    The larger of the marker's largest observed step (``speed`` (n_markers,)) and the largest step any marker
+    observed in both frames makes there: a marker hidden during the fastest movement (a hand in a flip) may move
+    faster than it was ever seen to, but not much faster than the rest of the body does at that moment.
+    positions (n_frames, n_markers, 3), missing (n_frames, n_markers).
+    """
+    both = ~missing[1:] & ~missing[:-1]
+    step = np.where(both, np.linalg.norm(np.nan_to_num(np.diff(positions, axis=0)), axis=2), 0.0)
+    body = step.max(axis=1) if step.shape[1] else np.zeros(len(step))
+    return np.maximum(speed[None, :], body[:, None])
+
+
+def fallback_path(positions: np.ndarray, pca: np.ndarray, trusted: np.ndarray, longest: int
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The bounded, smooth fill every untrusted PCA sample is blended towards.
+
+    It passes through the observations and the fully trusted PCA samples (``trusted`` (n_frames, n_markers) bool,
+    estimates in ``pca`` (n_frames, n_markers, 3)) and bridges each run of other missing samples: a cubic spline
+    when the run is interior and at most ``longest`` frames, linear interpolation otherwise, the nearest value held
+    beyond the clip's edges.  positions (n_frames, n_markers, 3), NaN = missing.  Returns the path (n_frames,
+    n_markers, 3) (NaN for never-observed markers) and the (n_frames, n_markers) mask of splined samples.
     """
     from ..gaps import runs
     from .interp import fill_spline
+    from .pca import _linear_fallback
 
-    splined = np.zeros_like(fallback)
-    if not fallback.any() or longest < 1:
-        return estimate, splined
+    missing = np.isnan(positions).any(axis=2)
+    known = ~missing | (trusted & missing & np.isfinite(pca).all(axis=2))
+    series = np.where(known[..., None], np.where(missing[..., None], pca, positions), np.nan)
+    out = series.copy()
+    splined = np.zeros_like(missing)
     n_frames = positions.shape[0]
-    spline = None
-    for m in np.flatnonzero(fallback.any(axis=0)):
-        for start, length in runs(fallback[:, m]):
-            interior = start > 0 and start + length < n_frames
-            if length <= longest and interior:
-                if spline is None:
-                    spline = fill_spline(positions).positions
+    todo = np.flatnonzero((~known).any(axis=0) & known.any(axis=0))
+    for m in todo:
+        out[:, m] = _linear_fallback(series[:, m], ~known[:, m])
+        for start, length in runs(~known[:, m]):
+            if length <= longest and start > 0 and start + length < n_frames:
                 splined[start:start + length, m] = True
-    if spline is not None:
-        estimate = estimate.copy()
-        estimate[splined] = spline[splined]
-    return estimate, splined
+    if splined.any():
+        spline = fill_spline(series[:, todo]).positions
+        sub = splined[:, todo]
+        part = out[:, todo]
+        part[sub] = spline[sub]
+        out[:, todo] = part
+    return out, splined
+
+
+def pca_trust(positions: np.ndarray, pca: np.ndarray, std: np.ndarray, anchors: np.ndarray, limit: np.ndarray,
+              mm: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Per-sample trust in the local PCA estimate, in [0, 1], and the reasons it is lowered.
+
+    positions / pca (n_frames, n_markers, 3); std (n_frames, n_markers) the PCA's uncertainty (NaN where it made
+    no estimate); anchors (n_frames, n_markers) observed neighbours that defined the local frame; limit
+    (n_frames - 1, n_markers) the reference step (:func:`step_reference`); mm data units per millimetre.  Trust falls linearly from 1 to 0 as the
+    uncertainty grows from ``TRUST_STD_MM`` to ``DISTRUST_STD_MM`` and as the estimate's step to the next or
+    previous frame grows from ``FAST`` to ``STEP_BOUND`` times the reference step; a frame defined
+    by the minimum of three neighbours is trusted at most ``FEW_ANCHORS_TRUST``.  Returns trust (n_frames,
+    n_markers) (1 on observed samples, 0 where there is no estimate) and masks ``uncertain``, ``fast``,
+    ``few_neighbours`` and ``jump`` (filled by the caller's final check).
+    """
+    missing = np.isnan(positions).any(axis=2)
+    est = missing & np.isfinite(std)
+    trust = np.where(missing, 0.0, 1.0)
+    lo, hi = TRUST_STD_MM * mm, DISTRUST_STD_MM * mm
+    by_std = np.clip((hi - np.nan_to_num(std, nan=np.inf)) / (hi - lo), 0.0, 1.0)
+    # the PCA path: observations where observed, the estimate where it exists
+    path = np.where(est[..., None], pca, positions)
+    step = np.linalg.norm(np.diff(path, axis=0), axis=2)  # (n_frames - 1, n_markers), NaN next to holes
+    step = np.nan_to_num(step, nan=0.0) / limit
+    ratio = np.zeros_like(trust)
+    ratio[1:] = step
+    ratio[:-1] = np.maximum(ratio[:-1], step)
+    by_speed = np.clip((STEP_BOUND - ratio) / (STEP_BOUND - FAST), 0.0, 1.0)
+    by_anchors = np.where(anchors <= 3, FEW_ANCHORS_TRUST, 1.0)
+    trust[est] = np.minimum(np.minimum(by_std, by_speed), by_anchors)[est]
+    why = {"uncertain": est & (by_std < 1), "fast": est & (by_speed < 1), "few_neighbours": est & (anchors <= 3),
+           "jump": np.zeros_like(est)}
+    return trust, why
+
+
+def limit_trust_changes(trust: np.ndarray, gap_size: np.ndarray, max_step: np.ndarray, gap: np.ndarray
+                        ) -> np.ndarray:
+    """Lower trust (never raise it) so that blending moves the fill by at most ``max_step`` per frame.
+
+    trust (n_frames, n_markers) in [0, 1]; gap_size (n_frames, n_markers) distance between the PCA estimate and the
+    fallback; max_step (n_markers,); gap (n_frames, n_markers) the samples being filled (trust is left alone on the
+    others).  The blend's step gains |change of trust| x gap_size, so trust may change by at most
+    max_step / gap_size per frame: a forward and a backward pass of a = min(a, neighbour + allowed) give the largest
+    such trust below the given one (a ramp instead of a switch).
+    """
+    alpha = np.where(gap, trust, 1.0)
+    allowed = max_step[None, :] / np.maximum(gap_size, 1e-12)
+    for t in range(1, len(alpha)):
+        np.minimum(alpha[t], alpha[t - 1] + allowed[t], out=alpha[t])
+    for t in range(len(alpha) - 2, -1, -1):
+        np.minimum(alpha[t], alpha[t + 1] + allowed[t], out=alpha[t])
+    return np.where(gap, alpha, 0.0)
+
+
+def blend(positions: np.ndarray, pca: np.ndarray, pca_std: np.ndarray, fallback: np.ndarray, alpha: np.ndarray
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """alpha x PCA + (1 - alpha) x fallback on the filled samples, with the uncertainty it carries.
+
+    positions / pca / fallback (n_frames, n_markers, 3); pca_std / alpha (n_frames, n_markers).  The uncertainty
+    is the PCA's divided by alpha (a less trusted estimate weighs less against the bones) and NaN where alpha is
+    below ``MIN_ALPHA`` (such samples are the fallback's: no uncertainty, not moved by the bone refinement).
+    """
+    missing = np.isnan(positions).any(axis=2)
+    a = alpha[..., None]
+    mixed = np.where(a > 0, a * np.nan_to_num(pca) + (1 - a) * fallback, fallback)
+    estimate = np.where(missing[..., None], mixed, positions)
+    std = np.where(missing, np.nan, 0.0)
+    ok = missing & (alpha >= MIN_ALPHA)
+    std[ok] = pca_std[ok] / alpha[ok]
+    return estimate, std
+
+
+def _dilate(mask: np.ndarray, width: int) -> np.ndarray:
+    """mask (n_frames, n_markers) grown by ``width`` frames each way along the frames."""
+    out = mask.copy()
+    for d in range(1, width + 1):
+        out[d:] |= mask[:-d]
+        out[:-d] |= mask[d:]
+    return out
+
+
+def jumps(estimate: np.ndarray, gap: np.ndarray, bound: np.ndarray) -> np.ndarray:
+    """Filled samples (n_frames, n_markers) at either end of a frame-to-frame step longer than ``bound``
+    (n_frames - 1, n_markers).
+
+    estimate (n_frames, n_markers, 3); gap (n_frames, n_markers) the filled samples.
+    """
+    step = np.nan_to_num(np.linalg.norm(np.diff(estimate, axis=0), axis=2), nan=0.0)
+    big = step > bound
+    out = np.zeros_like(gap)
+    out[1:] |= big
+    out[:-1] |= big
+    return out & gap
 
 
 def _gap_methods(missing: np.ndarray, std: np.ndarray, local_info: dict, boneset, labels, units: str,
-                 splined: np.ndarray, spline_max: int) -> list[dict]:
-    """One record per gap: which method filled it and why (JSON-ready)."""
+                 splined: np.ndarray, spline_max: int, alpha: np.ndarray, why: dict) -> list[dict]:
+    """One record per gap: which method filled it and why (JSON-ready).
+
+    missing / std / splined / alpha (n_frames, n_markers): the final uncertainty, splined fallback samples and the
+    trust given to the PCA; ``why``: masks from :func:`pca_trust` (plus ``jump``).
+    """
     cv = {}
     for g in local_info["groups"]:
         cv.setdefault(g["marker"], []).append(g)
     bone_count = np.zeros(missing.shape[1], dtype=int)
     if boneset is not None and len(boneset):
         bone_count = np.bincount(boneset.pairs.ravel(), minlength=missing.shape[1])
+    no_pca = local_info["anchors"] == 0
     out = []
     for gap in find_gaps(missing):
         m = gap.marker
+        sl = slice(gap.start, gap.stop)
         name = labels[m] if labels is not None else m
         rec = {"marker": name, "marker_index": int(m), "start": int(gap.start), "length": int(gap.length)}
-        seg = std[gap.start:gap.stop, m]
+        trusted = alpha[sl, m]
         if missing[:, m].all():
             rec.update(method="none", reason="marker missing in every frame: nothing to learn from")
-        elif not np.isfinite(seg).all():
-            why = "fewer than 3 observed neighbours or 10 training frames for PCA"
-            if splined[gap.start:gap.stop, m].all():
-                rec.update(method="spline", reason=f"{why}; short (<= {spline_max} frames): cubic spline")
-            elif np.isfinite(seg).any():
-                rec.update(method="local-pca+interpolation",
-                           reason=f"{why} in part of the gap: that part interpolated (spline when short)")
+            out.append(rec)
+            continue
+        if no_pca[sl, m].all():
+            why_not = "fewer than 3 observed neighbours or 10 training frames for PCA"
+            if splined[sl, m].all():
+                rec.update(method="spline", reason=f"{why_not}; short (<= {spline_max} frames): cubic spline")
             else:
-                rec.update(method="linear", reason=f"{why}; too long for a spline or at the clip's edge: "
+                rec.update(method="linear", reason=f"{why_not}; too long for a spline or at the clip's edge: "
                                                    f"linear interpolation, edges held")
-        else:
-            groups = cv.get(m, [])
-            rms = [r for g in groups for r in g["cv_rms"] if np.isfinite(r)]
-            why = "local-frame weighted PCA: the marker's observed neighbours predict it"
-            if rms:
-                why += f" (cross-validated error {min(rms):.3g} {units})"
-            method = "local-pca"
-            if bone_count[m]:
-                method = "local-pca+bones"
-                why += f"; refined with {int(bone_count[m])} bone(s) to keep its segment rigid"
-            rec.update(method=method, reason=why)
+            out.append(rec)
+            continue
+        groups = cv.get(m, [])
+        rms = [r for g in groups for r in g["cv_rms"] if np.isfinite(r)]
+        reason = "local-frame weighted PCA: the marker's observed neighbours predict it"
+        if rms:
+            reason += f" (cross-validated error {min(rms):.3g} {units})"
+        method = "local-pca"
+        if bone_count[m] and np.isfinite(std[sl, m]).any():
+            method = "local-pca+bones"
+            reason += f"; refined with {int(bone_count[m])} bone(s) to keep its segment rigid"
+        if (trusted < 1).any() and not no_pca[sl, m].all():
+            method += "+fallback"
+            parts = []
+            if no_pca[sl, m].any():
+                parts.append(f"{int(no_pca[sl, m].sum())} frame(s) without 3 observed neighbours or 10 training "
+                             f"frames")
+            labels_why = {"uncertain": f"uncertainty above {TRUST_STD_MM:g} mm",
+                          "few_neighbours": "only 3 observed neighbours define the local frame",
+                          "fast": f"steps above {FAST:g}x the largest observed (its own or the body's then)",
+                          "jump": f"a filled step above {STEP_BOUND:g}x the largest observed (its own or the body's then)"}
+            for key, text in labels_why.items():
+                count = int(why[key][sl, m].sum())
+                if count:
+                    parts.append(f"{count} frame(s) with {text}")
+            kind = "spline" if splined[sl, m].any() else "linear interpolation / hold"
+            reason += (f"; PCA not trusted in {int((trusted < 1).sum())} of {gap.length} frames ("
+                       + ", ".join(parts) + f"): blended smoothly into the {kind} there")
+        rec.update(method=method, reason=reason)
         out.append(rec)
     return out
