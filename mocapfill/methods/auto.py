@@ -28,7 +28,7 @@ see ``benchmarks/bench_default.py`` and the README's figures):
    linear over long ones, held at the clip's edges); trust is lowered further so that it changes by at most half a
    largest observed step per frame, and each filled sample is trust x PCA + (1 - trust) x fallback.  A final guard
    distrusts an ever wider stretch around any filled step still above 3x the reference step.  On the benchmark's
-   trials nothing changed (same medians and means); over the 55 C3D files in the shared data the worst filled step
+   trials nothing changed (same medians and means); over the 34 shared-data C3D files with gaps the worst filled step
    fell from up to 137x the marker's largest observed step to below 5x (above that only markers whose own
    observations jump, unlabelled ``*`` markers seen in a few frames).
 
