@@ -71,7 +71,8 @@ SPLINE_FRAMES = 60
 TRUST_STD_MM = 50.0
 DISTRUST_STD_MM = 150.0
 #: ... and as its step to a neighbouring frame grows from FAST to STEP_BOUND times the reference step (the larger of
-#: the marker's largest observed step and the body's largest step at that frame); STEP_BOUND is also the final guard: no filled step longer than it keeps any PCA trust.
+#: the marker's largest observed step and the body's largest step at that frame); STEP_BOUND is also the final
+#: guard: no filled step longer than it keeps any PCA trust.
 FAST = 1.5
 STEP_BOUND = 3.0
 #: Trust when only the minimum of three observed neighbours defines the local frame (its rotation is then set by
@@ -266,11 +267,11 @@ def pca_trust(positions: np.ndarray, pca: np.ndarray, std: np.ndarray, anchors: 
 
     positions / pca (n_frames, n_markers, 3); std (n_frames, n_markers) the PCA's uncertainty (NaN where it made
     no estimate); anchors (n_frames, n_markers) observed neighbours that defined the local frame; limit
-    (n_frames - 1, n_markers) the reference step (:func:`step_reference`); mm data units per millimetre.  Trust falls linearly from 1 to 0 as the
-    uncertainty grows from ``TRUST_STD_MM`` to ``DISTRUST_STD_MM`` and as the estimate's step to the next or
-    previous frame grows from ``FAST`` to ``STEP_BOUND`` times the reference step; a frame defined
-    by the minimum of three neighbours is trusted at most ``FEW_ANCHORS_TRUST``.  Returns trust (n_frames,
-    n_markers) (1 on observed samples, 0 where there is no estimate) and masks ``uncertain``, ``fast``,
+    (n_frames - 1, n_markers) the reference step (:func:`step_reference`); mm data units per millimetre.  Trust
+    falls linearly from 1 to 0 as the uncertainty grows from ``TRUST_STD_MM`` to ``DISTRUST_STD_MM`` and as the
+    estimate's step to the next or previous frame grows from ``FAST`` to ``STEP_BOUND`` times the reference step;
+    a frame defined by the minimum of three neighbours is trusted at most ``FEW_ANCHORS_TRUST``.  Returns trust
+    (n_frames, n_markers) (1 on observed samples, 0 where there is no estimate) and masks ``uncertain``, ``fast``,
     ``few_neighbours`` and ``jump`` (filled by the caller's final check).
     """
     missing = np.isnan(positions).any(axis=2)
@@ -405,7 +406,8 @@ def _gap_methods(missing: np.ndarray, std: np.ndarray, local_info: dict, boneset
             labels_why = {"uncertain": f"uncertainty above {TRUST_STD_MM:g} mm",
                           "few_neighbours": "only 3 observed neighbours define the local frame",
                           "fast": f"steps above {FAST:g}x the largest observed (its own or the body's then)",
-                          "jump": f"a filled step above {STEP_BOUND:g}x the largest observed (its own or the body's then)"}
+                          "jump": f"a filled step above {STEP_BOUND:g}x the largest observed (its own or the "
+                                  f"body's then)"}
             for key, text in labels_why.items():
                 count = int(why[key][sl, m].sum())
                 if count:
