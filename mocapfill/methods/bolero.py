@@ -179,11 +179,12 @@ def _violations(filled: np.ndarray, missing: np.ndarray, pairs: np.ndarray, leng
     if not pairs.size:
         return {"bone_error_mean": 0.0, "bone_error_max": 0.0, "bone_error_max_rel": 0.0}
     active = missing[:, pairs[:, 0]] | missing[:, pairs[:, 1]]
-    err = np.abs(bone_errors(filled, pairs, lengths))[active]
+    all_err = np.abs(bone_errors(filled, pairs, lengths))
+    err = all_err[active]
     err = err[np.isfinite(err)]
     if not err.size:
         return {"bone_error_mean": 0.0, "bone_error_max": 0.0, "bone_error_max_rel": 0.0}
-    rel = (np.abs(bone_errors(filled, pairs, lengths)) / lengths)[active]
+    rel = (all_err / lengths)[active]
     return {"bone_error_mean": float(err.mean()), "bone_error_max": float(err.max()),
             "bone_error_max_rel": float(np.nanmax(rel))}
 
