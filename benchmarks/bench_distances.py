@@ -143,14 +143,14 @@ def outlier_trials(n_seeds: int) -> None:
     import numpy as np
 
     import mocapfill
-    from mocapfill.bones import unit_scale
+    from mocapfill.units import length_factor
     from mocapfill.outliers import reject_outliers
 
     root = Path(__file__).resolve().parents[1] / "sample_data"
     print(f"reject_outliers (self-reference, defaults, the file's frame rate), {n_seeds} seeds per corruption")
     for name in ("85_02.c3d", "kinematics_tennis_serve.c3d"):
         data = mocapfill.read(root / name)
-        scale = unit_scale("mm", data.units)
+        scale = length_factor("mm", data.units)
         t0 = time.perf_counter()
         clean_mask = reject_outliers(data.positions, units=data.units, rate=data.rate).rejected
         clean = clean_mask.sum()

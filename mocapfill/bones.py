@@ -60,9 +60,7 @@ import numpy as np
 
 from .distances import pair_distance_stats, pair_distances
 from .errors import FormatError, InputError, MocapfillError
-
-#: Millimetres per unit.
-UNIT_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+from .units import MM_PER_UNIT, length_factor
 
 #: Default thresholds (see the module docstring for the evidence).
 DEFAULT_MAX_REL_SPREAD = 0.04
@@ -74,14 +72,6 @@ DEFAULT_RELAX = 1.25
 _P5_P95_TO_STD = 3.2897072539029457
 
 SPREAD_DEFINITION = "robust standard deviation of the distance: (95th - 5th percentile) / 3.29"
-
-
-def unit_scale(from_units: str, to_units: str) -> float:
-    """Factor converting a length in ``from_units`` to ``to_units`` ("mm", "cm" or "m")."""
-    for u in (from_units, to_units):
-        if u not in UNIT_MM:
-            raise MocapfillError(f"unknown length unit {u!r} (expected one of {', '.join(UNIT_MM)})")
-    return UNIT_MM[from_units] / UNIT_MM[to_units]
 
 
 @dataclass
@@ -149,7 +139,7 @@ class BoneSet:
         """The same bones with lengths and spreads converted to ``units`` (no-op when already there / unknown)."""
         if self.units is None or self.units == units:
             return BoneSet(self.pairs, self.lengths, self.spread, self.n_frames, units)
-        k = unit_scale(self.units, units)
+        k = length_factor(self.units, units)
         return BoneSet(self.pairs, self.lengths * k, self.spread * k, self.n_frames, units)
 
 
@@ -173,7 +163,7 @@ def pair_scores(positions: np.ndarray, *, units: str = "mm", max_rel_spread: flo
     """
     positions = np.asarray(positions, dtype=np.float64)
     if max_abs_spread is None:
-        max_abs_spread = DEFAULT_MAX_ABS_SPREAD_MM * unit_scale("mm", units)
+        max_abs_spread = DEFAULT_MAX_ABS_SPREAD_MM * length_factor("mm", units)
     if min_frames is None:
         min_frames = default_min_frames(positions.shape[0])
     if not (max_rel_spread > 0 and max_abs_spread > 0):
@@ -387,7 +377,7 @@ def load_bones(path, labels: Sequence[str], *, units: str | None = None) -> Bone
     except UnicodeDecodeError:
         raise FormatError(f"{path}: not a text file") from None
     file_units, rows = _parse_rows(path, text)
-    if file_units is not None and file_units not in UNIT_MM:
+    if file_units is not None and file_units not in MM_PER_UNIT:
         raise FormatError(f"{path}: unknown units {file_units!r} (expected mm, cm or m)")
     find = _label_index(list(labels))
     pairs, lengths, spreads, frames = [], [], [], []

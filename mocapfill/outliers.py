@@ -66,7 +66,8 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from .bones import UNIT_MM, default_min_frames, unit_scale
+from .bones import default_min_frames
+from .units import length_factor
 from .distances import pair_distance_stats
 from .errors import MocapfillError
 
@@ -338,7 +339,7 @@ def _shifted_once(positions: np.ndarray, *, rate: float, max_run: float, units: 
     found = np.zeros((n_frames, n_markers), dtype=bool)
     if n_frames < 3 or n_markers < 2:
         return found
-    floor = jump_floor_mm * unit_scale("mm", units)
+    floor = jump_floor_mm * length_factor("mm", units)
     # stiff = the distance keeps within a narrow band over the clip (10th to 90th percentile: a stretch displaced
     # in a few percent of the frames does not widen it)
     stats = pair_distance_stats(positions, percentiles=(10.0, 90.0), chunk_bytes=chunk_bytes)
@@ -490,14 +491,13 @@ def reject_outliers(positions: np.ndarray, *, reference: np.ndarray | None = Non
     positions = np.asarray(positions, dtype=np.float64)
     if positions.ndim != 3 or positions.shape[2] != 3:
         raise MocapfillError(f"positions must have shape (n_frames, n_markers, 3), got {positions.shape}")
-    if units not in UNIT_MM:
-        raise MocapfillError(f"unknown length unit {units!r} (expected one of {', '.join(UNIT_MM)})")
+    length_factor(units, "mm")  # an unknown unit fails here, before any work
     if not (delta >= 0 and robust_delta >= 0 and 0 <= percentile < 50):
         raise MocapfillError(f"delta and robust_delta must be >= 0 and percentile in [0, 50) "
                              f"(got {delta}, {robust_delta}, {percentile})")
     n_frames, n_markers, _ = positions.shape
     if min_margin is None:
-        min_margin = DEFAULT_MIN_MARGIN_MM * unit_scale("mm", units)
+        min_margin = DEFAULT_MIN_MARGIN_MM * length_factor("mm", units)
     observed = ~np.isnan(positions).any(axis=2)
     original, displaced = positions, None
     if n_markers < 2 or n_frames == 0:
@@ -505,7 +505,7 @@ def reject_outliers(positions: np.ndarray, *, reference: np.ndarray | None = Non
     if reference is not None:
         ref = _align(reference, labels, reference_labels, n_markers)
         if reference_units is not None and reference_units != units:
-            ref = ref * unit_scale(reference_units, units)
+            ref = ref * length_factor(reference_units, units)
         mf = default_min_frames(ref.shape[0]) if min_frames is None else min_frames
         pairs, dmin, dmax = _ranges(ref, 0.0, mf)
     else:

@@ -14,7 +14,7 @@ from mocapfill.methods.pca import (
     gaussian_weights,
     mean_distances,
     pattern_groups,
-    unit_scale,
+    weight_width,
 )
 
 
@@ -33,10 +33,10 @@ def walking_cloud(n_frames: int = 400, n_markers: int = 10, seed: int = 1) -> np
 
 def test_registered_and_default_options():
     assert get_method("pca").load() is fill_pca
-    assert unit_scale("mm", None) == 200.0
-    assert unit_scale("cm", None) == pytest.approx(20.0)
-    assert unit_scale("m", None) == pytest.approx(0.2)
-    assert unit_scale("m", 0.5) == 0.5
+    assert weight_width("mm", None) == 200.0
+    assert weight_width("cm", None) == pytest.approx(20.0)
+    assert weight_width("m", None) == pytest.approx(0.2)
+    assert weight_width("m", 0.5) == 0.5
 
 
 def test_weights_are_gaussian_in_mean_distance():

@@ -18,7 +18,7 @@ _LENGTH = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(mm|cm|m)?\s*
 
 def parse_length(text: str | None, units: str, option: str) -> float | None:
     """A length option: a bare number is in the file's ``units``; "6mm", "0.6cm", "0.006m" are converted."""
-    from ..bones import unit_scale
+    from ..units import length_factor
 
     if text is None:
         return None
@@ -27,7 +27,7 @@ def parse_length(text: str | None, units: str, option: str) -> float | None:
         raise MocapfillError(f"{option}: not a length: {text!r} (a number, optionally followed by mm, cm or m)")
     value = float(match.group(1))
     if match.group(2):
-        value *= unit_scale(match.group(2), units)
+        value *= length_factor(match.group(2), units)
     return value
 
 

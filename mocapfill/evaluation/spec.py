@@ -27,10 +27,10 @@ import os
 from typing import Any
 
 from ..errors import InputError, MocapfillError
+from ..units import MM_PER_UNIT, length_factor
 from .occlusions import Occlusion, Shift, Trial
 
 SPEC_FORMAT = "mocapfill-occlusions/1"
-_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
 
 
 def resolve_label(label: str, labels: list[str], *, where: str) -> int:
@@ -91,9 +91,9 @@ def trials_from_spec(spec: Any, data, *, name: str = "occlusion spec") -> list[T
         raise MocapfillError(f"{name}: expected a non-empty list 'trials'")
     scale = 1.0
     if units is not None:
-        if units not in _TO_MM or str(data.units) not in _TO_MM:
+        if units not in MM_PER_UNIT or str(data.units) not in MM_PER_UNIT:
             raise MocapfillError(f"{name}: cannot convert shift offsets from {units!r} to {data.units!r}")
-        scale = _TO_MM[units] / _TO_MM[str(data.units)]
+        scale = length_factor(units, str(data.units))
     labels = list(data.labels)
     n_frames, first = data.n_frames, int(data.first_frame)
     out = []

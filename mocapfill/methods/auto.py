@@ -56,7 +56,7 @@ from .base import FillResult, finish
 from ..blas import single_blas_thread
 from .hybrid_bones import refine_bones
 from .hybrid_local import DEFAULT_ALIGN_MM, DEFAULT_SCALES_MM, reconstruct_local
-from .pca import DEFAULT_SCALE_MM, unit_scale
+from ..units import length_factor
 
 #: The PCA uncertainty is multiplied by this before the bone refinement weighs it against the bones' spread
 #: (measured: trusting the reconstruction twice as much as its cross-validated error says was the best balance).
@@ -151,7 +151,7 @@ def fill_auto(
 
 def _fill_auto(positions: np.ndarray, *, units: str, labels, rate, bones, knn: int, refine: bool) -> FillResult:
     """The body of :func:`fill_auto` (positions (n_frames, n_markers, 3), already validated)."""
-    mm = unit_scale(units, None) / DEFAULT_SCALE_MM  # data units per millimetre
+    mm = length_factor("mm", units)  # data units per millimetre
     missing = np.isnan(positions).any(axis=2)
     pca, pca_std, local_info = reconstruct_local(positions, scales=tuple(DEFAULT_SCALES_MM * mm),
                                                  align_scale=DEFAULT_ALIGN_MM * mm, knn=knn)

@@ -34,8 +34,8 @@ import numpy as np
 from ..errors import MethodError
 from .base import FillResult, finish
 from ..blas import single_blas_thread
+from ..units import length_factor
 from .pca import (
-    DEFAULT_SCALE_MM,
     MIN_TRAINING_FRAMES,
     _linear_fallback,
     cv_curve,
@@ -44,7 +44,6 @@ from .pca import (
     mean_distances,
     pattern_groups,
     predict,
-    unit_scale,
 )
 
 
@@ -327,7 +326,7 @@ def fill_local_pca(
     150, 200, 300 mm / 200 mm converted from ``units``).  Returns a FillResult with a per-coordinate RMS ``std``.
     """
     positions = np.asarray(positions, dtype=np.float64)
-    mm = unit_scale(units, None) / DEFAULT_SCALE_MM  # data units per millimetre
+    mm = length_factor("mm", units)  # data units per millimetre
     scales = tuple(DEFAULT_SCALES_MM * mm) if scales is None else tuple(float(x) for x in scales)
     align = DEFAULT_ALIGN_MM * mm if align_scale is None else float(align_scale)
     if not scales or min(scales) <= 0 or align <= 0:

@@ -47,10 +47,10 @@ import numpy as np
 from ..errors import MethodError
 from .base import FillResult, finish
 from ..blas import single_blas_thread
+from ..units import length_factor
 
 #: Default Gaussian width of the distance weights, per unit (200 mm).
 DEFAULT_SCALE_MM = 200.0
-UNIT_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
 
 #: Fewest training frames a reconstruction needs; below this a marker's gap falls back to linear interpolation.
 MIN_TRAINING_FRAMES = 10
@@ -74,15 +74,13 @@ class PCAModel(NamedTuple):
     singular: np.ndarray
 
 
-def unit_scale(units: str, scale: float | None) -> float:
+def weight_width(units: str, scale: float | None) -> float:
     """The Gaussian width in data units: ``scale`` if given, else 200 mm converted to ``units``."""
     if scale is not None:
         if not np.isfinite(scale) or scale <= 0:
             raise MethodError(f"pca scale must be a positive length, got {scale!r}")
         return float(scale)
-    if units not in UNIT_TO_MM:
-        raise MethodError(f"unknown units {units!r}; expected one of {', '.join(UNIT_TO_MM)}")
-    return DEFAULT_SCALE_MM / UNIT_TO_MM[units]
+    return DEFAULT_SCALE_MM * length_factor("mm", units)
 
 
 def mean_distances(positions: np.ndarray, target: int) -> np.ndarray:
@@ -487,7 +485,7 @@ def fill_pca(
     if not missing_weight > 0:
         raise MethodError(f"pca missing_weight must be positive, got {missing_weight!r}")
     positions = np.asarray(positions, dtype=np.float64)
-    width = unit_scale(units, scale)
+    width = weight_width(units, scale)
     with single_blas_thread():  # many small decompositions: BLAS threads only add contention
         estimate, std, info = reconstruct(positions, scale=width, missing_weight=missing_weight, variance=variance,
                                           strategy=strategy, normalise=normalise)
