@@ -59,7 +59,7 @@ from typing import Sequence
 import numpy as np
 
 from .distances import pair_distance_stats, pair_distances
-from .errors import FormatError, InputError, MocapfillError
+from .errors import FormatError, InputError, MethodError, MocapfillError
 from .units import MM_PER_UNIT, length_factor
 
 #: Default thresholds (see the module docstring for the evidence).
@@ -141,6 +141,24 @@ class BoneSet:
             return BoneSet(self.pairs, self.lengths, self.spread, self.n_frames, units)
         k = length_factor(self.units, units)
         return BoneSet(self.pairs, self.lengths * k, self.spread * k, self.n_frames, units)
+
+
+def resolve_bones(positions: np.ndarray, bones: "BoneSet | None", *, units: str = "mm",
+                  labels: Sequence[str] | None = None) -> BoneSet:
+    """The bones a bone-aware fill uses: ``bones`` checked against the data and converted to ``units``, or, when
+    None, estimated from the observed samples of ``positions`` (n_frames, n_markers, 3) only, so hidden data never
+    leaks into them.  Bones without a finite positive length are dropped.
+    """
+    if bones is None:
+        return estimate_bones(positions, units=units, labels=list(labels) if labels is not None else None)
+    if not isinstance(bones, BoneSet):
+        raise MethodError(f"bones must be a BoneSet or None, got {type(bones).__name__}")
+    n_markers = positions.shape[1]
+    if len(bones) and (bones.pairs.min() < 0 or bones.pairs.max() >= n_markers):
+        raise MethodError(f"bones refer to marker {int(bones.pairs.max())} but the data has {n_markers} markers "
+                          f"(index out of range 0..{n_markers - 1})")
+    bones = bones.to_units(units)
+    return bones.subset(np.isfinite(bones.lengths) & (bones.lengths > 0))
 
 
 def default_min_frames(n_frames: int) -> int:

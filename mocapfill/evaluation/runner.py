@@ -20,7 +20,8 @@ import numpy as np
 from ..errors import MocapfillError
 from ..markers import MarkerData
 from .metrics import score
-from .occlusions import Trial, rigid_partners
+from ..bones import estimate_bones
+from .occlusions import Trial
 
 
 @dataclass
@@ -54,29 +55,9 @@ class RunConfig:
 
 
 def _bones(positions: np.ndarray, units: str, labels: list[str]) -> tuple[np.ndarray, np.ndarray]:
-    """Bones (pairs (B, 2), lengths (B,)) estimated from the occluded input only.
-
-    Uses :func:`mocapfill.bones.estimate_bones`; if that module is missing or refuses, falls back to each marker's
-    two most rigid partners with their mean distance (pairs whose distance spread is under 5 % of the length).
-    """
-    try:
-        from ..bones import estimate_bones
-
-        bones = estimate_bones(positions, units=units, labels=labels)
-        return np.asarray(bones.pairs, dtype=int).reshape(-1, 2), np.asarray(bones.lengths, dtype=float)
-    except (ImportError, MocapfillError):
-        pass
-    from ..distances import pair_distance_stats
-
-    n_markers = positions.shape[1]
-    if n_markers < 2:
-        return np.zeros((0, 2), dtype=int), np.zeros(0)
-    partners = rigid_partners(positions, k=2)
-    pairs = np.unique(np.sort(np.stack([np.repeat(np.arange(n_markers), partners.shape[1]), partners.ravel()], 1),
-                              axis=1), axis=0)
-    stats = pair_distance_stats(positions, pairs, percentiles=())
-    keep = (stats.count > 1) & (stats.std < 0.05 * stats.mean)
-    return pairs[keep], stats.mean[keep]
+    """Bones (pairs (B, 2), lengths (B,)) estimated from the occluded input only (:func:`estimate_bones`)."""
+    bones = estimate_bones(positions, units=units, labels=labels)
+    return bones.pairs, bones.lengths
 
 
 def run_trial(truth: MarkerData, index: int, trial: Trial, method_seed: int, config: RunConfig) -> list[TrialScore]:

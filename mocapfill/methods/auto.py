@@ -54,6 +54,7 @@ from ..errors import MethodError
 from ..gaps import find_gaps
 from .base import FillResult, finish
 from ..blas import single_blas_thread
+from ..bones import resolve_bones
 from .hybrid_bones import refine_bones
 from .hybrid_local import DEFAULT_ALIGN_MM, DEFAULT_SCALES_MM, reconstruct_local
 from ..units import length_factor
@@ -87,22 +88,6 @@ MIN_ALPHA = 0.05
 MIN_STEPS = 10
 MIN_SPEED_MM = 1.0
 JUMP_PASSES = 6
-
-
-def _resolve_bones(positions: np.ndarray, bones: Any, units: str, labels: Sequence[str] | None):
-    """The BoneSet to use: ``bones`` converted to ``units``, or estimated from the observed frames when None."""
-    from ..bones import BoneSet, estimate_bones
-
-    if bones is None:
-        return estimate_bones(positions, units=units, labels=list(labels) if labels is not None else None)
-    if bones is False:
-        return None
-    if not isinstance(bones, BoneSet):
-        raise MethodError(f"bones must be a BoneSet or None, got {type(bones).__name__}")
-    if len(bones) and bones.pairs.max() >= positions.shape[1]:
-        raise MethodError(f"bones refer to marker {int(bones.pairs.max())} but the data has "
-                          f"{positions.shape[1]} markers")
-    return bones.to_units(units)
 
 
 def fill_auto(
@@ -159,7 +144,8 @@ def _fill_auto(positions: np.ndarray, *, units: str, labels, rate, bones, knn: i
     info: dict[str, Any] = {"pipeline": "local-frame weighted PCA + bone refinement, checked against a "
                                         "smooth fallback",
                             "fallback": local_info["fallback"], "spline_max_frames": spline_max}
-    boneset = _resolve_bones(positions, bones if refine else False, units, labels)
+    use_bones = refine and bones is not False  # False: no bone refinement
+    boneset = resolve_bones(positions, bones, units=units, labels=labels) if use_bones else None
     if boneset is not None and len(boneset):
         # samples without a PCA estimate (NaN std) stay fixed here; the blend below decides what they become
         pca, binfo = refine_bones(pca, positions, pca_std * BONE_TRUST, boneset.pairs, boneset.lengths,

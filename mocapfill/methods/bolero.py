@@ -31,6 +31,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..bones import resolve_bones
 from ..errors import MethodError
 from .base import FillResult, ProgressFn, check_positions
 from .constraints import SolveStats, bone_errors, frame_groups, solve_hard, solve_soft
@@ -60,40 +61,14 @@ PROJECT_START_HC = 1
 HC_WARM_NEWTON_STEPS = 2
 
 
-def _resolve_bones(positions: np.ndarray, bones: Any, units: str, labels: list[str] | None
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
-    """(pairs (B, 2) int, lengths (B,), spreads (B,) (NaN = unknown), source) from a BoneSet or estimated."""
-    source = "given"
-    if bones is None:
-        from ..bones import estimate_bones
-
-        # estimate_bones reads only observed samples (NaN = missing), so hidden data never leaks into the bones.
-        bones = estimate_bones(positions, units=units, labels=labels)
-        source = "estimated from the observed samples"
-    elif getattr(bones, "units", None) not in (None, units) and hasattr(bones, "to_units"):
-        bones = bones.to_units(units)  # lengths in the file's units, converted explicitly
-    pairs = np.asarray(bones.pairs, dtype=np.intp).reshape(-1, 2)
-    lengths = np.asarray(bones.lengths, dtype=np.float64).ravel()
-    if pairs.shape[0] != lengths.shape[0]:
-        raise MethodError(f"bones: {pairs.shape[0]} pairs but {lengths.shape[0]} lengths")
-    n_markers = positions.shape[1]
-    if pairs.size and (pairs.min() < 0 or pairs.max() >= n_markers):
-        raise MethodError(f"bones: marker index out of range 0..{n_markers - 1}")
-    if (pairs[:, 0] == pairs[:, 1]).any():
-        raise MethodError("bones: a bone joins a marker to itself")
-    spread = np.asarray(getattr(bones, "spread", np.full(lengths.shape, np.nan)), dtype=np.float64).ravel()
-    if spread.shape != lengths.shape:
-        spread = np.full(lengths.shape, np.nan)
-    keep = np.isfinite(lengths) & (lengths > 0)
-    return pairs[keep], lengths[keep], spread[keep], source
-
-
 def _run(positions, solver: Callable[..., tuple[np.ndarray, SolveStats]], *, variant: str, bones, units, labels,
          hidden, max_iter, tol, seed, progress, project_start, extra_info) -> FillResult:
     positions = check_positions(positions)
     if int(project_start) < 1:
         raise MethodError(f"project_start must be >= 1, got {project_start}")
-    pairs, lengths, spread, source = _resolve_bones(positions, bones, units, labels)
+    boneset = resolve_bones(positions, bones, units=units, labels=labels)
+    source = "given" if bones is not None else "estimated from the observed samples"
+    pairs, lengths, spread = boneset.pairs, boneset.lengths, boneset.spread
     missing = np.isnan(positions).any(axis=2)
     # A marker missing in every frame stays NaN (the engine does not model it): its bones hold nothing.
     dead = missing.all(axis=0) if missing.size else np.zeros(positions.shape[1], dtype=bool)
