@@ -56,6 +56,7 @@ from ..gaps import runs
 from ..blas import single_blas_thread
 from . import lds
 from .base import FillResult, ProgressFn, check_positions, finish
+from .interp import interpolate_columns
 
 #: Defaults chosen by measurement.  H = 16 as in the authors' experiments.  On 8 one-marker occlusions of
 #: 0.5-2 s (CMU 85_02 and the tennis serve), tol = 1e-4 stopped after 65-85 iterations (one trial 186) with RMSEs
@@ -139,30 +140,6 @@ class _ProjectHook:
         if self.rot is not None:
             d = np.einsum("sji,sj->si", self.rot, d - self.shift)
         self.X[self.idx] = (d - self.centre) / self.scale
-
-
-def interpolate_columns(X: np.ndarray, miss: np.ndarray) -> np.ndarray:
-    """Linear interpolation per column with the nearest observed value held at both ends.
-
-    Parameters
-    ----------
-    X : (T, m) values (entries where ``miss`` is True are ignored).
-    miss : (T, m) bool.
-
-    Returns
-    -------
-    (T, m) copy with missing entries interpolated; a column with no observation becomes 0.
-    """
-    Xt = np.array(X, dtype=np.float64).T.copy()  # columns as contiguous rows
-    mt = np.asarray(miss, dtype=bool).T
-    frames = np.arange(Xt.shape[1])
-    for j in np.flatnonzero(mt.any(axis=1)):
-        ok = ~mt[j]
-        if not ok.any():
-            Xt[j] = 0.0
-            continue
-        Xt[j, ~ok] = np.interp(frames[~ok], frames[ok], Xt[j, ok])
-    return np.ascontiguousarray(Xt.T)
 
 
 def fit_body_frame(positions: np.ndarray, weights: np.ndarray, *, rounds: int = 2) -> tuple[np.ndarray, np.ndarray]:
@@ -356,13 +333,13 @@ def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, p
     m = 3 * Mk
     miss_k = missing[:, keep]
     miss_cols = np.repeat(miss_k, 3, axis=1)
-    Y = interpolate_columns(positions[:, keep, :].reshape(T, m), miss_cols)
+    Y = interpolate_columns(positions[:, keep, :].reshape(T, m), miss_cols, empty=0.0)
     rot = rot_t = shift = None
     if body_frame and Mk >= 3:
         rot, shift = fit_body_frame(Y.reshape(T, Mk, 3), np.where(miss_k, 1e-6, 1.0))
         rot_t = np.ascontiguousarray(rot.transpose(0, 2, 1))  # batched matmul is slow on strided batches
         Y = np.matmul(Y.reshape(T, Mk, 3) - shift[:, None, :], rot).reshape(T, m)
-        Y = interpolate_columns(Y, miss_cols)  # interpolating in the body frame follows the body's turning
+        Y = interpolate_columns(Y, miss_cols, empty=0.0)  # interpolating in the body frame follows the body's turning
     # Mean and RMS over observed entries only, without (T, m) temporaries: totals minus the missing entries.
     mi, mj = np.nonzero(miss_cols)
     n_obs = T - np.bincount(mj, minlength=m)

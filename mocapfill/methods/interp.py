@@ -21,6 +21,34 @@ from ..gaps import all_missing_markers, missing_mask
 from .base import FillResult, finish
 
 
+def interpolate_columns(values: np.ndarray, missing: np.ndarray, *, empty: float | None = None) -> np.ndarray:
+    """Linear interpolation down each column over its observed entries, the nearest one held beyond both ends.
+
+    Parameters
+    ----------
+    values : ndarray, shape (n_frames, m)
+        Entries where ``missing`` is True are ignored.
+    missing : ndarray of bool, shape (n_frames, m)
+    empty : float, optional
+        Value for a column with no observation (left as it is when None).
+
+    Returns
+    -------
+    ndarray, shape (n_frames, m): a copy with the missing entries interpolated.
+    """
+    out = np.array(values, dtype=np.float64).T.copy()  # columns as contiguous rows
+    miss = np.asarray(missing, dtype=bool).T
+    frames = np.arange(out.shape[1])
+    for j in np.flatnonzero(miss.any(axis=1)):
+        seen = ~miss[j]
+        if seen.any():
+            # np.interp holds the end values outside the observed range: exactly the edge policy we want.
+            out[j, ~seen] = np.interp(frames[~seen], frames[seen], out[j, seen])
+        elif empty is not None:
+            out[j] = empty
+    return np.ascontiguousarray(out.T)
+
+
 def interpolate_linear(positions: np.ndarray) -> np.ndarray:
     """Linear interpolation of every marker over its own observed frames, edges held.
 
@@ -37,16 +65,9 @@ def interpolate_linear(positions: np.ndarray) -> np.ndarray:
         Every sample of a marker observed at least once is finite; markers never observed stay NaN.
     """
     positions = np.asarray(positions, dtype=np.float64)
-    out = positions.copy()
-    missing = missing_mask(positions)
-    frames = np.arange(positions.shape[0], dtype=np.float64)
-    for marker in np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0)):
-        seen = ~missing[:, marker]
-        gone = ~seen
-        for axis in range(3):
-            # np.interp holds the end values outside the observed range: exactly the edge policy we want.
-            out[gone, marker, axis] = np.interp(frames[gone], frames[seen], positions[seen, marker, axis])
-    return out
+    n_frames, n_markers, _ = positions.shape
+    missing = np.repeat(missing_mask(positions), 3, axis=1)  # one column per coordinate
+    return interpolate_columns(positions.reshape(n_frames, 3 * n_markers), missing).reshape(positions.shape)
 
 
 def _spline_marker(frames: np.ndarray, seen: np.ndarray, values: np.ndarray) -> np.ndarray:

@@ -46,6 +46,7 @@ import numpy as np
 
 from ..errors import MethodError
 from .base import FillResult, finish
+from .interp import interpolate_columns
 from ..blas import single_blas_thread
 from ..units import length_factor
 
@@ -325,14 +326,7 @@ def pattern_groups(missing: np.ndarray, frames: np.ndarray, near: np.ndarray, ma
 
 def _linear_fallback(series: np.ndarray, missing: np.ndarray) -> np.ndarray:
     """Per-coordinate linear interpolation (nearest value beyond the ends) of one marker (n_frames, 3)."""
-    out = series.copy()
-    seen = np.flatnonzero(~missing)
-    if len(seen) == 0:
-        return out
-    frames = np.arange(len(series))
-    for c in range(3):
-        out[missing, c] = np.interp(frames[missing], seen, series[seen, c])
-    return out
+    return interpolate_columns(series, np.repeat(np.asarray(missing, dtype=bool)[:, None], 3, axis=1))
 
 
 def reconstruct(
