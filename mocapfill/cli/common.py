@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import functools
+import os
+import warnings
 from typing import Callable
 
 import click
 from rich.console import Console
+
+from ..errors import ConvergenceWarning, DataWarning
 
 FORMATS = ("c3d", "csv", "trc")
 
@@ -37,9 +41,6 @@ def read_input(path: str, input_format: str | None, *, quiet: bool = False, show
     What the reader repaired (renamed duplicate labels, a truncated file, ...) is kept in ``data.notes``; it is shown
     here as one line each on stderr (``show_notes``), never as a Python warning with a source line.
     """
-    import warnings
-
-    from ..errors import DataWarning
     from ..io import read
 
     with warnings.catch_warnings():
@@ -49,3 +50,31 @@ def read_input(path: str, input_format: str | None, *, quiet: bool = False, show
         for note in data.notes:
             console(quiet).print(f"note: {path}: {note}", markup=False, highlight=False, soft_wrap=True)
     return data
+
+
+_PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _one_line(message: object) -> str:
+    return " ".join(str(message).split())
+
+
+def _ours(item: warnings.WarningMessage) -> bool:
+    """Warnings meant for the user: mocapfill's own categories, or any warning raised from mocapfill's code."""
+    if issubclass(item.category, (ConvergenceWarning, DataWarning)):
+        return True
+    return issubclass(item.category, UserWarning) and _PACKAGE_DIR in os.path.abspath(item.filename or "")
+
+
+def show_warnings(caught: list[warnings.WarningMessage], quiet: bool) -> None:
+    """Each distinct warning once, as one line on stderr (no traceback, no source line)."""
+    out = console(quiet)
+    seen: set[str] = set()
+    for item in caught:
+        if not _ours(item):
+            continue
+        text = f"{item.category.__name__}: {_one_line(item.message)}"
+        if text in seen:
+            continue
+        seen.add(text)
+        out.print(f"[yellow]warning[/yellow] {text}", markup=True, highlight=False, soft_wrap=True)

@@ -14,7 +14,7 @@ from rich.table import Table
 
 from ..errors import MocapfillError
 from . import cli
-from .common import FORMATS, console, quiet_option, read_input
+from .common import FORMATS, console, quiet_option, read_input, show_warnings
 
 PROTOCOL_CHOICES = ("marker", "limb", "blackout", "random")
 
@@ -213,8 +213,7 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
                                     reject_outliers=reject_outliers, progress=progress,
                                     save_occlusions=save_occlusions,
                                     **({"limb_size": limb_size} if protocol == "limb" and not occlusions else {}))
-    for message in sorted({str(w.message) for w in caught}):
-        out.print(f"[yellow]warning[/yellow] {message}", highlight=False)
+    show_warnings(caught, quiet)
     if save_occlusions:
         out.print(f"occlusions written to {save_occlusions}", highlight=False)
     _show(result, quiet)

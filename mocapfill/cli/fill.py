@@ -9,7 +9,6 @@ The command is a thin door: read with :func:`mocapfill.io.read`, optionally reje
 from __future__ import annotations
 
 import dataclasses
-import os
 import time
 import warnings
 from typing import Any
@@ -17,37 +16,9 @@ from typing import Any
 import click
 import numpy as np
 
-from ..errors import ConvergenceWarning, DataWarning
 from ..methods import DEFAULT_METHOD, METHODS, get_method
 from . import cli
-from .common import console, format_options, quiet_option, read_input
-
-_PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
-def _one_line(message: Any) -> str:
-    return " ".join(str(message).split())
-
-
-def _ours(item: warnings.WarningMessage) -> bool:
-    """Warnings meant for the user: mocapfill's own categories, or any warning raised from mocapfill's code."""
-    if issubclass(item.category, (ConvergenceWarning, DataWarning)):
-        return True
-    return issubclass(item.category, UserWarning) and _PACKAGE_DIR in os.path.abspath(item.filename or "")
-
-
-def _show_warnings(caught: list[warnings.WarningMessage], quiet: bool) -> None:
-    """Each distinct warning once, as one line on stderr (no traceback, no source line)."""
-    out = console(quiet)
-    seen: set[str] = set()
-    for item in caught:
-        if not _ours(item):
-            continue
-        text = f"{item.category.__name__}: {_one_line(item.message)}"
-        if text in seen:
-            continue
-        seen.add(text)
-        out.print(f"[yellow]warning[/yellow] {text}", markup=True, highlight=False, soft_wrap=True)
+from .common import console, format_options, quiet_option, read_input, show_warnings
 
 
 class _ProgressBar:
@@ -221,7 +192,7 @@ def fill_command(input_path: str, output_path: str, method: str, hidden: int | N
                                        rejected=rejected, smoothed=smooth)
             write_report(report, report_path, data=data, result=result, bones=report_bones)
 
-    _show_warnings(caught, quiet)
+    show_warnings(caught, quiet)
     _summary(data, work, result, method, seconds, rejected, smooth, report_path, quiet)
 
 
