@@ -11,7 +11,7 @@ from rich.table import Table
 
 from ..errors import MocapfillError
 from . import cli
-from .common import FORMATS, console, quiet_option, read_input
+from .common import ReadOptions, input_options, console, quiet_option, read_input
 
 _LENGTH = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(mm|cm|m)?\s*$")
 
@@ -68,12 +68,11 @@ def _show(bones, labels, units: str, n_markers: int, min_partners: int, path: st
               help="Fewest frames both markers must be observed together (default min(100, frames/2), >= 10).")
 @click.option("--min-partners", type=int, default=None,
               help="Give every marker at least this many bones where the data allows (default 3).")
-@click.option("--input-format", type=click.Choice(FORMATS + ("vicon-csv",)), default=None,
-              help="Format of IN (default: from its extension; sniffed for stdin).")
+@input_options
 @quiet_option
 def estimate_bones_command(input_path: str, output: str | None, fmt: str | None, max_rel_spread: float | None,
                            max_abs_spread: str | None, min_frames: int | None, min_partners: int | None,
-                           input_format: str | None, quiet: bool) -> None:
+                           reading: ReadOptions, quiet: bool) -> None:
     """Find the marker pairs of IN that behave like rigid bones ("-" reads stdin).
 
     A pair is a bone when the spread of its distance, over the frames where both markers are observed, is small
@@ -91,7 +90,7 @@ def estimate_bones_command(input_path: str, output: str | None, fmt: str | None,
     check_output_path(output, input_path)
     if fmt is None:
         fmt = "csv" if output.lower().endswith(".csv") else "json"
-    data = read_input(input_path, input_format, quiet=quiet)
+    data = read_input(input_path, reading, quiet=quiet)
     min_partners = DEFAULT_MIN_PARTNERS if min_partners is None else min_partners
     for name, value in (("--min-frames", min_frames), ("--min-partners", min_partners)):
         if value is not None and value < 0:

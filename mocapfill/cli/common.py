@@ -5,7 +5,7 @@ from __future__ import annotations
 import functools
 import os
 import warnings
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import click
 from rich.console import Console
@@ -20,10 +20,33 @@ def quiet_option(func: Callable) -> Callable:
     return click.option("-q", "--quiet", is_flag=True, help="Print nothing on stderr but errors.")(func)
 
 
+class ReadOptions(NamedTuple):
+    """How to read an input: ``--input-format``, ``--rate`` and ``--override-rate``."""
+
+    format: str | None = None
+    rate: float | None = None
+    override_rate: bool = False
+
+
+def input_options(func: Callable) -> Callable:
+    """``--input-format``, ``--rate`` and ``--override-rate``, handed to the command as one ``reading: ReadOptions``."""
+
+    @functools.wraps(func)
+    def wrapper(*args, input_format=None, rate=None, override_rate=False, **kwargs):
+        return func(*args, reading=ReadOptions(input_format, rate, override_rate), **kwargs)
+
+    wrapper = click.option("--override-rate", is_flag=True,
+                           help="Use --rate even where the file states another rate.")(wrapper)
+    wrapper = click.option("--rate", type=click.FloatRange(min=0, min_open=True), default=None, metavar="HZ",
+                           help="Frame rate for a file that carries none (a bare CSV).")(wrapper)
+    wrapper = click.option("--input-format", type=click.Choice(FORMATS + ("vicon-csv",)), default=None,
+                           help="Format of the input (default: from its extension; needed for stdin).")(wrapper)
+    return wrapper
+
+
 def format_options(func: Callable) -> Callable:
-    """``--format`` (output) and ``--input-format``: needed when a path is "-" or has an unusual extension."""
-    func = click.option("--input-format", type=click.Choice(FORMATS + ("vicon-csv",)), default=None,
-                        help="Format of the input (default: from its extension; needed for stdin).")(func)
+    """``--format`` (output) and the input options: needed when a path is "-" or has an unusual extension."""
+    func = input_options(func)
     func = click.option("-f", "--format", "output_format", type=click.Choice(FORMATS), default=None,
                         help="Format of the output (default: from its extension, else the input's).")(func)
     return func
@@ -35,8 +58,8 @@ def console(quiet: bool = False) -> Console:
     return Console(stderr=True, quiet=quiet, highlight=False)
 
 
-def read_input(path: str, input_format: str | None, *, quiet: bool = False, show_notes: bool = True):
-    """Read a capture for a command.
+def read_input(path: str, reading: ReadOptions = ReadOptions(), *, quiet: bool = False, show_notes: bool = True):
+    """Read a capture for a command, with the user's ``--input-format`` / ``--rate`` (``reading``).
 
     What the reader repaired (renamed duplicate labels, a truncated file, ...) is kept in ``data.notes``; it is shown
     here as one line each on stderr (``show_notes``), never as a Python warning with a source line.
@@ -45,7 +68,7 @@ def read_input(path: str, input_format: str | None, *, quiet: bool = False, show
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DataWarning)
-        data = read(path, format=input_format)
+        data = read(path, format=reading.format, rate=reading.rate, override_rate=reading.override_rate)
     if show_notes:
         for note in data.notes:
             console(quiet).print(f"note: {path}: {note}", markup=False, highlight=False, soft_wrap=True)

@@ -14,7 +14,7 @@ from rich.table import Table
 
 from ..errors import MocapfillError
 from . import cli
-from .common import FORMATS, console, quiet_option, read_input, show_warnings
+from .common import ReadOptions, input_options, console, quiet_option, read_input, show_warnings
 
 PROTOCOL_CHOICES = ("marker", "limb", "blackout", "random")
 
@@ -162,13 +162,12 @@ def _show(result, quiet: bool) -> None:
                    "file as Holden's reference take.")
 @click.option("--json", "as_json", is_flag=True, help="Print every trial as JSON on stdout.")
 @click.option("--csv", "as_csv", is_flag=True, help="Print every trial as CSV on stdout.")
-@click.option("--input-format", type=click.Choice(FORMATS + ("vicon-csv",)), default=None,
-              help="Format of CLEAN_FILE (default: from its extension).")
+@input_options
 @quiet_option
 def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, seed: int | None,
              gap_min: str | None, gap_max: str | None, limb_size: int, occlusions: str | None,
              save_occlusions: str | None, jobs: int, option_pairs: tuple[str, ...], reject_outliers: str | None,
-             as_json: bool, as_csv: bool, input_format: str | None, quiet: bool) -> None:
+             as_json: bool, as_csv: bool, reading: ReadOptions, quiet: bool) -> None:
     """Score fill methods on CLEAN_FILE: hide samples it has, fill them with each method, compare with the truth.
 
     Metrics per trial and method, over the hidden samples, in the file's units: RMSE and max error of the 3-D
@@ -193,7 +192,7 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
             raise click.BadParameter("give at least one method", param_hint="'--methods'")
         for name in names:
             get_method(name)  # unknown names fail here, before the file is read
-    data = read_input(clean_file, input_format, quiet=quiet)
+    data = read_input(clean_file, reading, quiet=quiet)
     if data.missing.all():
         raise MocapfillError(f"{clean_file}: every sample is missing; nothing to hide")
 

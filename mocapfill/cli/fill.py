@@ -18,7 +18,7 @@ import numpy as np
 
 from ..methods import DEFAULT_METHOD, METHODS, get_method
 from . import cli
-from .common import console, format_options, quiet_option, read_input, show_warnings
+from .common import ReadOptions, console, format_options, quiet_option, read_input, show_warnings
 
 
 class _ProgressBar:
@@ -89,7 +89,7 @@ def fill_command(input_path: str, output_path: str, method: str, hidden: int | N
                  tol: float | None, seed: int | None, report_path: str | None, bones_path: str | None,
                  reject_outliers: bool, delta: float | None, reference_path: str | None, smooth: bool,
                  smooth_window: int | None, smooth_order: int | None, output_format: str | None,
-                 input_format: str | None, quiet: bool, force: bool) -> None:
+                 reading: ReadOptions, quiet: bool, force: bool) -> None:
     """Fill the gaps of IN and write the result to OUT ("-" = stdin / stdout).
 
     Observed samples are written back unchanged (unless --smooth).  Progress, warnings and a summary go to
@@ -111,7 +111,7 @@ def fill_command(input_path: str, output_path: str, method: str, hidden: int | N
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        data = read_input(input_path, input_format, quiet=quiet)
+        data = read_input(input_path, reading, quiet=quiet)
         work = data
 
         rejected = None
@@ -125,7 +125,7 @@ def fill_command(input_path: str, output_path: str, method: str, hidden: int | N
                 options["delta"] = delta
             if reference_path is not None:
                 check_output_path(output_path, reference_path)
-                ref = read_input(reference_path, None, quiet=quiet)
+                ref = read_input(reference_path, reading._replace(format=None), quiet=quiet)
                 options.update(reference=ref.positions, reference_labels=list(ref.labels),
                                reference_units=ref.units)
             outcome = reject(data.positions, **options)

@@ -10,7 +10,7 @@ from rich import box
 from rich.table import Table
 
 from . import cli
-from .common import FORMATS, console, quiet_option, read_input
+from .common import ReadOptions, input_options, console, quiet_option, read_input
 
 
 def _frames(n: int, rate: float) -> str:
@@ -75,10 +75,9 @@ def _show(summary: dict, quiet: bool) -> None:
 @cli.command("info")
 @click.argument("file", type=str)
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout instead of tables.")
-@click.option("--input-format", type=click.Choice(FORMATS + ("vicon-csv",)), default=None,
-              help="Format of FILE (default: from its extension; sniffed for stdin).")
+@input_options
 @quiet_option
-def info(file: str, as_json: bool, input_format: str | None, quiet: bool) -> None:
+def info(file: str, as_json: bool, reading: ReadOptions, quiet: bool) -> None:
     """Show frames, rate, units, markers and the gaps of FILE ("-" reads stdin).
 
     Per marker: percent missing, number of gaps, the longest gap (frames and seconds), gaps touching the start or
@@ -86,7 +85,7 @@ def info(file: str, as_json: bool, input_format: str | None, quiet: bool) -> Non
     """
     from ..summary import summarize
 
-    data = read_input(file, input_format, show_notes=False)  # the notes are part of the table below
+    data = read_input(file, reading, show_notes=False)  # the notes are part of the table below
     summary = summarize(data)
     if as_json:
         sys.stdout.write(json.dumps(summary, indent=2, allow_nan=False) + "\n")

@@ -13,6 +13,8 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
+
+import numpy as np
 from typing import BinaryIO, Union
 
 from ..errors import FormatError, InputError
@@ -81,7 +83,8 @@ def _read_bytes(path_or_stream, name: str) -> bytes:
         raise InputError(f"{name}: cannot read: {exc.strerror or exc}") from None
 
 
-def read(path_or_stream: PathOrStream, format: str | None = None) -> MarkerData:
+def read(path_or_stream: PathOrStream, format: str | None = None, *, rate: float | None = None,
+         override_rate: bool = False) -> MarkerData:
     """Read marker trajectories from a file, ``"-"`` (stdin) or a binary stream.
 
     Parameters
@@ -90,6 +93,11 @@ def read(path_or_stream: PathOrStream, format: str | None = None) -> MarkerData:
         The input; ``"-"`` reads stdin (into memory first: the C3D reader seeks).
     format : {"c3d", "csv", "vicon-csv", "trc"} or None
         Overrides the extension; required for a stream whose content cannot be sniffed.
+    rate : float or None
+        Frame rate in Hz for a file that carries none (a bare CSV, the BoLeRO authors' CSV).  For a file that has
+        its own rate it must agree with it (to 1e-6 relative) unless ``override_rate`` says to replace the file's.
+    override_rate : bool
+        Use ``rate`` even where the file says otherwise (the user knows the file is wrong).
 
     Returns
     -------
@@ -98,9 +106,11 @@ def read(path_or_stream: PathOrStream, format: str | None = None) -> MarkerData:
 
     Raises
     ------
-    InputError (missing or unreadable file), FormatError (unknown extension, corrupt content); both name the file.
+    InputError (missing or unreadable file), FormatError (unknown extension, corrupt content, no rate in the file
+    and none given, a ``rate`` that contradicts the file's); all name the file.
     """
     name = _name_of(path_or_stream)
+    rate = _check_rate(rate, name)
     stream = is_std_stream(path_or_stream) or not isinstance(path_or_stream, (str, os.PathLike))
     fmt = detect_format(name, format) if (format is not None or not stream) else None
     raw = _read_bytes(path_or_stream, name)
@@ -116,7 +126,38 @@ def read(path_or_stream: PathOrStream, format: str | None = None) -> MarkerData:
         from .trc import read_trc
         data = read_trc(_decode(raw, name), name)
     data.path = name
+    _apply_rate(data, rate, override_rate, name)
     return data
+
+
+def _check_rate(rate, name: str) -> float | None:
+    if rate is None:
+        return None
+    try:
+        value = float(rate)
+    except (TypeError, ValueError):
+        raise InputError(f"{name}: --rate {rate!r} is not a number") from None
+    if not np.isfinite(value) or value <= 0:
+        raise InputError(f"{name}: --rate {value:g} is not a positive frame rate in Hz")
+    return value
+
+
+def _apply_rate(data: MarkerData, rate: float | None, override: bool, name: str) -> None:
+    """The file's rate, else the caller's; a caller's rate that contradicts the file's is an error unless overridden.
+
+    Readers give NaN where the file carries no rate.
+    """
+    has_own = np.isfinite(data.rate) and data.rate > 0
+    if rate is None:
+        if not has_own:
+            raise FormatError(f"{name}: the file has no frame rate; give it with --rate HZ (rate= in Python)")
+        return
+    if has_own and abs(data.rate - rate) > 1e-6 * data.rate and not override:
+        raise FormatError(f"{name}: --rate {rate:g} contradicts the file's rate of {data.rate:g} Hz "
+                          f"(add --override-rate to use {rate:g} Hz anyway)")
+    if has_own and data.rate != rate and override:
+        data.notes.append(f"frame rate {data.rate:g} Hz in the file replaced by {rate:g} Hz (--override-rate)")
+    data.rate = rate
 
 
 def _decode(raw: bytes, name: str) -> str:

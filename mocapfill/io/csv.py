@@ -223,8 +223,11 @@ def _read_wide(rows: list[list[str]], name: str) -> MarkerData:
             raise FormatError(f"{name}: rate {meta['rate']!r} in the comment line is not a number") from None
     elif time_col is not None and len(values) >= 2:
         rate = _rate_from_times(values[:, time_col], name)
-    if rate is None or not np.isfinite(rate) or rate <= 0:
-        raise FormatError(f"{name}: no frame rate: give a time column or a '# rate=...' comment line")
+    if rate is None:
+        # No rate in the file: the caller's (``--rate``); NaN tells io.read that the file had none.
+        rate = float("nan")
+    elif not np.isfinite(rate) or rate <= 0:
+        raise FormatError(f"{name}: frame rate {rate:g} in the file is not a positive number")
 
     first_frame = 1
     if "first_frame" in meta:
