@@ -14,9 +14,10 @@ from rich.table import Table
 
 from ..errors import MocapfillError
 from . import cli
+from .bones import parse_length
 from .common import ReadOptions, input_options, console, quiet_option, read_input, show_warnings
 
-PROTOCOL_CHOICES = ("marker", "limb", "blackout", "random")
+PROTOCOL_CHOICES = ("marker", "limb", "blackout", "random", "dense", "segment")
 
 
 def _parse_value(text: str):
@@ -136,17 +137,27 @@ def _show(result, quiet: bool) -> None:
               help="Methods to compare, comma-separated (default: every available method).")
 @click.option("-p", "--protocol", type=click.Choice(PROTOCOL_CHOICES), default="marker", show_default=True,
               help="marker: one marker, one gap; limb: neighbouring markers share a gap; blackout: every marker, "
-                   "a short span; random: random gaps and shifted markers (Holden's corruption).")
+                   "a short span; random: random gaps and shifted markers (Holden's corruption); dense: random "
+                   "gaps until --missing of the samples are gone; segment: a marker and its neighbours within "
+                   "--radius vanish together, --events times.")
 @click.option("-n", "--trials", type=click.IntRange(min=1), default=10, show_default=True, help="Number of trials.")
 @click.option("-s", "--seed", type=int, default=None, help="Seed of the occlusions and of the methods "
                                                           "(default: drawn, and printed so a run can be repeated).")
 @click.option("--gap-min", default=None, metavar="LEN",
               help="Shortest gap: frames (40), seconds (0.5s) or percent of the clip (10%). Default per protocol: "
-                   "marker/limb 10% (at most 1s), blackout 0.05s, random 0.05s.")
+                   "marker/limb 10% (at most 1s), blackout 0.05s, random 0.05s, dense 0.25s, segment 0.5s.")
 @click.option("--gap-max", default=None, metavar="LEN",
-              help="Longest gap (same forms). Default: marker/limb 50% (at most 5s), blackout 0.25s, random 0.5s.")
+              help="Longest gap (same forms). Default: marker/limb 50% (at most 5s), blackout 0.25s, random 0.5s, "
+                   "dense 2s, segment 3s.")
 @click.option("--limb-size", type=click.IntRange(min=2), default=2, show_default=True,
               help="Markers hidden together by the limb protocol.")
+@click.option("--missing", type=click.FloatRange(0, 0.9, min_open=True), default=0.2, show_default=True,
+              help="dense protocol: fraction of the observed samples to hide.")
+@click.option("--radius", default=None, metavar="LEN",
+              help="segment protocol: markers within this median distance of the chosen one vanish with it "
+                   "(a number in the file's units, or 250mm, 25cm, 0.25m; default 250 mm).")
+@click.option("--events", type=click.IntRange(min=1), default=3, show_default=True,
+              help="segment protocol: segments vanishing per trial.")
 @click.option("--occlusions", "occlusions", type=str, default=None, metavar="SPEC.json",
               help="Replay exactly the trials of this spec file (see docs/occlusions.md) instead of drawing them; "
                    "the --json output of an earlier run works too.")
@@ -165,7 +176,8 @@ def _show(result, quiet: bool) -> None:
 @input_options
 @quiet_option
 def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, seed: int | None,
-             gap_min: str | None, gap_max: str | None, limb_size: int, occlusions: str | None,
+             gap_min: str | None, gap_max: str | None, limb_size: int, missing: float, radius: str | None,
+             events: int, occlusions: str | None,
              save_occlusions: str | None, jobs: int, option_pairs: tuple[str, ...], reject_outliers: str | None,
              as_json: bool, as_csv: bool, reading: ReadOptions, quiet: bool) -> None:
     """Score fill methods on CLEAN_FILE: hide samples it has, fill them with each method, compare with the truth.
@@ -195,6 +207,11 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
     data = read_input(clean_file, reading, quiet=quiet)
     if data.missing.all():
         raise MocapfillError(f"{clean_file}: every sample is missing; nothing to hide")
+    protocol_options = {}
+    if not occlusions:
+        protocol_options = {"limb": {"limb_size": limb_size}, "dense": {"missing": missing},
+                            "segment": {"radius": parse_length(radius, data.units, "--radius"),
+                                        "events": events}}.get(protocol, {})
 
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -211,7 +228,7 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
                                     gap_min=gap_min, gap_max=gap_max, jobs=jobs, options=options,
                                     reject_outliers=reject_outliers, progress=progress,
                                     save_occlusions=save_occlusions,
-                                    **({"limb_size": limb_size} if protocol == "limb" and not occlusions else {}))
+                                    **protocol_options)
     show_warnings(caught, quiet)
     if save_occlusions:
         out.print(f"occlusions written to {save_occlusions}", highlight=False)

@@ -14,6 +14,11 @@ Protocols
              one body segment or across a joint (knee and shin) go missing together without a fixed marker set.
              Default length as for ``marker``.
 ``blackout`` every marker, one short span (default 0.05 s to 0.25 s).
+``dense``    messy captures: random single-marker gaps (default 0.25 s to 2 s) are drawn until a fraction
+             ``missing`` (default 0.2) of the observed marker samples is hidden; at 20 % no frame stays complete.
+``segment``  a body segment vanishes: a random marker and every marker whose median distance to it is within
+             ``radius`` (default 250 mm, in the file's units) are hidden together, ``events`` times per trial
+             (default 3), each 0.5 s to 3 s.
 ``random``   Holden's corruption, with contiguous stretches instead of single samples: per trial draw
              ``a_o ~ U(0, occlusion_rate)`` and ``a_s ~ U(0, shift_rate)`` (both 0.1 by default, as in Holden 2018);
              every marker gets Poisson(a_o * n_frames / mean_length) gaps and Poisson(a_s * n_frames / mean_length)
@@ -35,8 +40,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import MocapfillError
+from ..units import length_factor
 
-PROTOCOLS = ("marker", "limb", "blackout", "random")
+PROTOCOLS = ("marker", "limb", "blackout", "random", "dense", "segment")
 
 #: Default gap-length range per protocol, as accepted by :func:`parse_length`.
 DEFAULT_GAPS = {
@@ -44,14 +50,17 @@ DEFAULT_GAPS = {
     "limb": ("10%", "50%"),
     "blackout": ("0.05s", "0.25s"),
     "random": ("0.05s", "0.5s"),
+    "dense": ("0.25s", "2s"),
+    "segment": ("0.5s", "3s"),
 }
 
 #: Caps on the percent defaults of ``marker`` and ``limb`` (seconds), so that a long take is not tested with
 #: minutes-long gaps: the BoLeRO protocol was designed on clips of a few seconds.
 DEFAULT_CAPS_SECONDS = (1.0, 5.0)
 
-#: Holden's default shift scale: 50 cm, expressed per unit.
-_CM_PER_UNIT = {"mm": 0.1, "cm": 1.0, "m": 100.0}
+#: Holden's default shift scale (50 cm) and the segment protocol's default radius (250 mm), in millimetres.
+DEFAULT_SHIFT_SCALE_MM = 500.0
+DEFAULT_RADIUS_MM = 250.0
 
 
 @dataclass(frozen=True)
@@ -191,7 +200,8 @@ def _trial_rngs(seed, trials: int) -> list[np.random.Generator]:
 
 def make_occlusions(data, protocol: str = "marker", *, trials: int = 10, seed: int | None = None,
                     gap_min=None, gap_max=None, limb_size: int = 2, occlusion_rate: float = 0.1,
-                    shift_rate: float = 0.1, shift_scale: float | None = None) -> list[Trial]:
+                    shift_rate: float = 0.1, shift_scale: float | None = None, missing: float = 0.2,
+                    radius: float | None = None, events: int = 3) -> list[Trial]:
     """Draw ``trials`` occlusion trials for ``data`` with ``protocol`` (see the module docstring).
 
     Parameters
@@ -210,6 +220,11 @@ def make_occlusions(data, protocol: str = "marker", *, trials: int = 10, seed: i
         Markers per ``limb`` trial (at least 2).
     occlusion_rate, shift_rate, shift_scale :
         ``random`` protocol: Holden's sigma_o, sigma_s (fractions of samples) and beta (file units; default 50 cm).
+    missing : float
+        ``dense`` protocol: the fraction of observed marker samples to hide, in (0, 0.9].
+    radius, events :
+        ``segment`` protocol: markers within ``radius`` (file units; default 250 mm) of the chosen one, by median
+        distance over the clip, vanish with it; ``events`` such stretches per trial.
 
     Returns
     -------
@@ -258,12 +273,30 @@ def make_occlusions(data, protocol: str = "marker", *, trials: int = 10, seed: i
                 chain.append(options[int(rng.integers(len(options)))])
             length = int(rng.integers(lo, hi + 1))
             out.append(Trial((Occlusion(tuple(sorted(chain)), _interior_start(rng, n_frames, length), length),)))
+    elif protocol == "dense":
+        out = [_dense_trial(rng, data.positions, lo, hi, missing) for rng in rngs]
+    elif protocol == "segment":
+        if int(events) < 1:
+            raise MocapfillError(f"--events must be at least 1, got {events}")
+        if radius is None:
+            radius = DEFAULT_RADIUS_MM * length_factor("mm", str(data.units))
+        if not np.isfinite(radius) or radius < 0:
+            raise MocapfillError(f"--radius must be a non-negative length, got {radius}")
+        near = _neighbourhoods(data.positions, float(radius))
+        for rng in rngs:
+            occs = []
+            for _ in range(int(events)):
+                centre = int(seen[rng.integers(seen.size)])
+                length = int(rng.integers(lo, hi + 1))
+                occs.append(Occlusion(tuple(int(m) for m in near[centre]), _interior_start(rng, n_frames, length),
+                                      length))
+            out.append(Trial(tuple(occs)))
     else:  # random
         if not 0 <= occlusion_rate <= 1 or not 0 <= shift_rate <= 1:
             raise MocapfillError("occlusion_rate and shift_rate must lie in [0, 1]")
         scale = shift_scale
         if scale is None:
-            scale = 50.0 / _CM_PER_UNIT.get(str(data.units), 0.1)
+            scale = DEFAULT_SHIFT_SCALE_MM * length_factor("mm", str(data.units))
         mean_len = (lo + hi) / 2.0
         for rng in rngs:
             a_o = rng.uniform(0, occlusion_rate)
@@ -283,3 +316,52 @@ def make_occlusions(data, protocol: str = "marker", *, trials: int = 10, seed: i
                                       length))
             out.append(Trial(tuple(occs), tuple(shifts)))
     return out
+
+
+def _dense_trial(rng: np.random.Generator, positions: np.ndarray, lo: int, hi: int, missing: float) -> Trial:
+    """Single-marker gaps of [lo, hi] frames, drawn until ``missing`` of the observed samples are hidden.
+
+    positions : (n_frames, n_markers, 3).  The last gap is shortened so the fraction is met closely; a marker
+    never observed is never chosen.
+    """
+    if not 0 < float(missing) <= 0.9:
+        raise MocapfillError(f"--missing must lie in (0, 0.9] (a fraction of the samples), got {missing}")
+    n_frames = positions.shape[0]
+    observed = ~np.isnan(positions).any(axis=2)
+    candidates = np.flatnonzero(observed.sum(axis=0) > 2)
+    hidden = np.zeros_like(observed)
+    target = int(round(float(missing) * observed.sum()))
+    occs: list[Occlusion] = []
+    # Each draw adds at most hi samples; the cap keeps a pathological clip (few observed samples) from looping.
+    for _ in range(50 * (target // max(lo, 1) + 1)):
+        done = int((hidden & observed).sum())
+        if done >= target or not candidates.size:
+            break
+        marker = int(candidates[rng.integers(candidates.size)])
+        length = int(rng.integers(lo, hi + 1))
+        start = _interior_start(rng, n_frames, length)
+        new = int((observed[start:start + length, marker] & ~hidden[start:start + length, marker]).sum())
+        if new > target - done:  # trim the last gap so the fraction is met, not overshot
+            keep = np.cumsum(observed[start:start + length, marker] & ~hidden[start:start + length, marker])
+            length = max(1, int(np.searchsorted(keep, target - done) + 1))
+        hidden[start:start + length, marker] = True
+        occs.append(Occlusion((marker,), start, length))
+    return Trial(tuple(occs))
+
+
+def _neighbourhoods(positions: np.ndarray, radius: float) -> list[np.ndarray]:
+    """Per marker, itself and every marker whose median distance to it over the clip is within ``radius``.
+
+    positions : (n_frames, n_markers, 3).  Pairs never observed together are not neighbours.
+    """
+    from ..distances import pair_distance_stats
+
+    n_markers = positions.shape[1]
+    stats = pair_distance_stats(positions, percentiles=(50,))
+    median = np.full((n_markers, n_markers), np.inf)
+    values = stats.percentile(50)
+    values = np.where(np.isfinite(values), values, np.inf)
+    median[stats.pairs[:, 0], stats.pairs[:, 1]] = values
+    median[stats.pairs[:, 1], stats.pairs[:, 0]] = values
+    np.fill_diagonal(median, 0.0)
+    return [np.flatnonzero(median[m] <= radius) for m in range(n_markers)]
