@@ -23,7 +23,7 @@ _LAZY = {
     "fill_data": "mocapfill.api:fill_data",
     "estimate_bones": "mocapfill.bones:estimate_bones",
     "evaluate": "mocapfill.evaluation:evaluate",
-    "batch": "mocapfill.batch:batch",
+    "batch": "mocapfill.batching:batch",
     "MarkerData": "mocapfill.markers:MarkerData",
     "FillResult": "mocapfill.methods.base:FillResult",
     "MocapfillError": "mocapfill.errors:MocapfillError",

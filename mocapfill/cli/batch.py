@@ -1,6 +1,6 @@
 """`mocapfill batch INPUT... --out-dir DIR`: fill every capture of a session or a database, resumably.
 
-A thin door over :func:`mocapfill.batch.batch`: the same fill options as `fill` (one shared decorator), a rich
+A thin door over :func:`mocapfill.batching.batch`: the same fill options as `fill` (one shared decorator), a rich
 progress bar and a summary on stderr, exit status 1 when any file failed.
 """
 
@@ -75,7 +75,7 @@ def batch_command(inputs: tuple[str, ...], out_dir: str, fill_settings: FillSett
     """
     import dataclasses
 
-    from ..batch import RESULTS_NAME, batch
+    from ..batching import RESULTS_NAME, batch
 
     if scheduler is not None and jobs != 1:
         raise click.UsageError("--jobs applies to local processes; with --scheduler the cluster decides")

@@ -45,7 +45,7 @@ def _link(path: str, page_dir: Path) -> str:
 
 
 def render_batch_index(rows: Sequence[Any], *, page_dir: str | os.PathLike = ".") -> str:
-    """The page for ``rows`` (:class:`mocapfill.batch.BatchRow`); links are made relative to ``page_dir``."""
+    """The page for ``rows`` (:class:`mocapfill.batching.BatchRow`); links are made relative to ``page_dir``."""
     page = Path(page_dir)
     counts = {status: sum(row.status == status for row in rows) for status in ("filled", "skipped", "failed")}
     body = []
