@@ -50,6 +50,8 @@ RESULTS_NAME = "mocapfill-batch.csv"
 STATE_NAME = ".mocapfill-batch.jsonl"
 INDEX_NAME = "index.html"
 REPORT_KINDS = ("html", "json")
+#: How long to try reaching a Dask scheduler before giving up.
+CONNECT_TIMEOUT = "20s"
 
 
 @dataclass
@@ -329,8 +331,12 @@ def _worker_loop(conn) -> None:
             if task is None:
                 return
             conn.send(run_task(task))
-    except (KeyboardInterrupt, EOFError, OSError):
-        return  # Ctrl-C or the parent is gone: atomic_write has already removed any half-written file
+    except KeyboardInterrupt:
+        # Ctrl-C reaches the whole process group; atomic_write has removed any half-written file.  A second
+        # SIGINT (the parent's, when it stops us) must not interrupt the exit with a traceback.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except (EOFError, OSError):
+        return  # the parent is gone
 
 
 class _Worker:
@@ -346,8 +352,10 @@ class _Worker:
             with contextlib.suppress(OSError):
                 self.conn.send(None)
         elif self.process.is_alive():
-            with contextlib.suppress(OSError):
-                os.kill(self.process.pid, signal.SIGINT)  # lets atomic_write remove its temporary file
+            self.process.join(min(timeout, 1.0))  # after a Ctrl-C at a terminal it is already leaving
+            if self.process.is_alive():
+                with contextlib.suppress(OSError):
+                    os.kill(self.process.pid, signal.SIGINT)  # lets atomic_write remove its temporary file
         self.process.join(timeout)
         if self.process.is_alive():
             self.process.kill()
@@ -428,7 +436,7 @@ def _run_dask(tasks: Sequence[FileTask], scheduler: Any, on_row: Callable[[Batch
     own = not isinstance(scheduler, Client)
     if own:
         try:
-            client = Client(scheduler, timeout="20s")
+            client = Client(scheduler, timeout=CONNECT_TIMEOUT)
         except (OSError, TimeoutError, ValueError) as exc:
             raise InputError(f"{scheduler}: cannot reach the Dask scheduler: {_one_line(exc)}") from None
     else:

@@ -127,8 +127,9 @@ def test_dask_local_cluster_gives_the_serial_outputs(session, tmp_path):
     assert _outputs(tmp_path / "dask") == _outputs(tmp_path / "serial")
 
 
-def test_an_unreachable_scheduler_is_a_one_line_error(session, tmp_path):
+def test_an_unreachable_scheduler_is_a_one_line_error(session, tmp_path, monkeypatch):
     pytest.importorskip("distributed")
+    monkeypatch.setattr("mocapfill.batching.CONNECT_TIMEOUT", "1s")
     result = CliRunner().invoke(cli, ["batch", str(session), "-o", str(tmp_path / "o"), "--scheduler",
                                       "tcp://127.0.0.1:9", "-m", "linear"])
     assert result.exit_code == 1 and "Dask scheduler" in result.stderr and "Traceback" not in result.output

@@ -10,42 +10,31 @@ import click
 
 from ..pipeline import FillSettings
 from . import cli
-from .common import ReadOptions, console, fill_options, format_options, quiet_option
+from .common import ReadOptions, StderrProgress, console, fill_options, format_options, quiet_option
 from .fill import _EPILOG
 
 
-class _BatchProgress:
+class _BatchProgress(StderrProgress):
     """Files done / failed / skipped and the time left, on stderr (terminals only)."""
 
     def __init__(self, quiet: bool) -> None:
-        out = console(quiet)
-        self._bar = None
         self.counts = {"filled": 0, "skipped": 0, "failed": 0}
-        if not quiet and out.is_terminal:
-            from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
+
+        def columns():
+            from rich.progress import (BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn,
                                        TimeRemainingColumn)
 
-            self._bar = Progress(TextColumn("batch"), BarColumn(), MofNCompleteColumn(),
-                                 TextColumn("[green]{task.fields[filled]} filled[/] [dim]{task.fields[skipped]} "
-                                            "skipped[/] [red]{task.fields[failed]} failed[/]"),
-                                 TimeElapsedColumn(), TextColumn("left"), TimeRemainingColumn(),
-                                 console=out, transient=True)
-            self._task = self._bar.add_task("batch", total=None, **self.counts)
+            return (TextColumn("batch"), BarColumn(), MofNCompleteColumn(),
+                    TextColumn("[green]{task.fields[filled]} filled[/] [dim]{task.fields[skipped]} skipped[/] "
+                               "[red]{task.fields[failed]} failed[/]"),
+                    TimeElapsedColumn(), TextColumn("left"), TimeRemainingColumn())
 
-    def __enter__(self) -> "_BatchProgress":
-        if self._bar is not None:
-            self._bar.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        if self._bar is not None:
-            self._bar.stop()
+        super().__init__(quiet, columns, **self.counts)
 
     def __call__(self, done: int, total: int, row) -> None:
         if row is not None:
             self.counts[row.status] = self.counts.get(row.status, 0) + 1
-        if self._bar is not None:
-            self._bar.update(self._task, completed=done, total=total, **self.counts)
+        self.update(completed=done, total=total, **self.counts)
 
 
 @cli.command("batch", epilog=_EPILOG)

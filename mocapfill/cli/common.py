@@ -111,6 +111,37 @@ def console(quiet: bool = False) -> Console:
     return Console(stderr=True, quiet=quiet, highlight=False)
 
 
+class StderrProgress:
+    """A transient rich progress bar on stderr, shown on terminals only and never with --quiet.
+
+    ``columns()`` builds the rich columns (called only when the bar shows, so rich.progress loads lazily);
+    ``fields`` are the task's initial custom fields.
+    """
+
+    def __init__(self, quiet: bool, columns: Callable[[], tuple], **fields) -> None:
+        out = console(quiet)
+        self.enabled = not quiet and out.is_terminal
+        self._bar = None
+        if self.enabled:
+            from rich.progress import Progress
+
+            self._bar = Progress(*columns(), console=out, transient=True)
+            self._task = self._bar.add_task("", total=None, **fields)
+
+    def __enter__(self):
+        if self._bar is not None:
+            self._bar.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._bar is not None:
+            self._bar.stop()
+
+    def update(self, **changes) -> None:
+        if self._bar is not None:
+            self._bar.update(self._task, **changes)
+
+
 def read_input(path: str, reading: ReadOptions = ReadOptions(), *, quiet: bool = False, show_notes: bool = True):
     """Read a capture for a command, with the user's ``--input-format`` / ``--rate`` (``reading``).
 

@@ -17,37 +17,24 @@ import numpy as np
 from ..methods import METHODS
 from ..pipeline import FillSettings
 from . import cli
-from .common import ReadOptions, console, fill_options, format_options, quiet_option, read_input, show_warnings
+from .common import (ReadOptions, StderrProgress, console, fill_options, format_options, quiet_option, read_input,
+                     show_warnings)
 
 
-class _ProgressBar:
+class _ProgressBar(StderrProgress):
     """A rich progress bar for a method's ``progress(iteration, n_max, objective)`` callback (stderr, terminals)."""
 
     def __init__(self, method: str, quiet: bool) -> None:
-        out = console(quiet)
-        self.enabled = not quiet and out.is_terminal
-        self._bar = None
-        self._task = None
-        if self.enabled:
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+        def columns():
+            from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
 
-            self._bar = Progress(TextColumn(f"{method}"), BarColumn(), MofNCompleteColumn(),
-                                 TextColumn("objective {task.fields[objective]}"), TimeElapsedColumn(),
-                                 console=out, transient=True)
-            self._task = self._bar.add_task(method, total=None, objective="-")
+            return (TextColumn(f"{method}"), BarColumn(), MofNCompleteColumn(),
+                    TextColumn("objective {task.fields[objective]}"), TimeElapsedColumn())
 
-    def __enter__(self) -> "_ProgressBar":
-        if self._bar is not None:
-            self._bar.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        if self._bar is not None:
-            self._bar.stop()
+        super().__init__(quiet, columns, objective="-")
 
     def __call__(self, iteration: int, n_max: int, objective: float) -> None:
-        if self._bar is not None:
-            self._bar.update(self._task, completed=iteration, total=n_max, objective=f"{objective:.6g}")
+        self.update(completed=iteration, total=n_max, objective=f"{objective:.6g}")
 
 
 _EPILOG = "\b\nMethods:\n" + "\n".join(f"  {spec.name:<10} {spec.summary}" for spec in METHODS.values())
