@@ -383,11 +383,15 @@ def _run_pool(tasks: Sequence[FileTask], jobs: int, on_row: Callable[[BatchRow],
                         break
                     idle = _Worker(ctx)
                     workers.append(idle)
+                if not idle.process.is_alive():  # died while idle (killed from outside): nothing was lost
+                    idle.stop(0)
+                    workers.remove(idle)
+                    continue
                 task = pending.popleft()
                 try:
                     idle.conn.send(task)
                     idle.task = task
-                except OSError:  # died while idle: nothing was lost; retry the file on a fresh worker
+                except OSError:  # died just now: the file never reached it; retry it on a fresh worker
                     pending.appendleft(task)
                     idle.stop(0)
                     workers.remove(idle)
