@@ -39,7 +39,7 @@ class _BatchProgress(StderrProgress):
 
 @cli.command("batch", epilog=_EPILOG)
 @click.argument("inputs", metavar="INPUT...", nargs=-1, required=True)
-@click.option("-o", "--out-dir", required=True, type=str,
+@click.option("-o", "--out-dir", required=True, type=str, metavar="DIR",
               help="Folder for the outputs (created), the results table mocapfill-batch.csv and index.html.")
 @fill_options
 @click.option("--report", type=click.Choice(["html", "json"]), default=None,
