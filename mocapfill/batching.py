@@ -531,7 +531,8 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
     method : str
         A method of :data:`mocapfill.methods.METHODS`.
     jobs : int
-        Local worker processes; 1 = in this process, 0 = every core.
+        Local worker processes; 1 = in this process, 0 = every core.  Workers are started with ``spawn``: a script
+        that calls ``batch(jobs=...)`` needs the usual ``if __name__ == "__main__":`` guard.
     scheduler : str, distributed.Client or None
         A Dask scheduler address (``"tcp://host:8786"``) or client: each file becomes one task on that cluster.
     format : {"c3d", "csv", "trc"} or None
@@ -565,6 +566,10 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
     if unknown:
         raise MocapfillError(f"batch: unknown option(s) {', '.join(unknown)} (expected {', '.join(sorted(known))})")
     settings = FillSettings(method=method, **options).check()
+    from .io import WRITE_FORMATS
+
+    if format is not None and format not in WRITE_FORMATS:
+        raise MocapfillError(f"batch: cannot write format {format!r} (expected one of {', '.join(WRITE_FORMATS)})")
     if report is not None and report not in REPORT_KINDS:
         raise MocapfillError(f"batch: report must be one of {', '.join(REPORT_KINDS)}, not {report!r}")
     if scheduler is not None and jobs != 1:
