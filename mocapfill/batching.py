@@ -209,10 +209,14 @@ def file_digest(path: str | os.PathLike) -> str:
 
 
 def _settings_digest(task: FileTask) -> str:
-    """SHA-256 of everything that shapes an output but the input's content (files named by settings included)."""
+    """SHA-256 of everything that shapes an output but the input's content (files named by settings included).
+
+    The same for every task of a batch: it names the report's kind, not its path.
+    """
     from . import __version__
 
-    doc: dict[str, Any] = {"mocapfill": __version__, "fill": task.settings.as_dict(), "report": task.report,
+    report = None if task.report is None else Path(task.report).suffix
+    doc: dict[str, Any] = {"mocapfill": __version__, "fill": task.settings.as_dict(), "report": report,
                            "reading": [task.input_format, task.rate, task.override_rate],
                            "format": task.output_format}
     for name in ("bones", "reference"):
@@ -599,7 +603,7 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
         raise InputError(f"{out}: cannot create the output folder: {exc.strerror or exc}") from None
     state_path = out / STATE_NAME
     state = _load_state(state_path)
-    digests = {task.input: _settings_digest(task) for task in tasks}
+    settings_digest = _settings_digest(tasks[0])
     rows: dict[str, BatchRow] = {}
     total = len(tasks)
 
@@ -619,7 +623,7 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
             table.flush()
             if row.status == "filled":
                 task = by_input[row.input]
-                entry = {"output": key_of(task), "input": task.input, "settings_sha256": digests[task.input],
+                entry = {"output": key_of(task), "input": task.input, "settings_sha256": settings_digest,
                          "input_sha256": row.input_sha256, "row": row.table_row()}
                 state[entry["output"]] = entry
                 record.write(json.dumps(entry) + "\n")
@@ -635,7 +639,7 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
             entry = None if force else state.get(key_of(task))
             started = time.perf_counter()
             skipped = None
-            if entry is not None and entry.get("settings_sha256") == digests[task.input] \
+            if entry is not None and entry.get("settings_sha256") == settings_digest \
                     and Path(task.output).is_file() and (task.report is None or Path(task.report).is_file()):
                 with contextlib.suppress(OSError):
                     if file_digest(task.input) == entry.get("input_sha256"):
