@@ -462,8 +462,12 @@ def _run_dask(tasks: Sequence[FileTask], scheduler: Any, on_row: Callable[[Batch
                 row.input, row.output, row.report = task.input, task.output, task.report or ""
             except Exception as exc:  # KilledWorker (the worker died on it, repeatedly), lost connection, ...
                 _remove_temporaries(task)
-                row = BatchRow(task.input, task.output, method=task.settings.method,
-                               error=_one_line(f"{task.input}: Dask: {type(exc).__name__}: {exc}"))
+                if type(exc).__name__ == "KilledWorker":
+                    error = (f"{task.input}: the Dask worker died while filling this file (KilledWorker: "
+                             "distributed.scheduler.allowed-failures exceeded; out of memory?)")
+                else:
+                    error = _one_line(f"{task.input}: Dask: {type(exc).__name__}: {exc}")
+                row = BatchRow(task.input, task.output, method=task.settings.method, error=error)
             future.release()
             on_row(row)
     except BaseException:

@@ -154,6 +154,26 @@ def test_a_killed_worker_fails_only_its_file(session, tmp_path):
     assert (tmp_path / "out" / "serve.c3d").is_file() and (tmp_path / "out" / "vicon.csv").is_file()
 
 
+def test_a_killed_dask_worker_fails_only_its_file(session, tmp_path):
+    dask = pytest.importorskip("dask")
+    distributed = pytest.importorskip("distributed")
+    stuck = tmp_path / "stuck.c3d"
+    os.mkfifo(stuck)
+    # Dask retries a task whose worker died (allowed-failures, default 3); no retry keeps the test short.
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}), \
+            distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                     dashboard_address=None) as cluster, distributed.Client(cluster) as client:
+        def kill_when_only_the_stuck_file_is_left(done, total, row):
+            if done == total - 1:
+                for pid in client.run(os.getpid).values():
+                    os.kill(pid, signal.SIGKILL)
+
+        rows = mocapfill.batch([session / "serve.c3d", session / "vicon.csv", stuck], tmp_path / "out",
+                               method="linear", scheduler=client, progress=kill_when_only_the_stuck_file_is_left)
+    assert [r.status for r in rows] == ["filled", "filled", "failed"]
+    assert "Dask worker died" in rows[2].error and "stuck.c3d" in rows[2].error
+
+
 def test_ctrl_c_keeps_finished_outputs_and_leaves_nothing_half_written(session, tmp_path):
     out = tmp_path / "out"
 
