@@ -7,32 +7,27 @@
 - **Results table** ``out_dir/mocapfill-batch.csv`` (:data:`COLUMNS`), one row per input, appended as files finish.
 - **Resumable**: ``out_dir/.mocapfill-batch.jsonl`` records, per finished output, the SHA-256 of its input's content
   and of the settings; a re-run skips an input whose output exists and whose two hashes are unchanged.
-- **Local processes** (``jobs`` > 1): long-lived worker processes (``spawn``), each given one file at a time; a worker
-  that dies (killed, out of memory) fails only the file it was filling and is replaced.
-- **Dask** (``scheduler``): the same :func:`run_task` is submitted per file with ``distributed.Client.submit``; the
-  file is read inside the task (inputs and ``out_dir`` must be on a file system the workers share).
+- **Local processes** (``jobs`` > 1) or **Dask** (``scheduler``): :mod:`mocapfill.workers` runs the tasks; a local
+  worker that dies (killed, out of memory) fails only the file it was filling.  On Dask the file is read inside the
+  task (inputs and ``out_dir`` must be on a file system the workers share).
 
 No click, no rich, no printing: callers watch progress through ``progress(done, total, row)``.
 """
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import csv
 import dataclasses
 import glob
 import hashlib
 import json
-import multiprocessing
 import os
 import signal
 import socket
 import time
-import uuid
 import warnings
-from dataclasses import dataclass, field
-from multiprocessing.connection import wait as wait_connections
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
@@ -50,8 +45,6 @@ RESULTS_NAME = "mocapfill-batch.csv"
 STATE_NAME = ".mocapfill-batch.jsonl"
 INDEX_NAME = "index.html"
 REPORT_KINDS = ("html", "json")
-#: How long to try reaching a Dask scheduler before giving up.
-CONNECT_TIMEOUT = "20s"
 
 
 @dataclass
@@ -322,108 +315,6 @@ def _died(task: FileTask, exitcode: int | None, where: str = "worker process") -
 
 # ------------------------------------------------------------------------------------------------------ runners
 
-def _run_serial(tasks: Sequence[FileTask], on_row: Callable[[BatchRow], None]) -> None:
-    for task in tasks:
-        on_row(run_task(task))
-
-
-def _worker_loop(conn) -> None:
-    """A local worker: fill the files the parent sends, one at a time, until it sends None or goes away."""
-    try:
-        while True:
-            task = conn.recv()
-            if task is None:
-                return
-            conn.send(run_task(task))
-    except KeyboardInterrupt:
-        # Ctrl-C reaches the whole process group; atomic_write has removed any half-written file.  A second
-        # SIGINT (the parent's, when it stops us) must not interrupt the exit with a traceback.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-    except (EOFError, OSError):
-        return  # the parent is gone
-
-
-class _Worker:
-    def __init__(self, ctx) -> None:
-        self.conn, child = ctx.Pipe()
-        self.process = ctx.Process(target=_worker_loop, args=(child,), daemon=True, name="mocapfill-batch-worker")
-        self.process.start()
-        child.close()
-        self.task: FileTask | None = None
-
-    def stop(self, timeout: float) -> None:
-        if self.process.is_alive() and self.task is None:
-            with contextlib.suppress(OSError):
-                self.conn.send(None)
-        elif self.process.is_alive():
-            self.process.join(min(timeout, 1.0))  # after a Ctrl-C at a terminal it is already leaving
-            if self.process.is_alive():
-                with contextlib.suppress(OSError):
-                    os.kill(self.process.pid, signal.SIGINT)  # lets atomic_write remove its temporary file
-        self.process.join(timeout)
-        if self.process.is_alive():
-            self.process.kill()
-            self.process.join()
-        if self.task is not None:
-            _remove_temporaries(self.task)
-        self.conn.close()
-
-
-def _run_pool(tasks: Sequence[FileTask], jobs: int, on_row: Callable[[BatchRow], None]) -> None:
-    """``jobs`` worker processes, one file each at a time; a worker that dies fails its file and is replaced.
-
-    (``concurrent.futures.ProcessPoolExecutor`` would break as a whole on one dead worker and could not say which
-    file killed it.)
-    """
-    ctx = multiprocessing.get_context("spawn")
-    pending = collections.deque(tasks)
-    workers: list[_Worker] = []
-    try:
-        while pending or any(w.task is not None for w in workers):
-            while pending:
-                idle = next((w for w in workers if w.task is None), None)
-                if idle is None:
-                    if len(workers) >= jobs:
-                        break
-                    idle = _Worker(ctx)
-                    workers.append(idle)
-                if not idle.process.is_alive():  # died while idle (killed from outside): nothing was lost
-                    idle.stop(0)
-                    workers.remove(idle)
-                    continue
-                task = pending.popleft()
-                try:
-                    idle.conn.send(task)
-                    idle.task = task
-                except OSError:  # died just now: the file never reached it; retry it on a fresh worker
-                    pending.appendleft(task)
-                    idle.stop(0)
-                    workers.remove(idle)
-            busy = [w for w in workers if w.task is not None]
-            ready = set(wait_connections([w.conn for w in busy] + [w.process.sentinel for w in busy]))
-            for w in busy:
-                if w.conn not in ready and w.process.sentinel not in ready:
-                    continue
-                task, row = w.task, None
-                try:
-                    if w.conn.poll():
-                        row = w.conn.recv()
-                except (EOFError, OSError):
-                    row = None
-                if row is None:
-                    w.process.join()
-                    row = _died(task, w.process.exitcode)
-                    w.task = None
-                    w.stop(0)
-                    workers.remove(w)
-                else:
-                    w.task = None
-                on_row(row)
-    finally:
-        for w in workers:
-            w.stop(10.0)
-
-
 def _absolute(task: FileTask) -> FileTask:
     """The task with absolute paths: a Dask worker's working folder is not ours."""
     def absolute(path):
@@ -435,48 +326,37 @@ def _absolute(task: FileTask) -> FileTask:
                                report=absolute(task.report), settings=settings)
 
 
-def _run_dask(tasks: Sequence[FileTask], scheduler: Any, on_row: Callable[[BatchRow], None]) -> None:
-    """Submit :func:`run_task` once per file to a Dask cluster (address or ``distributed.Client``)."""
+def _dask_failed(task: FileTask, exc: BaseException) -> BatchRow:
+    """The row of a task Dask could not finish: KilledWorker (its worker died on it, repeatedly), lost connection."""
+    _remove_temporaries(task)
+    if type(exc).__name__ == "KilledWorker":
+        error = (f"{task.input}: the Dask worker died while filling this file (KilledWorker: "
+                 "distributed.scheduler.allowed-failures exceeded; out of memory?)")
+    else:
+        error = _one_line(f"{task.input}: Dask: {type(exc).__name__}: {exc}")
+    return BatchRow(task.input, task.output, method=task.settings.method, error=error)
+
+
+def _run(tasks: Sequence[FileTask], jobs: int, scheduler: Any, on_row: Callable[[BatchRow], None]) -> None:
+    """Run :func:`run_task` on every task (in process, on local workers or on Dask), ``on_row`` as each ends."""
+    from .workers import SchedulerUnreachable, run_dask, run_local
+
+    if scheduler is None:
+        run_local(run_task, tasks, jobs, on_row, on_death=_died)
+        return
     try:
-        from distributed import Client, as_completed
+        import distributed  # noqa: F401
     except ImportError:
         raise InputError("a Dask scheduler needs the distributed package: pip install 'mocapfill[dask]'") from None
-    own = not isinstance(scheduler, Client)
-    if own:
-        try:
-            client = Client(scheduler, timeout=CONNECT_TIMEOUT)
-        except (OSError, TimeoutError, ValueError) as exc:
-            raise InputError(f"{scheduler}: cannot reach the Dask scheduler: {_one_line(exc)}") from None
-    else:
-        client = scheduler
-    run = uuid.uuid4().hex[:8]
-    futures = {}
+
+    def done(task: FileTask, row: BatchRow) -> None:
+        row.input, row.output, row.report = task.input, task.output, row.report and (task.report or "")
+        on_row(row)
+
     try:
-        for i, task in enumerate(tasks):
-            # pure=False: a re-run (--force) of the same task must run again, not reuse a cached result.
-            futures[client.submit(run_task, _absolute(task), key=f"mocapfill-batch-{run}-{i}", pure=False)] = task
-        for future in as_completed(futures):
-            task = futures[future]
-            try:
-                row = future.result()
-                row.input, row.output, row.report = task.input, task.output, task.report or ""
-            except Exception as exc:  # KilledWorker (the worker died on it, repeatedly), lost connection, ...
-                _remove_temporaries(task)
-                if type(exc).__name__ == "KilledWorker":
-                    error = (f"{task.input}: the Dask worker died while filling this file (KilledWorker: "
-                             "distributed.scheduler.allowed-failures exceeded; out of memory?)")
-                else:
-                    error = _one_line(f"{task.input}: Dask: {type(exc).__name__}: {exc}")
-                row = BatchRow(task.input, task.output, method=task.settings.method, error=error)
-            future.release()
-            on_row(row)
-    except BaseException:
-        with contextlib.suppress(Exception):
-            client.cancel(list(futures))
-        raise
-    finally:
-        if own:
-            client.close()
+        run_dask(run_task, tasks, scheduler, done, on_error=_dask_failed, prepare=_absolute, name="mocapfill-batch")
+    except SchedulerUnreachable as exc:
+        raise InputError(f"{scheduler}: cannot reach the Dask scheduler: {exc}") from None
 
 
 # ------------------------------------------------------------------------------------------------ resume record
@@ -655,14 +535,8 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
         # Largest files first: the last task to finish is then a short one (better balance across workers).
         to_run.sort(key=lambda t: -_size(t.input))
         try:
-            if not to_run:
-                pass
-            elif scheduler is not None:
-                _run_dask(to_run, scheduler, on_row)
-            elif _jobs(jobs, len(to_run)) == 1:
-                _run_serial(to_run, on_row)
-            else:
-                _run_pool(to_run, _jobs(jobs, len(to_run)), on_row)
+            if to_run:
+                _run(to_run, _jobs(jobs, len(to_run)), scheduler, on_row)
         finally:
             if report is not None:
                 from .report.batch_index import write_batch_index

@@ -16,6 +16,7 @@ from click.testing import CliRunner
 import mocapfill
 from mocapfill.batching import COLUMNS, INDEX_NAME, RESULTS_NAME, STATE_NAME
 from mocapfill.cli import cli
+from mocapfill.workers import WORKER_NAME
 from mocapfill.errors import MocapfillError
 
 GOOD = {"serve.c3d": 1092, "vicon.csv": 580, "sub/T.trc": 89, "sub/deeper/racing.c3d": 700}
@@ -129,7 +130,7 @@ def test_dask_local_cluster_gives_the_serial_outputs(session, tmp_path):
 
 def test_an_unreachable_scheduler_is_a_one_line_error(session, tmp_path, monkeypatch):
     pytest.importorskip("distributed")
-    monkeypatch.setattr("mocapfill.batching.CONNECT_TIMEOUT", "1s")
+    monkeypatch.setattr("mocapfill.workers.CONNECT_TIMEOUT", "1s")
     result = CliRunner().invoke(cli, ["batch", str(session), "-o", str(tmp_path / "o"), "--scheduler",
                                       "tcp://127.0.0.1:9", "-m", "linear"])
     assert result.exit_code == 1 and "Dask scheduler" in result.stderr and "Traceback" not in result.output
@@ -144,7 +145,7 @@ def test_a_killed_worker_fails_only_its_file(session, tmp_path):
     def kill_when_only_the_stuck_file_is_left(done, total, row):
         if done == total - 1:
             for child in multiprocessing.active_children():
-                if child.name == "mocapfill-batch-worker":
+                if child.name == WORKER_NAME:
                     os.kill(child.pid, signal.SIGKILL)
 
     rows = mocapfill.batch(inputs, tmp_path / "out", method="linear", jobs=2,
