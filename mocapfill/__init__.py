@@ -4,6 +4,7 @@ Public API (imported lazily, so ``import mocapfill`` has no side effects and sta
 
 - :func:`read` / :func:`write`: C3D, CSV (plain, Vicon), TRC; ``"-"`` = stdin / stdout.
 - :func:`fill`: fill gaps with a registered method (see :data:`mocapfill.methods.METHODS`).
+- :func:`batch`: fill every file of folders / globs into an output folder (local processes or a Dask cluster).
 - :func:`estimate_bones`: rigid marker pairs from inter-marker distance statistics.
 - :class:`MarkerData`: positions (n_frames, n_markers, 3) float64, NaN = missing, with labels, rate, units.
 """
@@ -22,6 +23,7 @@ _LAZY = {
     "fill_data": "mocapfill.api:fill_data",
     "estimate_bones": "mocapfill.bones:estimate_bones",
     "evaluate": "mocapfill.evaluation:evaluate",
+    "batch": "mocapfill.batching:batch",
     "MarkerData": "mocapfill.markers:MarkerData",
     "FillResult": "mocapfill.methods.base:FillResult",
     "MocapfillError": "mocapfill.errors:MocapfillError",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
 import warnings
@@ -10,7 +11,7 @@ from typing import Callable, NamedTuple
 import click
 from rich.console import Console
 
-from ..errors import ConvergenceWarning, DataWarning
+from ..errors import ConvergenceWarning, DataWarning, MethodError
 
 FORMATS = ("c3d", "csv", "trc")
 
@@ -52,10 +53,93 @@ def format_options(func: Callable) -> Callable:
     return func
 
 
+def fill_options(func: Callable) -> Callable:
+    """``--method`` and every fill option (``--hidden`` ... ``--smooth-order``), shared by ``fill`` and ``batch``.
+
+    The command receives them as one ``fill_settings: FillSettings``; an option that needs a step that is off
+    (``--delta`` without ``--reject-outliers``) is a usage error.
+    """
+    from ..methods import DEFAULT_METHOD, METHODS
+    from ..pipeline import FillSettings
+
+    names = [field.name for field in dataclasses.fields(FillSettings)]
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        settings = FillSettings(**{name: kwargs.pop(name) for name in names})
+        try:
+            settings.check(name=lambda field: "--" + field.replace("_", "-"))
+        except MethodError as exc:
+            raise click.UsageError(str(exc)) from None
+        return func(*args, fill_settings=settings, **kwargs)
+
+    options = [
+        click.option("-m", "--method", type=click.Choice(list(METHODS)), default=DEFAULT_METHOD, show_default=True,
+                     help="Fill method (listed below; 'auto' is the most accurate measured)."),
+        click.option("--hidden", type=click.IntRange(min=1), default=None,
+                     help="Hidden dimension of the dynamical models (dynammo, bolero-*; default 16)."),
+        click.option("--max-iter", type=click.IntRange(min=0), default=None,
+                     help="Iteration cap of iterative methods."),
+        click.option("--tol", type=click.FloatRange(min=0), default=None,
+                     help="Convergence tolerance (relative change) of iterative methods."),
+        click.option("--seed", type=int, default=None, help="Random seed (results are reproducible with it)."),
+        click.option("--bones", "bones", type=str, default=None,
+                     help="Bones file (from `mocapfill estimate-bones`) for bone-aware methods; default: estimated "
+                          "from the observed frames."),
+        click.option("--reject-outliers", is_flag=True, help="Remove samples that break inter-marker distance "
+                     "ranges (Holden's rule) before filling; they become gaps and are filled."),
+        click.option("--delta", type=click.FloatRange(min=0), default=None,
+                     help="Outlier margin as a fraction of each pair's distance range (default 0.1)."),
+        click.option("--reference", "reference", type=str, default=None,
+                     help="A clean capture of the same marker set giving the distance ranges for --reject-outliers "
+                          "(default: the file itself)."),
+        click.option("--smooth", is_flag=True,
+                     help="Savitzky-Golay smoothing of the output (off by default: it changes observed samples)."),
+        click.option("--smooth-window", type=click.IntRange(min=1), default=None,
+                     help="Smoothing window in frames, odd (default about 1/15 s)."),
+        click.option("--smooth-order", type=click.IntRange(min=0), default=None,
+                     help="Smoothing polynomial order (3)."),
+    ]
+    for option in reversed(options):
+        wrapper = option(wrapper)
+    return wrapper
+
+
 @functools.lru_cache(maxsize=2)
 def console(quiet: bool = False) -> Console:
     """The stderr console for people: tables, progress, warnings.  Plain when stderr is not a terminal."""
     return Console(stderr=True, quiet=quiet, highlight=False)
+
+
+class StderrProgress:
+    """A transient rich progress bar on stderr, shown on terminals only and never with --quiet.
+
+    ``columns()`` builds the rich columns (called only when the bar shows, so rich.progress loads lazily);
+    ``fields`` are the task's initial custom fields.
+    """
+
+    def __init__(self, quiet: bool, columns: Callable[[], tuple], **fields) -> None:
+        out = console(quiet)
+        self.enabled = not quiet and out.is_terminal
+        self._bar = None
+        if self.enabled:
+            from rich.progress import Progress
+
+            self._bar = Progress(*columns(), console=out, transient=True)
+            self._task = self._bar.add_task("", total=None, **fields)
+
+    def __enter__(self):
+        if self._bar is not None:
+            self._bar.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._bar is not None:
+            self._bar.stop()
+
+    def update(self, **changes) -> None:
+        if self._bar is not None:
+            self._bar.update(self._task, **changes)
 
 
 def read_input(path: str, reading: ReadOptions = ReadOptions(), *, quiet: bool = False, show_notes: bool = True):

@@ -1,0 +1,183 @@
+"""Fill one capture end to end: the steps `mocapfill fill` and `mocapfill batch` share.
+
+:class:`FillSettings` holds what a user chooses (method, its options, outlier rejection, smoothing);
+:func:`fill_capture` runs reject outliers -> fill -> smooth on a :class:`~mocapfill.markers.MarkerData` and returns a
+:class:`FillOutcome`; :func:`write_fill_report` writes its JSON or HTML report.  Reading and writing the capture stay
+with the caller (a command prints notes, a batch worker records them).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from .errors import MethodError
+from .markers import MarkerData
+from .methods import DEFAULT_METHOD, get_method
+from .methods.base import FillResult
+
+
+@dataclass(frozen=True)
+class FillSettings:
+    """What to do to a capture; ``None`` = the method's or step's own default.
+
+    ``bones`` and ``reference`` are paths: a bones file (from ``estimate-bones``) and a clean capture giving the
+    distance ranges for outlier rejection.
+    """
+
+    method: str = DEFAULT_METHOD
+    hidden: int | None = None
+    max_iter: int | None = None
+    tol: float | None = None
+    seed: int | None = None
+    bones: str | None = None
+    reject_outliers: bool = False
+    delta: float | None = None
+    reference: str | None = None
+    smooth: bool = False
+    smooth_window: int | None = None
+    smooth_order: int | None = None
+
+    def check(self, *, name: Callable[[str], str] = str) -> "FillSettings":
+        """Raise MethodError for an unknown method or an option whose step is off; return self.
+
+        ``name`` spells a field in the message (the CLI gives ``--delta`` for ``delta``).
+        """
+        get_method(self.method)
+        for options, step in ((("delta", "reference"), "reject_outliers"),
+                              (("smooth_window", "smooth_order"), "smooth")):
+            if any(getattr(self, option) is not None for option in options) and not getattr(self, step):
+                raise MethodError(f"{name(options[0])} and {name(options[1])} only apply with {name(step)}")
+        return self
+
+    def as_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+@dataclass
+class FillOutcome:
+    """One filled capture.
+
+    Attributes
+    ----------
+    data : MarkerData
+        The input as read; positions (n_frames, n_markers, 3).
+    work : MarkerData
+        What was filled: ``data`` with rejected outliers turned into gaps.
+    result : FillResult
+        The fill of ``work``.
+    output : MarkerData
+        ``data`` carrying the output positions (filled, then smoothed when asked).
+    rejected : ndarray of bool (n_frames, n_markers) or None
+        Samples removed as outliers (None without rejection).
+    bones : BoneSet or None
+        The bones file's bones, when one was given.
+    settings : dict
+        The options used, as the report records them.
+    seconds : float
+        Wall-clock time of the fill step alone.
+    """
+
+    data: MarkerData
+    work: MarkerData
+    result: FillResult
+    output: MarkerData
+    rejected: np.ndarray | None
+    bones: Any
+    settings: dict[str, Any]
+    seconds: float
+
+
+def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerData | None = None,
+                 progress: Callable[[int, int, float], None] | None = None) -> FillOutcome:
+    """Reject outliers (optional), fill, smooth (optional) one capture.
+
+    Parameters
+    ----------
+    data : MarkerData
+        positions (n_frames, n_markers, 3), NaN = missing.
+    settings : FillSettings
+    reference : MarkerData or None
+        The capture named by ``settings.reference``, already read by the caller (positions (n, n_markers_ref, 3)).
+    progress : callable or None
+        ``progress(iteration, n_max, objective)``, handed to methods that report progress.
+    """
+    work = data
+    rejected = None
+    record: dict[str, Any] = {}
+    if settings.reject_outliers:
+        from .outliers import reject_outliers
+
+        options: dict[str, Any] = {"units": data.units, "labels": list(data.labels), "rate": data.rate}
+        if settings.delta is not None:
+            options["delta"] = settings.delta
+        if reference is not None:
+            options.update(reference=reference.positions, reference_labels=list(reference.labels),
+                           reference_units=reference.units)
+        outcome = reject_outliers(data.positions, **options)
+        rejected = np.asarray(outcome.rejected, dtype=bool)
+        work = data.with_positions(outcome.positions)
+        record["reject_outliers"] = {"delta": 0.1 if settings.delta is None else settings.delta,
+                                     "reference": settings.reference, "rejected": int(rejected.sum())}
+
+    bones = None
+    if settings.bones is not None:
+        from .bones import load_bones
+
+        bones = load_bones(settings.bones, data.labels, units=data.units)
+
+    accepted = get_method(settings.method).parameters()
+    options = {key: value for key, value in (("hidden", settings.hidden), ("max_iter", settings.max_iter),
+                                              ("tol", settings.tol), ("seed", settings.seed), ("bones", bones))
+               if value is not None}
+    record.update({k: v for k, v in options.items() if k != "bones"})
+    if settings.bones is not None:
+        record["bones"] = settings.bones
+    if progress is not None and "progress" in accepted:
+        options["progress"] = progress
+
+    from .api import fill
+
+    started = time.perf_counter()
+    result = fill(work, settings.method, **options)
+    seconds = time.perf_counter() - started
+
+    positions = result.positions
+    if settings.smooth:
+        from .smooth import savgol_smooth
+
+        smooth_options: dict[str, Any] = {"rate": data.rate}
+        if settings.smooth_window is not None:
+            smooth_options["window"] = settings.smooth_window
+        if settings.smooth_order is not None:
+            smooth_options["order"] = settings.smooth_order
+        positions = savgol_smooth(positions, **smooth_options)
+        record["smooth"] = {"window": settings.smooth_window, "order": settings.smooth_order}
+
+    return FillOutcome(data, work, result, data.with_positions(positions), rejected, bones, record, seconds)
+
+
+def write_fill_report(outcome: FillOutcome, path: str, *, method: str, input_path: str | None,
+                      output_path: str | None, smoothed: bool) -> None:
+    """Write the JSON or HTML report (by ``path``'s extension) of one fill.
+
+    The report's bone-length checks use the given bones, else bones estimated from the observed frames of the
+    input (as bone-aware methods do), never from filled samples.
+    """
+    from .report import build_fill_report, write_report
+
+    bones = outcome.bones
+    if bones is None:
+        from .bones import estimate_bones
+
+        bones = estimate_bones(outcome.work.positions, units=outcome.data.units, labels=outcome.data.labels)
+        if len(bones) == 0:
+            bones = None
+    report = build_fill_report(outcome.data, outcome.result, method=method, settings=outcome.settings,
+                               seconds=outcome.seconds, input_path=input_path, output_path=output_path,
+                               bones=bones, rejected=outcome.rejected, smoothed=smoothed)
+    write_report(report, path, data=outcome.data, result=outcome.result, bones=bones)

@@ -1,0 +1,228 @@
+"""`mocapfill batch` / `mocapfill.batch`: rows and exit status on a mixed folder with a corrupt file, outputs equal
+across serial / local processes / a Dask LocalCluster, a killed worker, resuming, --force, Ctrl-C."""
+
+from __future__ import annotations
+
+import csv
+import multiprocessing
+import os
+import shutil
+import signal
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import mocapfill
+from mocapfill.batching import COLUMNS, INDEX_NAME, RESULTS_NAME, STATE_NAME
+from mocapfill.cli import cli
+from mocapfill.workers import WORKER_NAME
+from mocapfill.errors import MocapfillError
+
+GOOD = {"serve.c3d": 1092, "vicon.csv": 580, "sub/T.trc": 89, "sub/deeper/racing.c3d": 700}
+
+
+@pytest.fixture()
+def session(tmp_path, sample_data, test_data):
+    """A folder with C3D, CSV and TRC captures (some in subfolders) and one corrupt C3D."""
+    root = tmp_path / "session"
+    (root / "sub" / "deeper").mkdir(parents=True)
+    shutil.copy(sample_data / "kinematics_tennis_serve_nan.c3d", root / "serve.c3d")
+    shutil.copy(sample_data / "markers.csv", root / "vicon.csv")
+    shutil.copy(test_data / "T.trc", root / "sub" / "T.trc")
+    shutil.copy(test_data / "kinematics_racing_full.c3d", root / "sub" / "deeper" / "racing.c3d")
+    (root / "sub" / "broken.c3d").write_bytes(b"this is not a C3D file\n" * 10)
+    (root / "notes.txt").write_text("not a capture: ignored\n")
+    return root
+
+
+def _table(out_dir):
+    with open(out_dir / RESULTS_NAME, newline="", encoding="utf-8") as handle:
+        reader = csv.DictReader(handle)
+        assert tuple(reader.fieldnames) == COLUMNS
+        return {os.path.relpath(row["input"], out_dir.parent / "session"): row for row in reader}
+
+
+def test_mixed_folder_rows_exit_status_and_outputs(session, tmp_path):
+    out = tmp_path / "out"
+    result = CliRunner().invoke(cli, ["batch", str(session), "--out-dir", str(out), "-m", "linear",
+                                      "--report", "json"])
+    assert result.exit_code == 1, result.output
+    assert result.stdout == ""
+    assert "broken.c3d" in result.stderr and "4 filled" in result.stderr and "Traceback" not in result.output
+
+    rows = _table(out)
+    assert set(rows) == set(GOOD) | {"sub/broken.c3d"}
+    bad = rows["sub/broken.c3d"]
+    assert bad["status"] == "failed" and "broken.c3d" in bad["error"] and "\n" not in bad["error"]
+    assert bad["frames"] == "" and not (out / "sub" / "broken.c3d").exists()
+    for rel, frames in GOOD.items():
+        row = rows[rel]
+        assert row["status"] == "filled" and row["error"] == "" and row["method"] == "linear"
+        assert int(row["frames"]) == frames and float(row["seconds"]) >= 0
+        source, filled = mocapfill.read(session / rel), mocapfill.read(out / rel)
+        assert row["output"] == str(out / rel) and (out / f"{rel}.report.json").is_file()
+        assert int(row["markers"]) == source.n_markers
+        assert int(row["missing_samples"]) == int(source.missing.sum())
+        never = np.isnan(source.positions).all(axis=0).any(axis=1)  # markers never observed stay empty
+        assert int(row["filled_samples"]) == int(source.missing[:, ~never].sum())
+        assert not filled.missing[:, ~never].any()
+        seen = ~source.missing
+        np.testing.assert_allclose(filled.positions[seen], source.positions[seen], rtol=1e-6, atol=1e-6)
+    index = (out / INDEX_NAME).read_text()
+    assert index.count("<tr>") == 1 + 5 and 'href="sub/T.trc.report.json"' in index and "failed" in index
+    assert not list(out.rglob("*.tmp"))
+
+
+def test_rerun_skips_changed_input_or_settings_redo_and_force_redoes(session, tmp_path):
+    out = tmp_path / "out"
+    first = mocapfill.batch(session, out, method="linear")
+    assert [r.status for r in first].count("filled") == 4
+    stamp = {rel: (out / rel).stat().st_mtime_ns for rel in GOOD}
+
+    again = {os.path.relpath(r.input, session): r for r in mocapfill.batch(session, out, method="linear")}
+    assert {rel: r.status for rel, r in again.items()} == {**dict.fromkeys(GOOD, "skipped"), "sub/broken.c3d": "failed"}
+    assert again["serve.c3d"].frames == 1092 and again["serve.c3d"].filled_samples == 145
+    assert {rel: (out / rel).stat().st_mtime_ns for rel in GOOD} == stamp
+    assert sum(1 for _ in open(out / RESULTS_NAME)) == 1 + 5
+
+    # New content in one input, another fill option: redone; --force: everything redone.
+    data = mocapfill.read(session / "sub" / "T.trc")
+    data.positions[5:9, 0] = np.nan
+    mocapfill.write(data.with_positions(data.positions), session / "sub" / "T2.trc")
+    os.replace(session / "sub" / "T2.trc", session / "sub" / "T.trc")
+    changed = {os.path.relpath(r.input, session): r.status for r in mocapfill.batch(session, out, method="linear")}
+    assert changed["sub/T.trc"] == "filled" and changed["serve.c3d"] == "skipped"
+    other = {r.status for r in mocapfill.batch(session, out, method="linear", seed=3) if "broken" not in r.input}
+    assert other == {"filled"}
+    result = CliRunner().invoke(cli, ["batch", str(session), "-o", str(out), "-m", "linear", "--seed", "3",
+                                      "--force", "-q"])
+    assert result.exit_code == 1 and result.stderr == ""
+    assert {row["status"] for rel, row in _table(out).items() if rel != "sub/broken.c3d"} == {"filled"}
+    assert len((out / STATE_NAME).read_text().splitlines()) == 4  # compacted: one line per output
+
+
+def _outputs(out):
+    return {p.relative_to(out).as_posix(): p.read_bytes() for p in sorted(out.rglob("*"))
+            if p.is_file() and p.name not in (RESULTS_NAME, STATE_NAME)}
+
+
+def test_two_local_processes_give_the_serial_outputs(session, tmp_path):
+    serial = mocapfill.batch(session, tmp_path / "serial", method="pca")
+    parallel = mocapfill.batch(session, tmp_path / "jobs2", method="pca", jobs=2)
+    assert [(r.status, r.filled_samples) for r in parallel] == [(r.status, r.filled_samples) for r in serial]
+    assert len({r.worker for r in parallel}) == 2
+    assert _outputs(tmp_path / "jobs2") == _outputs(tmp_path / "serial") and len(_outputs(tmp_path / "serial")) == 4
+
+
+def test_dask_local_cluster_gives_the_serial_outputs(session, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    mocapfill.batch(session, tmp_path / "serial", method="pca", format="csv")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address=None) as cluster:
+        result = CliRunner().invoke(cli, ["batch", str(session), "-o", str(tmp_path / "dask"), "-m", "pca",
+                                          "--format", "csv", "--scheduler", cluster.scheduler_address, "-q"])
+    assert result.exit_code == 1, result.output
+    rows = _table(tmp_path / "dask")
+    assert rows["sub/broken.c3d"]["status"] == "failed" and rows["serve.c3d"]["output"].endswith("serve.csv")
+    assert _outputs(tmp_path / "dask") == _outputs(tmp_path / "serial")
+
+
+def test_an_unreachable_scheduler_is_a_one_line_error(session, tmp_path, monkeypatch):
+    pytest.importorskip("distributed")
+    monkeypatch.setattr("mocapfill.workers.CONNECT_TIMEOUT", "1s")
+    result = CliRunner().invoke(cli, ["batch", str(session), "-o", str(tmp_path / "o"), "--scheduler",
+                                      "tcp://127.0.0.1:9", "-m", "linear"])
+    assert result.exit_code == 1 and "Dask scheduler" in result.stderr and "Traceback" not in result.output
+
+
+def test_a_killed_worker_fails_only_its_file(session, tmp_path):
+    # A FIFO nobody writes to: the worker that opens it blocks until we kill it (as the OOM killer would).
+    stuck = tmp_path / "stuck.c3d"
+    os.mkfifo(stuck)
+    inputs = [session / "serve.c3d", session / "vicon.csv", stuck]
+
+    def kill_when_only_the_stuck_file_is_left(done, total, row):
+        if done == total - 1:
+            for child in multiprocessing.active_children():
+                if child.name == WORKER_NAME:
+                    os.kill(child.pid, signal.SIGKILL)
+
+    rows = mocapfill.batch(inputs, tmp_path / "out", method="linear", jobs=2,
+                           progress=kill_when_only_the_stuck_file_is_left)
+    assert [r.status for r in rows] == ["filled", "filled", "failed"]
+    assert "died" in rows[2].error and "SIGKILL" in rows[2].error and "stuck.c3d" in rows[2].error
+    assert (tmp_path / "out" / "serve.c3d").is_file() and (tmp_path / "out" / "vicon.csv").is_file()
+
+
+def test_a_killed_dask_worker_fails_only_its_file(session, tmp_path):
+    dask = pytest.importorskip("dask")
+    distributed = pytest.importorskip("distributed")
+    stuck = tmp_path / "stuck.c3d"
+    os.mkfifo(stuck)
+    # Dask retries a task whose worker died (allowed-failures, default 3); no retry keeps the test short.
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}), \
+            distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                     dashboard_address=None) as cluster, distributed.Client(cluster) as client:
+        def kill_when_only_the_stuck_file_is_left(done, total, row):
+            if done == total - 1:
+                for pid in client.run(os.getpid).values():
+                    os.kill(pid, signal.SIGKILL)
+
+        rows = mocapfill.batch([session / "serve.c3d", session / "vicon.csv", stuck], tmp_path / "out",
+                               method="linear", scheduler=client, progress=kill_when_only_the_stuck_file_is_left)
+    assert [r.status for r in rows] == ["filled", "filled", "failed"]
+    assert "Dask worker died" in rows[2].error and "stuck.c3d" in rows[2].error
+
+
+def test_ctrl_c_keeps_finished_outputs_and_leaves_nothing_half_written(session, tmp_path):
+    out = tmp_path / "out"
+
+    def interrupt(done, total, row):
+        if done == 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        mocapfill.batch(session, out, method="linear", jobs=2, progress=interrupt)
+    rows = _table(out)
+    assert len(rows) == 1
+    assert not list(out.rglob("*.tmp")) and not list(out.rglob(".*.tmp"))
+    for path in out.rglob("*"):
+        if path.is_file() and path.name not in (RESULTS_NAME, STATE_NAME):
+            mocapfill.read(path)  # every output present is complete
+    resumed = mocapfill.batch(session, out, method="linear")
+    assert [r.status for r in resumed].count("failed") == 1
+    assert sum(r.status == "skipped" for r in resumed) >= 1
+
+
+def test_globs_format_and_output_clashes(session, tmp_path):
+    rows = mocapfill.batch(str(session / "**" / "*.trc"), tmp_path / "g", method="linear", format="csv")
+    assert [os.path.relpath(r.output, tmp_path / "g") for r in rows] == ["sub/T.csv"]
+    twin = tmp_path / "twin"
+    twin.mkdir()
+    shutil.copy(session / "serve.c3d", twin / "vicon.c3d")
+    with pytest.raises(MocapfillError, match="would both be written"):
+        mocapfill.batch([session / "vicon.csv", twin / "vicon.c3d"], tmp_path / "o", format="csv")
+    with pytest.raises(MocapfillError, match="no file matches"):
+        mocapfill.batch(str(session / "*.xyz"), tmp_path / "o")
+    with pytest.raises(MocapfillError, match="unknown option"):
+        mocapfill.batch(session, tmp_path / "o", hiden=3)
+
+
+def test_output_folder_inside_the_input_folder_is_not_searched(session, tmp_path):
+    out = session / "filled"
+    first = mocapfill.batch(session, out, method="linear")
+    again = mocapfill.batch(session, out, method="linear")
+    assert len(first) == len(again) == 5
+
+
+def test_fill_options_are_shared_with_fill(session, tmp_path):
+    runner = CliRunner()
+    assert runner.invoke(cli, ["batch", str(session), "-o", str(tmp_path / "o"), "--delta", "0.2"]).exit_code == 2
+    assert runner.invoke(cli, ["batch", str(session), "-o", str(tmp_path / "o"), "-j", "2", "--scheduler",
+                               "tcp://127.0.0.1:9"]).exit_code == 2
+    help_batch = runner.invoke(cli, ["batch", "--help"]).output
+    help_fill = runner.invoke(cli, ["fill", "--help"]).output
+    for flag in ("--method", "--hidden", "--max-iter", "--tol", "--seed", "--bones", "--reject-outliers",
+                 "--delta", "--reference", "--smooth", "--smooth-window", "--smooth-order"):
+        assert flag in help_batch and flag in help_fill
