@@ -37,7 +37,7 @@ from ..errors import DataWarning, FormatError
 from ..markers import MarkerData
 from .labels import make_unique, normalise_units, unit_name
 
-__all__ = ["read_csv", "csv_text", "parse_numbers"]
+__all__ = ["read_csv", "csv_text", "csv_rows", "parse_numbers"]
 
 _AXIS = re.compile(r"^(?P<label>.*?)[ _\-.]?(?P<axis>[xyzXYZ])$")
 _FRAME_NAMES = {"frame", "frame#", "frames", "frame_number", "frame number"}
@@ -79,8 +79,13 @@ def parse_numbers(rows: list[list[str]], name: str, first_line: int, columns: li
     raise FormatError(f"{name}: content that is not numbers")  # pragma: no cover
 
 
-def _rows(text: str) -> list[list[str]]:
-    return list(_csv.reader(io.StringIO(text)))
+def csv_rows(text: str, name: str) -> list[list[str]]:
+    """All rows of CSV text.  A lone carriage return ends a line (old Mac files); anything else the ``csv`` module
+    rejects (an oversized field, ...) is a FormatError naming the file."""
+    try:
+        return list(_csv.reader(io.StringIO(text, newline="")))
+    except _csv.Error as exc:
+        raise FormatError(f"{name}: malformed CSV: {exc}") from None
 
 
 def _check_width(rows: list[list[str]], width: int, name: str, first_line: int, pad_short: bool = False
@@ -124,7 +129,7 @@ def read_csv(text: str, name: str, layout: str | None = None) -> MarkerData:
 
     Returns MarkerData with positions (n_frames, n_markers, 3), NaN = missing.
     """
-    rows = _rows(text)
+    rows = csv_rows(text, name)
     first = next((i for i, r in enumerate(rows) if any(c.strip() for c in r)), None)
     if first is None:
         raise FormatError(f"{name}: empty CSV file")
