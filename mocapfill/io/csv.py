@@ -116,7 +116,7 @@ def _rate_from_times(times: np.ndarray, name: str) -> float:
 
 def _finish(values: np.ndarray, name: str) -> np.ndarray:
     """(n_rows, 3 * n_markers) values -> positions (n_rows, n_markers, 3) with whole samples NaN when any is."""
-    positions = values.reshape(values.shape[0], -1, 3).copy()
+    positions = values.reshape(values.shape[0], values.shape[1] // 3, 3).copy()
     missing = np.isnan(positions).any(axis=2)
     positions[missing] = np.nan
     if np.isinf(positions).any():
@@ -299,7 +299,7 @@ def csv_text(data: MarkerData) -> str:
     out.write(f"# mocapfill csv: units={data.units} rate={float(data.rate)!r} first_frame={int(data.first_frame)}\n")
     writer = _csv.writer(out, lineterminator="\n")
     writer.writerow(["frame", "time"] + [f"{lab}_{a}" for lab in data.labels for a in "xyz"])
-    flat = data.positions.reshape(data.n_frames, -1)
+    flat = data.positions.reshape(data.n_frames, 3 * data.n_markers)
     times = data.times
     for t in range(data.n_frames):
         out.write(f"{data.first_frame + t},{float(times[t])!r},")

@@ -135,7 +135,7 @@ def trc_text(data: MarkerData, name: str = "out.trc") -> str:
         "\t".join(["", ""] + [f"X{k}\tY{k}\tZ{k}" for k in range(1, m + 1)]),
         "",
     ]
-    flat = data.positions.reshape(n, -1).tolist()
+    flat = data.positions.reshape(n, 3 * m).tolist()
     times = data.times.tolist()
     for t in range(n):
         cells = ["" if v != v else repr(v) for v in flat[t]]

@@ -246,7 +246,7 @@ def tsv_text(data: MarkerData, name: str = "<tsv>") -> str:
             out.append("\t".join([key] + list(values[key])))
     out.append("\t".join(["Frame", "Time"] + [f"{lab} {a}" for lab in labels for a in "XYZ"]))
     factor = length_factor(data.units, "mm")
-    flat = (data.positions * factor).reshape(data.n_frames, -1)
+    flat = (data.positions * factor).reshape(data.n_frames, 3 * data.n_markers)
     flat = np.where(np.isnan(flat), 0.0, flat)
     times = data.times if np.isfinite(data.rate) and data.rate > 0 else np.zeros(data.n_frames)
     body = [f"{data.first_frame + t}\t{times[t]:.5f}\t" + "\t".join(f"{v:.3f}" for v in flat[t])
