@@ -57,7 +57,8 @@ def _rate_from_time(time: np.ndarray, what: str) -> float:
     if not np.all(steps > 0) or np.max(np.abs(steps - step)) > 1e-6 * step + 1e-12:
         raise InputError(f"{what}: the time vector is not evenly spaced; give rate=")
     rate = (time.size - 1) / (time[-1] - time[0])
-    return float(f"{rate:.9g}")  # 1 / 0.005 summed 511 times is 199.99999999999983: the rate meant is 200
+    # 511 steps of 1 / 200 span 2.5549999999999997 s: the rate meant is 200, not 199.99999999999983
+    return float(round(rate)) if abs(rate - round(rate)) < 1e-9 * rate else float(rate)
 
 
 def _pick(given, stored, what: str, name: str):

@@ -84,7 +84,7 @@ def read_motive(text: str, name: str) -> MarkerData:
     notes.extend(f"duplicate label {old!r} renamed {new!r}" for old, new in renamed)
 
     data_rows = [r for r in rows[axis_at + 1:] if any(c.strip() for c in r)]
-    data_rows = _check_width(data_rows, width, name, axis_at + 2, pad_short=True)
+    data_rows = _check_width(data_rows, width, name, axis_at + 2)
     cols = np.array(columns, dtype=int)
     header_names = [f"{lab}_{a}" for lab in labels for a in "xyz"]
     values = parse_numbers([[r[k] for k in cols.reshape(-1)] for r in data_rows], name, axis_at + 2, header_names)
