@@ -142,6 +142,20 @@ def test_tsv_to_c3d_to_tsv_keeps_every_observed_sample(coda, tmp_path):
     assert read(back).labels == labels and read(back).rate == 200
 
 
+def test_tsv_rewrite_keeps_the_header_and_types_filled_markers_mixed(coda, tmp_path):
+    positions, labels = coda
+    src = tmp_path / "take.tsv"
+    src.write_text(qtm_text(positions, labels, rate=200, file_version=True, events=[("Start", 10)]))
+    result = CliRunner().invoke(cli, ["fill", str(src), str(tmp_path / "out.tsv"), "--method", "linear"])
+    assert result.exit_code == 0, result.output
+    head = (tmp_path / "out.tsv").read_text().splitlines()[:14]
+    assert head[0] == "FILE_VERSION\t2.0.0" and "NO_OF_CAMERAS\t10" in head and "EVENT\tStart\t10\t0.100" in head
+    assert "TIME_STAMP\t2026-01-19, 10:19:43.755\t2063631.96175450" in head
+    types = next(line for line in head if line.startswith("TRAJECTORY_TYPES")).split("\t")[1:]
+    had_gaps = np.isnan(positions).any(axis=2).any(axis=0)
+    assert types == ["Mixed" if gap else "Measured" for gap in had_gaps] and had_gaps.any()
+
+
 def test_qtm_take_2000_frames_15_markers_reads_and_fills_to_c3d(coda, tmp_path):
     """The issue's hidden-file shape: 2,000 frames, 15 markers, 100 Hz (a real clip run forth and back)."""
     positions, labels = coda

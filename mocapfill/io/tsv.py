@@ -56,10 +56,12 @@ _ORDER = ("FILE_VERSION", "NO_OF_FRAMES", "NO_OF_CAMERAS", "NO_OF_MARKERS", "FRE
 
 @dataclass
 class TSVExtra:
-    """What a TSV rewrite keeps from the file read: the header lines as ``(key, fields)`` and the labels."""
+    """What a TSV rewrite keeps from the file read: the header lines as ``(key, fields)``, the labels and the
+    missing-sample mask ``(n_frames, n_markers)`` (a marker whose gaps were filled is then typed ``Mixed``)."""
 
     header: list[tuple[str, list[str]]] = field(default_factory=list)
     labels: list[str] = field(default_factory=list)
+    missing: np.ndarray | None = None
 
 
 def looks_like_tsv(head: str) -> bool:
@@ -121,7 +123,7 @@ def read_tsv(text: str, name: str) -> MarkerData:
         columns = [c.strip() for c in rows[0]]
         rows, first_line = rows[1:], first_line + 1
     keep = [(i, r) for i, r in enumerate(rows) if any(c.strip() for c in r)]
-    xyz, frame_col, time_col = _layout(columns, raw_labels, keep[0][1] if keep else None, name)
+    xyz, frame_col = _layout(columns, raw_labels, keep[0][1] if keep else None, name)
     width = max(xyz.max() + 1, frame_col + 1 if frame_col is not None else 0) if xyz.size else 0
     cells = []
     for i, r in keep:
@@ -152,7 +154,7 @@ def read_tsv(text: str, name: str) -> MarkerData:
         if n_declared > len(cells):
             warnings.warn(f"{name}: header says {n_declared} frames, the file holds {len(cells)} (truncated?)",
                           DataWarning, stacklevel=3)
-    extra = TSVExtra([(k, v) for k, v in header], list(labels))
+    extra = TSVExtra([(k, v) for k, v in header], list(labels), missing.copy())
     return MarkerData(positions, labels, rate, "mm", first_frame, "tsv", extra, name, notes)
 
 
@@ -177,29 +179,28 @@ def _rate(values, name: str) -> float:
 
 
 def _layout(columns: list[str] | None, labels: list[str], first_row: list[str] | None, name: str):
-    """Column indices ``(n_markers, 3)`` of the coordinates, and of the frame and time columns (or None)."""
+    """Column indices ``(n_markers, 3)`` of the coordinates, and of the frame column (or None)."""
     n = len(labels)
     if columns is not None:
         index = {}
         for j, c in enumerate(columns):
             index.setdefault(c, j)
         frame_col = index.get("Frame")
-        time_col = index.get("Time")
         xyz = []
         for lab in labels:
             cols = [index.get(f"{lab} {a}") for a in "XYZ"]
             if None in cols:
                 raise FormatError(f"{name}: no '{lab} X/Y/Z' columns for marker {lab!r} in the column-name row")
             xyz.append(cols)
-        return np.array(xyz, dtype=int).reshape(n, 3), frame_col, time_col
+        return np.array(xyz, dtype=int).reshape(n, 3), frame_col
     # No column names: data only, with or without the frame and time columns.
     width = len(first_row) if first_row is not None else 3 * n
     while first_row is not None and width > 0 and not first_row[width - 1].strip():
         width -= 1
     if width == 3 * n + 2 or first_row is None:
-        return np.arange(2, 3 * n + 2).reshape(n, 3), 0, 1
+        return np.arange(2, 3 * n + 2).reshape(n, 3), 0
     if width == 3 * n:
-        return np.arange(3 * n).reshape(n, 3), None, None
+        return np.arange(3 * n).reshape(n, 3), None
     raise FormatError(f"{name}: {width} data columns do not fit {n} markers (expected {3 * n} or {3 * n + 2})")
 
 
@@ -228,7 +229,10 @@ def tsv_text(data: MarkerData, name: str = "<tsv>") -> str:
     if source is not None:
         original = dict(source.header).get("TRAJECTORY_TYPES")
         if original and len(original) >= len(labels):
-            types = original[:len(labels)]
+            types = list(original[:len(labels)])
+        if source.missing is not None and source.missing.shape == data.missing.shape:
+            filled = (source.missing & ~data.missing).any(axis=0)
+            types = ["Mixed" if f and t == "Measured" else t for t, f in zip(types, filled)]
     values = {
         "NO_OF_FRAMES": [str(data.n_frames)], "NO_OF_CAMERAS": kept.get("NO_OF_CAMERAS", ["0"]),
         "NO_OF_MARKERS": [str(data.n_markers)], "FREQUENCY": [_rate_text(data.rate)],
