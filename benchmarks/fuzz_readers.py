@@ -7,9 +7,9 @@ our own writers (plain CSV, and QTM TSV unless a real TSV is committed).
 
 Each case (case ``i`` of seed ``--seed`` is always the same bytes) takes one seed file and applies one to three
 mutations: bit flips, truncation, byte splices (a chunk copied over another place, inserted, or deleted), random
-bytes inserted, value edits (text: numbers anywhere replaced by 0, -1, a huge value, ``nan``, ``inf``, garbage or nothing; C3D:
-data words set to NaN / inf / huge float32) and header edits (text: a number in the first lines replaced by 0, -1, a huge value, ``nan``,
-garbage or nothing, a line deleted or duplicated, a stray carriage return / quote / tab / NUL; C3D: a 16-bit
+bytes inserted, value edits (text: numbers anywhere replaced by 0, -1, a huge value, ``nan``, ``inf``, garbage or
+nothing; C3D: data words set to NaN / inf / huge float32) and header edits (text: a number in the first lines
+replaced the same way, a line deleted or duplicated, a stray carriage return / quote / tab / NUL; C3D: a 16-bit
 word of the header or parameter section set to an extreme value).  The result is read (half the cases with the
 seed's format given, half sniffed from the content), filled with ``linear`` and written to memory in every
 writable format.
@@ -258,17 +258,22 @@ class Worker:
     def run(self, index: int, timeout: float, startup: float = 60.0) -> tuple[str, str, float]:
         start = time.perf_counter()
         self.tasks.put(index)
-        deadline = timeout + (startup if not getattr(self, "_warm", False) else 0.0)
-        try:
-            got, outcome, detail = self.results.get(timeout=deadline)
-        except queue.Empty:
-            self.proc.kill()
-            self.proc.join()
-            self._start()
-            self._warm = False
-            return "hang", f"over {timeout:g} s", time.perf_counter() - start
-        if not self.proc.is_alive() and outcome != "crash":
-            outcome = "crash"
+        deadline = start + timeout + (startup if not getattr(self, "_warm", False) else 0.0)
+        while True:
+            try:
+                got, outcome, detail = self.results.get(timeout=0.2)
+                break
+            except queue.Empty:
+                died = not self.proc.is_alive()
+                if died or time.perf_counter() > deadline:
+                    # a worker that died (segfault, os._exit) crashed; one still running hangs
+                    self.proc.kill()
+                    self.proc.join()
+                    outcome = "crash" if died else "hang"
+                    detail = f"worker died (exit code {self.proc.exitcode})" if died else f"over {timeout:g} s"
+                    self._start()
+                    self._warm = False
+                    return outcome, detail, time.perf_counter() - start
         self._warm = True
         return outcome, detail, time.perf_counter() - start
 

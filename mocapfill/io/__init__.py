@@ -4,10 +4,10 @@ module per format.
 - :func:`read` turns a file (or ``"-"`` = stdin, or an open binary stream) into one :class:`MarkerData`.
 - :func:`write` writes one back, atomically (temporary file + rename, see :mod:`mocapfill.io.atomic`).
 
-The format comes from ``format=`` when given, else from the content where it carries a signature (C3D
-parameter-block byte, TRC ``PathFileType``, QTM ``NO_OF_FRAMES``, Motive ``Format Version,``: a Motive export saved
-as ``.csv`` is read as Motive), else from the file extension; on stdin without a format the content is sniffed
-(CSV when nothing matches).  Writing to stdout without a format uses the format the data was read from (our plain
+The format comes from ``format=`` when given; else a file's extension, refined by its content among the text formats
+(TRC ``PathFileType``, QTM ``NO_OF_FRAMES``, Motive ``Format Version,``: a Motive export saved as ``.csv`` is read as
+Motive) and replaced by it when the extension is unknown; on stdin and streams the content alone (C3D
+parameter-block byte or the text signatures; CSV when nothing matches).  Writing to stdout without a format uses the format the data was read from (our plain
 CSV for formats we only read).
 """
 
@@ -78,6 +78,22 @@ def sniff_format(raw: bytes) -> str | None:
     return None
 
 
+def _content_or_extension(raw: bytes, name: str, stream: bool) -> str:
+    """The format of ``raw``: streams by content alone (CSV when nothing matches); files by extension, refined by the
+    content among the text formats (a Motive export saved as .csv, a TSV saved as .txt), by content alone when the
+    extension is unknown.  A binary file with a text extension stays with its extension (and is reported as binary)."""
+    sniffed = sniff_format(raw)
+    if stream:
+        return sniffed or "csv"
+    suffix = Path(os.fspath(name)).suffix.lower()
+    by_extension = _EXTENSIONS.get(suffix)
+    if by_extension is None:
+        return sniffed or detect_format(name)
+    if sniffed is not None and sniffed != "c3d" and by_extension != "c3d":
+        return sniffed
+    return by_extension
+
+
 def _read_bytes(path_or_stream, name: str) -> bytes:
     if is_std_stream(path_or_stream):
         return sys.stdin.buffer.read()
@@ -128,7 +144,7 @@ def read(path_or_stream: PathOrStream, format: str | None = None, *, rate: float
         fmt = detect_format(name, format)
     raw = _read_bytes(path_or_stream, name)
     if format is None:
-        fmt = sniff_format(raw) or ("csv" if stream else detect_format(name))
+        fmt = _content_or_extension(raw, name, stream)
     if fmt == "c3d":
         from .c3d import read_c3d
         data = read_c3d(raw, name)
