@@ -7,8 +7,8 @@ module per format.
 The format comes from ``format=`` when given; else a file's extension, refined by its content among the text formats
 (TRC ``PathFileType``, QTM ``NO_OF_FRAMES``, Motive ``Format Version,``: a Motive export saved as ``.csv`` is read as
 Motive) and replaced by it when the extension is unknown; on stdin and streams the content alone (C3D
-parameter-block byte or the text signatures; CSV when nothing matches).  Writing to stdout without a format uses the format the data was read from (our plain
-CSV for formats we only read).
+parameter-block byte or the text signatures; CSV when nothing matches).  Writing to stdout without a format uses
+the format the data was read from (our plain CSV for formats we only read).
 """
 
 from __future__ import annotations

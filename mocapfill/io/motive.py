@@ -30,14 +30,9 @@ from ..markers import MarkerData
 from .csv import _check_width, _rate_from_times, csv_rows, parse_numbers
 from .labels import make_unique, normalise_units, unit_name
 
-__all__ = ["read_motive", "looks_like_motive"]
+__all__ = ["read_motive"]
 
 _ROW_NAMES = ("type", "name", "id", "parent")
-
-
-def looks_like_motive(head: str) -> bool:
-    """True when text starts like a Motive CSV export (``Format Version,...``)."""
-    return head.lstrip("\ufeff").lstrip().lower().startswith("format version,")
 
 
 def read_motive(text: str, name: str) -> MarkerData:

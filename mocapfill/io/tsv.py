@@ -70,7 +70,7 @@ def looks_like_tsv(head: str) -> bool:
     return first in ("NO_OF_FRAMES", "FILE_VERSION")
 
 
-def _header(lines: list[str], name: str) -> tuple[list[tuple[str, list[str]]], int]:
+def _header(lines: list[str]) -> tuple[list[tuple[str, list[str]]], int]:
     """The ``KEY<tab>values`` lines at the top and the index of the first line after them."""
     header: list[tuple[str, list[str]]] = []
     i = 0
@@ -91,7 +91,7 @@ def read_tsv(text: str, name: str) -> MarkerData:
     Raises FormatError naming the file for a TSV that is not QTM's 3-D export or is damaged.
     """
     lines = text.splitlines()
-    header, start = _header(lines, name)
+    header, start = _header(lines)
     if not header or not looks_like_tsv(lines[0] if lines else ""):
         raise FormatError(f"{name}: not a QTM TSV export (the first line should be 'NO_OF_FRAMES<tab>n'; "
                           "export with 'Include TSV header')")
