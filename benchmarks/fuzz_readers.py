@@ -228,8 +228,14 @@ def run_case(raw: bytes, fmt: str, give_format: bool) -> str:
 
 def _worker(seed: int, tasks, results) -> None:
     seeds = seed_files()
+    parent = os.getppid()
     while True:
-        index = tasks.get()
+        try:
+            index = tasks.get(timeout=1.0)
+        except queue.Empty:
+            if os.getppid() != parent:
+                return  # the driver was killed: do not linger
+            continue
         if index is None:
             return
         name, fmt, applied, raw, given = make_case(seeds, index, seed)

@@ -43,3 +43,16 @@ def test_header_only_files_write_in_every_format(fuzz):
     text = "NO_OF_FRAMES\t0\nNO_OF_MARKERS\t2\nFREQUENCY\t100\nMARKER_NAMES\tA\tB\n"
     assert module.run_case(text.encode(), "tsv", True) == "ok"
     assert module.run_case(b"frame,time,A_x,A_y,A_z\n", "csv", True) in ("ok", "rejected")
+
+
+def test_frame_numbers_and_rates_that_are_not_numbers_are_our_errors(fuzz, tmp_path):
+    """Found by fuzzing (seed 0, cases 2030 and 3864): ``first_frame=nan`` in our CSV comment line escaped as
+    ValueError; a rate of 1e308 Hz escaped from the C3D writer as OverflowError (float32 field)."""
+    module, _ = fuzz
+    body = "frame,time,A_x,A_y,A_z\n1,0.0,1,2,3\n2,0.01,1,2,3\n"
+    nan_frame = "# mocapfill csv: units=mm rate=100.0 first_frame=nan\n" + body
+    assert module.run_case(nan_frame.encode(), "csv", True) == "rejected"
+    huge_rate = "# mocapfill csv: units=mm rate=1e308 first_frame=1\n" + body
+    assert module.run_case(huge_rate.encode(), "csv", True) == "rejected"
+    for empty_first in ("frame,time,A_x,A_y,A_z\n,0.0,1,2,3\n", "PathFileType\t4\n"):
+        assert module.run_case(empty_first.encode(), None, False) in ("ok", "rejected")

@@ -37,7 +37,7 @@ from ..errors import DataWarning, FormatError
 from ..markers import MarkerData
 from .labels import make_unique, normalise_units, unit_name
 
-__all__ = ["read_csv", "csv_text", "csv_rows", "parse_numbers"]
+__all__ = ["read_csv", "csv_text", "csv_rows", "frame_number", "parse_numbers"]
 
 _AXIS = re.compile(r"^(?P<label>.*?)[ _\-.]?(?P<axis>[xyzXYZ])$")
 _FRAME_NAMES = {"frame", "frame#", "frames", "frame_number", "frame number"}
@@ -77,6 +77,17 @@ def parse_numbers(rows: list[list[str]], name: str, first_line: int, columns: li
                 raise FormatError(f"{name}: line {first_line + i}: {text[:30]!r} in column {col!r} is not a "
                                   "number") from None
     raise FormatError(f"{name}: content that is not numbers")  # pragma: no cover
+
+
+def frame_number(value, name: str, what: str = "first frame") -> int:
+    """An integer frame number from text or a parsed cell; FormatError naming the file when it is not one."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise FormatError(f"{name}: {what} {str(value)[:30]!r} is not a number") from None
+    if not np.isfinite(number) or abs(number) >= 2 ** 31:
+        raise FormatError(f"{name}: {what} {number:g} is not a frame number")
+    return int(number)
 
 
 def csv_rows(text: str, name: str) -> list[list[str]]:
@@ -236,9 +247,9 @@ def _read_wide(rows: list[list[str]], name: str) -> MarkerData:
 
     first_frame = 1
     if "first_frame" in meta:
-        first_frame = int(float(meta["first_frame"]))
+        first_frame = frame_number(meta["first_frame"], name)
     elif frame_col is not None and len(values):
-        first_frame = int(values[0, frame_col])
+        first_frame = frame_number(values[0, frame_col], name)
     if "units" in meta and unit_name(meta["units"]):
         units = unit_name(meta["units"])
     else:
@@ -284,7 +295,7 @@ def _read_vicon(rows: list[list[str]], name: str) -> MarkerData:
     labels, renamed = make_unique(labels)
     for old, new in renamed:
         notes.append(f"duplicate label {old!r} renamed {new!r}")
-    first_frame = int(values[0, 0]) if values.size else 1
+    first_frame = frame_number(values[0, 0], name) if values.size else 1
     return MarkerData(positions, labels, rate, units, first_frame, "vicon-csv", None, name, notes)
 
 

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..errors import FormatError
 from ..markers import MarkerData
-from .csv import _check_width, _rate_from_times, csv_rows, parse_numbers
+from .csv import _check_width, _rate_from_times, csv_rows, frame_number, parse_numbers
 from .labels import make_unique, normalise_units, unit_name
 
 __all__ = ["read_motive"]
@@ -90,9 +90,7 @@ def read_motive(text: str, name: str) -> MarkerData:
     clock = parse_numbers([r[:2] for r in data_rows], name, axis_at + 2, ["Frame", "Time"])
 
     rate = _rate(meta, clock[:, 1], name)
-    first_frame = 0
-    if len(clock) and np.isfinite(clock[0, 0]) and abs(clock[0, 0]) < 2 ** 31:
-        first_frame = int(clock[0, 0])
+    first_frame = frame_number(clock[0, 0], name) if len(clock) else 0
     units = unit_name(meta.get("Length Units", ""))
     if units is None:
         units, note = normalise_units(meta.get("Length Units", ""), positions)

@@ -40,7 +40,7 @@ import numpy as np
 from ..errors import DataWarning, FormatError
 from ..markers import MarkerData
 from ..units import length_factor
-from .csv import parse_numbers
+from .csv import frame_number, parse_numbers
 from .labels import make_unique
 
 __all__ = ["read_tsv", "tsv_text", "looks_like_tsv", "TSVExtra"]
@@ -146,8 +146,7 @@ def read_tsv(text: str, name: str) -> MarkerData:
     first_frame = 1
     if frame_col is not None and cells:
         frames = parse_numbers([[r[frame_col]] for r in cells[:1]], name, first_line, ["Frame"])
-        if np.isfinite(frames[0, 0]) and abs(frames[0, 0]) < 2 ** 31:
-            first_frame = int(frames[0, 0])
+        first_frame = frame_number(frames[0, 0], name)
     n_declared = _int(meta.get("NO_OF_FRAMES"))
     if n_declared is not None and n_declared != len(cells):
         notes.append(f"header says {n_declared} frames, the file holds {len(cells)}")
