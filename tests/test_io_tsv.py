@@ -1,9 +1,10 @@
 """Qualisys QTM TSV: the header (rate, labels, first frame), the ways QTM writes missing samples, variants of the
 layout, the writer, detection (extension, content, --input-format, stdin) and the TSV -> C3D -> TSV round trip.
 
-No QTM TSV export with a license allowing redistribution was found, so the files here are built at run time from a
-real Qualisys capture (``tests/data/Running_0002.c3d``) and a real Codamotion capture with real gaps, laid out as QTM
-lays out its export (header keys, column names, three decimals, ``0.000`` triplets for missing samples).
+The committed real export ``tests/data/qtm_JaneDoe_Dynamic_2.tsv`` (Qualisys' own PAF example, MIT) settles how QTM
+writes a missing sample: ``0.000 0.000 0.000`` (R_HEAD, its last 7 frames), while a single coordinate at 0.000 is a
+real value (L_FAX, frame 191).  Variants of the layout are built at run time from a real Codamotion capture with
+real gaps, laid out as QTM lays out its export.
 """
 
 from __future__ import annotations
@@ -44,6 +45,46 @@ def qtm_text(positions, labels, rate=100, first_frame=1, missing="zeros", column
             cells += [token] * 3 if np.isnan(p).any() else [f"{v:.3f}" for v in p]
         rows.append("\t".join(cells))
     return "\n".join(head + rows) + "\n"
+
+
+@pytest.fixture(scope="module")
+def qtm(test_data):
+    return test_data / "qtm_JaneDoe_Dynamic_2.tsv"
+
+
+def test_real_qtm_export(qtm):
+    data = read(qtm)
+    assert data.source_format == "tsv" and data.notes == []
+    assert (data.n_frames, data.n_markers, data.rate, data.units, data.first_frame) == (229, 53, 100, "mm", 1)
+    assert data.labels[:3] == ["L_HEAD", "R_HEAD", "SGL"]
+    head = data.labels.index("R_HEAD")
+    assert data.missing.sum() == 7 and data.missing[222:, head].all()  # frames 223-229 written as 0.000 triplets
+    fax = data.labels.index("L_FAX")
+    np.testing.assert_array_equal(data.positions[190, fax], [-719.005, 0.0, 460.595])  # one zero: observed
+    np.testing.assert_array_equal(data.positions[0, 0], [float(v) for v in qtm.read_text().splitlines()[11]
+                                                         .split("\t")[2:5]])
+
+
+def test_real_qtm_export_round_trips_through_tsv_and_c3d(qtm, tmp_path):
+    """TSV -> TSV and TSV -> C3D -> TSV give back every data row of QTM's file, character for character."""
+    original = [line for line in qtm.read_text().splitlines() if line[:1].isdigit()]
+    again = tmp_path / "again.tsv"
+    write(read(qtm), again)
+    assert [line for line in again.read_text().splitlines() if line[:1].isdigit()] == original
+    c3d, back = tmp_path / "take.c3d", tmp_path / "back.tsv"
+    write(read(qtm), c3d)
+    write(read(c3d), back)
+    assert [line for line in back.read_text().splitlines() if line[:1].isdigit()] == original
+    assert again.read_text().splitlines() == qtm.read_text().splitlines()  # header too: the same file back
+
+
+def test_real_qtm_export_fills_to_c3d(qtm, tmp_path):
+    result = CliRunner().invoke(cli, ["fill", str(qtm), str(tmp_path / "filled.c3d"), "--method", "linear"])
+    assert result.exit_code == 0, result.output
+    before, after = read(qtm), read(tmp_path / "filled.c3d")
+    assert not after.missing.any() and after.labels == before.labels and after.rate == 100
+    seen = ~before.missing
+    np.testing.assert_allclose(after.positions[seen], before.positions[seen], atol=1e-4)  # float32 C3D
 
 
 @pytest.fixture(scope="module")
@@ -110,7 +151,7 @@ def test_writer_is_qtm_layout_and_reads_back(test_data):
     assert [line.split("\t")[0] for line in lines[:12]] == [
         "NO_OF_FRAMES", "NO_OF_CAMERAS", "NO_OF_MARKERS", "FREQUENCY", "NO_OF_ANALOG", "ANALOG_FREQUENCY",
         "DESCRIPTION", "TIME_STAMP", "DATA_INCLUDED", "MARKER_NAMES", "TRAJECTORY_TYPES", "Frame"]
-    assert lines[3] == "FREQUENCY\t200" and lines[12].startswith(f"{data.first_frame}\t0.00000\t")
+    assert lines[3] == "FREQUENCY\t200" and lines[12].startswith(f"{data.first_frame}\t2.21000\t")  # QTM: time from frame 1
     back = read(io.BytesIO(text.encode()), format="tsv")
     assert back.labels == data.labels and back.rate == data.rate and back.first_frame == data.first_frame
     np.testing.assert_array_equal(back.missing, data.missing)

@@ -24,9 +24,10 @@ Layout (QTM's "Motion data (.tsv)", 3D)::
   column's first value (QTM counts from 1).
 - A missing sample is written by QTM as ``0.000 0.000 0.000``; empty cells and ``NaN`` are read as missing too.
   A sample at exactly (0, 0, 0) is therefore always missing in this format (the writer does the same).
-- The writer emits the same header keys (those of the file the data was read from, when it was a TSV with the same
-  markers), coordinates in millimetres with three decimals (QTM's precision; data in other units are converted, as
-  the format has no unit field) and times with five decimals.  2-D and 6DOF TSV exports are refused with a message.
+- The writer emits QTM's header keys (those of the file the data was read from, when it was a TSV with the same
+  markers: a rewrite of QTM's file gives back its lines character for character, line ends aside), coordinates in
+  millimetres with three decimals (QTM's precision; data in other units are converted, as the format has no unit
+  field), times with five decimals counted from frame 1, ``\n`` line ends.  2-D and 6DOF TSV exports are refused with a message.
 """
 
 from __future__ import annotations
@@ -241,17 +242,21 @@ def tsv_text(data: MarkerData, name: str = "<tsv>") -> str:
     }
     if "FILE_VERSION" in kept:
         values["FILE_VERSION"] = kept["FILE_VERSION"]
+    if source is not None and "TRAJECTORY_TYPES" not in dict(source.header):
+        del values["TRAJECTORY_TYPES"]  # an older QTM's layout stays that layout
     out = []
     for key in _ORDER:
         if key == "EVENT":
             out.extend("\t".join(["EVENT"] + ev) for ev in events)
         elif key in values:
             out.append("\t".join([key] + list(values[key])))
-    out.append("\t".join(["Frame", "Time"] + [f"{lab} {a}" for lab in labels for a in "XYZ"]))
+    out.append("\t".join(["Frame", "Time"] + [f"{lab} {a}" for lab in labels for a in "XYZ"]) + "\t")  # as QTM
     factor = length_factor(data.units, "mm")
     flat = (data.positions * factor).reshape(data.n_frames, 3 * data.n_markers)
     flat = np.where(np.isnan(flat), 0.0, flat)
-    times = data.times if np.isfinite(data.rate) and data.rate > 0 else np.zeros(data.n_frames)
+    # QTM's Time counts from frame 1 of the capture (a file trimmed to start at frame 12 starts at 0.11 s at 100 Hz)
+    start = max(int(data.first_frame) - 1, 0)
+    times = (start + np.arange(data.n_frames)) / data.rate if data.rate > 0 else np.zeros(data.n_frames)
     body = [f"{data.first_frame + t}\t{times[t]:.5f}\t" + "\t".join(f"{v:.3f}" for v in flat[t])
             for t in range(data.n_frames)]
     return "\n".join(out + body) + "\n"
