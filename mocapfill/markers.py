@@ -98,3 +98,39 @@ class MarkerData:
         if positions.shape != self.positions.shape:
             raise MocapfillError(f"new positions have shape {positions.shape}, expected {self.positions.shape}")
         return dataclasses.replace(self, positions=positions, notes=list(self.notes))
+
+    # Interop (optional libraries, imported only when called: see mocapfill.interop) ---------------------------
+
+    def to_dataframe(self):
+        """pandas DataFrame: one row per frame (index = frame numbers), ``(marker, axis)`` columns, ``attrs`` with
+        rate, units, first_frame."""
+        from .interop import to_dataframe
+        return to_dataframe(self)
+
+    @classmethod
+    def from_dataframe(cls, df, *, rate=None, units=None, first_frame=None) -> "MarkerData":
+        """MarkerData from a ``(marker, axis)`` DataFrame (rate / units / first frame from ``df.attrs`` or given)."""
+        from .interop import from_dataframe
+        return from_dataframe(df, rate=rate, units=units, first_frame=first_frame)
+
+    def to_xarray(self):
+        """xarray DataArray in pyomeca's ``Markers`` layout: dims (axis: x, y, z, ones; channel; time)."""
+        from .interop import to_xarray
+        return to_xarray(self)
+
+    @classmethod
+    def from_xarray(cls, array, *, rate=None, units=None, first_frame=None) -> "MarkerData":
+        """MarkerData from a pyomeca-style ``Markers`` DataArray (axis, channel, time)."""
+        from .interop import from_xarray
+        return from_xarray(array, rate=rate, units=units, first_frame=first_frame)
+
+    def to_timeseries(self):
+        """kineticstoolkit TimeSeries: ``data[label]`` of shape (n_frames, 4), homogeneous coordinates."""
+        from .interop import to_timeseries
+        return to_timeseries(self)
+
+    @classmethod
+    def from_timeseries(cls, ts, *, rate=None, units=None, first_frame=None) -> "MarkerData":
+        """MarkerData from a kineticstoolkit TimeSeries of markers."""
+        from .interop import from_timeseries
+        return from_timeseries(ts, rate=rate, units=units, first_frame=first_frame)

@@ -39,8 +39,8 @@ class _Group(click.Group):
 def cli() -> None:
     """Repair optical motion-capture marker data.
 
-    Read C3D, CSV (plain or Vicon) and TRC; fill gaps with bone-length-aware methods; reject swapped or ghost
-    markers; score methods on your own data.  "-" as a path means stdin / stdout.
+    Read C3D, CSV (plain, Vicon or Motive), TRC and QTM TSV; fill gaps with bone-length-aware methods; reject
+    swapped or ghost markers; score methods on your own data.  "-" as a path means stdin / stdout.
     """
 
 

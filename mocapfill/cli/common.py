@@ -13,7 +13,10 @@ from rich.console import Console
 
 from ..errors import ConvergenceWarning, DataWarning, MethodError
 
-FORMATS = ("c3d", "csv", "trc")
+from ..io import READ_FORMATS, WRITE_FORMATS
+
+#: output formats (``--format``); what ``--input-format`` accepts is ``READ_FORMATS``.
+FORMATS = WRITE_FORMATS
 
 
 def quiet_option(func: Callable) -> Callable:
@@ -40,7 +43,7 @@ def input_options(func: Callable) -> Callable:
                            help="Use --rate even where the file states another rate.")(wrapper)
     wrapper = click.option("--rate", type=click.FloatRange(min=0, min_open=True), default=None, metavar="HZ",
                            help="Frame rate for a file that carries none (a bare CSV).")(wrapper)
-    wrapper = click.option("--input-format", type=click.Choice(FORMATS + ("vicon-csv",)), default=None,
+    wrapper = click.option("--input-format", type=click.Choice(READ_FORMATS), default=None,
                            help="Format of the input (default: from its extension; needed for stdin).")(wrapper)
     return wrapper
 

@@ -1,11 +1,14 @@
-"""Marker I/O: C3D, CSV (plain wide, Vicon Nexus, header-only wide) and TRC, one module per format.
+"""Marker I/O: C3D, CSV (plain wide, Vicon Nexus, header-only wide), TRC, Qualisys TSV and OptiTrack Motive CSV, one
+module per format.
 
 - :func:`read` turns a file (or ``"-"`` = stdin, or an open binary stream) into one :class:`MarkerData`.
 - :func:`write` writes one back, atomically (temporary file + rename, see :mod:`mocapfill.io.atomic`).
 
-The format comes from ``format=`` when given, else from the file extension; on stdin without a format the content
-is sniffed (C3D parameter-block signature, TRC ``PathFileType`` header, else CSV).  Writing to stdout without a
-format uses the format the data was read from.
+The format comes from ``format=`` when given; else a file's extension, refined by its content among the text formats
+(TRC ``PathFileType``, QTM ``NO_OF_FRAMES``, Motive ``Format Version,``: a Motive export saved as ``.csv`` is read as
+Motive) and replaced by it when the extension is unknown; on stdin and streams the content alone (C3D
+parameter-block byte or the text signatures; CSV when nothing matches).  Writing to stdout without a format uses
+the format the data was read from (our plain CSV for formats we only read).
 """
 
 from __future__ import annotations
@@ -21,16 +24,18 @@ from ..errors import FormatError, InputError
 from ..markers import MarkerData
 from .atomic import atomic_write, check_output_path, is_std_stream
 
-__all__ = ["read", "write", "atomic_write", "check_output_path", "detect_format", "READ_FORMATS",
+__all__ = ["read", "write", "atomic_write", "check_output_path", "detect_format", "sniff_format", "READ_FORMATS",
            "WRITE_FORMATS"]
 
 PathOrStream = Union[str, os.PathLike, BinaryIO]
 
 #: formats :func:`read` accepts ("csv" auto-detects plain, Vicon and header-only wide layouts).
-READ_FORMATS = ("c3d", "csv", "vicon-csv", "trc")
+READ_FORMATS = ("c3d", "csv", "vicon-csv", "trc", "tsv", "motive-csv")
 #: formats :func:`write` produces.
-WRITE_FORMATS = ("c3d", "csv", "trc")
-_EXTENSIONS = {".c3d": "c3d", ".csv": "csv", ".trc": "trc"}
+WRITE_FORMATS = ("c3d", "csv", "trc", "tsv")
+_EXTENSIONS = {".c3d": "c3d", ".csv": "csv", ".trc": "trc", ".tsv": "tsv"}
+#: what a format read but not written is written back as (to stdout without a format).
+_WRITTEN_AS = {"vicon-csv": "csv", "motive-csv": "csv"}
 
 
 def _name_of(path_or_stream) -> str:
@@ -54,16 +59,39 @@ def detect_format(path, format: str | None = None) -> str:
         return _EXTENSIONS[suffix]
     except KeyError:
         what = f"unknown file extension {suffix!r}" if suffix else "no file extension"
-        raise FormatError(f"{path}: {what}; expected .c3d, .csv or .trc (or give the format explicitly)") from None
+        raise FormatError(f"{path}: {what}; expected .c3d, .csv, .trc or .tsv (or give the format explicitly)"
+                          ) from None
 
 
-def _sniff(raw: bytes) -> str:
-    """Guess the format of content read from a stream without a name."""
-    if len(raw) >= 512 and raw[1] == 0x50:
+def sniff_format(raw: bytes) -> str | None:
+    """The format content announces by its signature, or None (plain CSV has none)."""
+    if len(raw) >= 512 and raw[1] == 0x50 and 1 <= raw[0] < 32:  # byte 0: a block number, never text
         return "c3d"
-    if raw[:64].lstrip().lower().startswith(b"pathfiletype"):
+    head = raw[:64].lstrip(b"\xef\xbb\xbf \t\r\n")
+    lower = head.lower()
+    if lower.startswith(b"pathfiletype"):
         return "trc"
-    return "csv"
+    if head.startswith((b"NO_OF_FRAMES", b"FILE_VERSION")):
+        return "tsv"
+    if lower.startswith(b"format version,"):
+        return "motive-csv"
+    return None
+
+
+def _content_or_extension(raw: bytes, name: str, stream: bool) -> str:
+    """The format of ``raw``: streams by content alone (CSV when nothing matches); files by extension, refined by the
+    content among the text formats (a Motive export saved as .csv, a TSV saved as .txt), by content alone when the
+    extension is unknown.  A binary file with a text extension stays with its extension (and is reported as binary)."""
+    sniffed = sniff_format(raw)
+    if stream:
+        return sniffed or "csv"
+    suffix = Path(os.fspath(name)).suffix.lower()
+    by_extension = _EXTENSIONS.get(suffix)
+    if by_extension is None:
+        return sniffed or detect_format(name)
+    if sniffed is not None and sniffed != "c3d" and by_extension != "c3d":
+        return sniffed
+    return by_extension
 
 
 def _read_bytes(path_or_stream, name: str) -> bytes:
@@ -91,8 +119,8 @@ def read(path_or_stream: PathOrStream, format: str | None = None, *, rate: float
     ----------
     path_or_stream : str, os.PathLike or binary file object
         The input; ``"-"`` reads stdin (into memory first: the C3D reader seeks).
-    format : {"c3d", "csv", "vicon-csv", "trc"} or None
-        Overrides the extension; required for a stream whose content cannot be sniffed.
+    format : {"c3d", "csv", "vicon-csv", "trc", "tsv", "motive-csv"} or None
+        Overrides the content and the extension; a stream whose content has no signature is read as CSV.
     rate : float or None
         Frame rate in Hz for a file that carries none (a bare CSV, the BoLeRO authors' CSV).  For a file that has
         its own rate it must agree with it (to 1e-6 relative) unless ``override_rate`` says to replace the file's.
@@ -112,16 +140,23 @@ def read(path_or_stream: PathOrStream, format: str | None = None, *, rate: float
     name = _name_of(path_or_stream)
     rate = _check_rate(rate, name)
     stream = is_std_stream(path_or_stream) or not isinstance(path_or_stream, (str, os.PathLike))
-    fmt = detect_format(name, format) if (format is not None or not stream) else None
+    if format is not None:
+        fmt = detect_format(name, format)
     raw = _read_bytes(path_or_stream, name)
-    if fmt is None:
-        fmt = _sniff(raw)
+    if format is None:
+        fmt = _content_or_extension(raw, name, stream)
     if fmt == "c3d":
         from .c3d import read_c3d
         data = read_c3d(raw, name)
     elif fmt in ("csv", "vicon-csv"):
         from .csv import read_csv
         data = read_csv(_decode(raw, name), name, layout="vicon" if fmt == "vicon-csv" else None)
+    elif fmt == "tsv":
+        from .tsv import read_tsv
+        data = read_tsv(_decode(raw, name), name)
+    elif fmt == "motive-csv":
+        from .motive import read_motive
+        data = read_motive(_decode(raw, name), name)
     else:
         from .trc import read_trc
         data = read_trc(_decode(raw, name), name)
@@ -182,7 +217,7 @@ def write(data: MarkerData, path_or_stream: PathOrStream, format: str | None = N
         every parameter, analog channel, event and model output of the original (observed samples keep their
         residuals, newly filled samples get residual 0, NaN samples residual -1).
     path_or_stream : str, os.PathLike or binary file object
-    format : {"c3d", "csv", "trc"} or None
+    format : {"c3d", "csv", "trc", "tsv"} or None
         Overrides the extension; for ``"-"`` / streams the default is the format the data was read from.
 
     Raises
@@ -195,9 +230,9 @@ def write(data: MarkerData, path_or_stream: PathOrStream, format: str | None = N
     if format is not None or not stream:
         fmt = detect_format(name, format)
     else:
-        fmt = {"vicon-csv": "csv"}.get(data.source_format or "", data.source_format) or "csv"
+        fmt = _WRITTEN_AS.get(data.source_format or "", data.source_format) or "csv"
     if fmt == "vicon-csv":
-        fmt = "csv"
+        fmt = "csv"  # "the CSV layout" when asked to write what was read
     if fmt not in WRITE_FORMATS:
         raise FormatError(f"{name}: cannot write format {fmt!r} (expected one of {', '.join(WRITE_FORMATS)})")
     if not stream:
@@ -208,6 +243,9 @@ def write(data: MarkerData, path_or_stream: PathOrStream, format: str | None = N
     elif fmt == "csv":
         from .csv import csv_text
         payload = csv_text(data).encode("utf-8")
+    elif fmt == "tsv":
+        from .tsv import tsv_text
+        payload = tsv_text(data, name).encode("utf-8")
     else:
         from .trc import trc_text
         payload = trc_text(data, name).encode("utf-8")

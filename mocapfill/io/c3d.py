@@ -223,6 +223,10 @@ def _fresh(data: MarkerData, name: str) -> bytes:
     n_frames, n_markers = data.n_frames, data.n_markers
     first = max(int(data.first_frame), 1)
     last = first + n_frames - 1
+    if abs(data.rate) > 3.4e38:  # also inf; 0 and NaN pack (and read back as "no rate")
+        raise FormatError(f"{name}: frame rate {data.rate:g} Hz cannot be stored in a C3D (a 32-bit float)")
+    if n_markers > 65535:
+        raise FormatError(f"{name}: {n_markers} markers are more than the 65535 a C3D can hold")
     for label in data.labels:
         if len(label.encode("latin-1", "replace")) > 255:
             raise FormatError(f"{name}: label {label[:20]!r}... is longer than the 255 characters C3D allows")

@@ -37,7 +37,7 @@ from ..errors import DataWarning, FormatError
 from ..markers import MarkerData
 from .labels import make_unique, normalise_units, unit_name
 
-__all__ = ["read_csv", "csv_text", "parse_numbers"]
+__all__ = ["read_csv", "csv_text", "csv_rows", "frame_number", "parse_numbers"]
 
 _AXIS = re.compile(r"^(?P<label>.*?)[ _\-.]?(?P<axis>[xyzXYZ])$")
 _FRAME_NAMES = {"frame", "frame#", "frames", "frame_number", "frame number"}
@@ -79,8 +79,24 @@ def parse_numbers(rows: list[list[str]], name: str, first_line: int, columns: li
     raise FormatError(f"{name}: content that is not numbers")  # pragma: no cover
 
 
-def _rows(text: str) -> list[list[str]]:
-    return list(_csv.reader(io.StringIO(text)))
+def frame_number(value, name: str, what: str = "first frame") -> int:
+    """An integer frame number from text or a parsed cell; FormatError naming the file when it is not one."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise FormatError(f"{name}: {what} {str(value)[:30]!r} is not a number") from None
+    if not np.isfinite(number) or abs(number) >= 2 ** 31:
+        raise FormatError(f"{name}: {what} {number:g} is not a frame number")
+    return int(number)
+
+
+def csv_rows(text: str, name: str) -> list[list[str]]:
+    """All rows of CSV text.  A lone carriage return ends a line (old Mac files); anything else the ``csv`` module
+    rejects (an oversized field, ...) is a FormatError naming the file."""
+    try:
+        return list(_csv.reader(io.StringIO(text, newline="")))
+    except _csv.Error as exc:
+        raise FormatError(f"{name}: malformed CSV: {exc}") from None
 
 
 def _check_width(rows: list[list[str]], width: int, name: str, first_line: int, pad_short: bool = False
@@ -111,7 +127,7 @@ def _rate_from_times(times: np.ndarray, name: str) -> float:
 
 def _finish(values: np.ndarray, name: str) -> np.ndarray:
     """(n_rows, 3 * n_markers) values -> positions (n_rows, n_markers, 3) with whole samples NaN when any is."""
-    positions = values.reshape(values.shape[0], -1, 3).copy()
+    positions = values.reshape(values.shape[0], values.shape[1] // 3, 3).copy()
     missing = np.isnan(positions).any(axis=2)
     positions[missing] = np.nan
     if np.isinf(positions).any():
@@ -124,7 +140,7 @@ def read_csv(text: str, name: str, layout: str | None = None) -> MarkerData:
 
     Returns MarkerData with positions (n_frames, n_markers, 3), NaN = missing.
     """
-    rows = _rows(text)
+    rows = csv_rows(text, name)
     first = next((i for i, r in enumerate(rows) if any(c.strip() for c in r)), None)
     if first is None:
         raise FormatError(f"{name}: empty CSV file")
@@ -231,9 +247,9 @@ def _read_wide(rows: list[list[str]], name: str) -> MarkerData:
 
     first_frame = 1
     if "first_frame" in meta:
-        first_frame = int(float(meta["first_frame"]))
+        first_frame = frame_number(meta["first_frame"], name)
     elif frame_col is not None and len(values):
-        first_frame = int(values[0, frame_col])
+        first_frame = frame_number(values[0, frame_col], name)
     if "units" in meta and unit_name(meta["units"]):
         units = unit_name(meta["units"])
     else:
@@ -279,7 +295,7 @@ def _read_vicon(rows: list[list[str]], name: str) -> MarkerData:
     labels, renamed = make_unique(labels)
     for old, new in renamed:
         notes.append(f"duplicate label {old!r} renamed {new!r}")
-    first_frame = int(values[0, 0]) if values.size else 1
+    first_frame = frame_number(values[0, 0], name) if values.size else 1
     return MarkerData(positions, labels, rate, units, first_frame, "vicon-csv", None, name, notes)
 
 
@@ -294,7 +310,7 @@ def csv_text(data: MarkerData) -> str:
     out.write(f"# mocapfill csv: units={data.units} rate={float(data.rate)!r} first_frame={int(data.first_frame)}\n")
     writer = _csv.writer(out, lineterminator="\n")
     writer.writerow(["frame", "time"] + [f"{lab}_{a}" for lab in data.labels for a in "xyz"])
-    flat = data.positions.reshape(data.n_frames, -1)
+    flat = data.positions.reshape(data.n_frames, 3 * data.n_markers)
     times = data.times
     for t in range(data.n_frames):
         out.write(f"{data.first_frame + t},{float(times[t])!r},")

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import DataWarning, FormatError
 from ..markers import MarkerData
-from .csv import parse_numbers
+from .csv import frame_number, parse_numbers
 from .labels import make_unique, normalise_units
 
 __all__ = ["read_trc", "trc_text"]
@@ -105,14 +105,14 @@ def read_trc(text: str, name: str) -> MarkerData:
     units, note = normalise_units(meta.get("Units", ""), positions)
     if note:
         notes.append(note)
-    first_frame = int(table[0, 0]) if len(rows) and np.isfinite(table[0, 0]) else 1
+    first_frame = frame_number(table[0, 0], name) if len(rows) and np.isfinite(table[0, 0]) else 1
     return MarkerData(positions, labels, rate, units, first_frame, "trc", None, name, notes)
 
 
 def _int(text) -> int | None:
     try:
         return int(float(text))
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # "inf" overflows
         return None
 
 
@@ -135,7 +135,7 @@ def trc_text(data: MarkerData, name: str = "out.trc") -> str:
         "\t".join(["", ""] + [f"X{k}\tY{k}\tZ{k}" for k in range(1, m + 1)]),
         "",
     ]
-    flat = data.positions.reshape(n, -1).tolist()
+    flat = data.positions.reshape(n, 3 * m).tolist()
     times = data.times.tolist()
     for t in range(n):
         cells = ["" if v != v else repr(v) for v in flat[t]]
