@@ -278,11 +278,13 @@ STEP_RATIO = 2.0
 STEP_MARGIN = 1.0
 
 
-def _stepped_pieces(dev: np.ndarray, ok: np.ndarray, events: np.ndarray, longest: int) -> np.ndarray:
+def _stepped_pieces(dev: np.ndarray, ok: np.ndarray, events: np.ndarray, longest: int,
+                    displaced: np.ndarray | None = None) -> np.ndarray:
     """Displaced pieces of one marker's timeline that are bounded by a step on one side only.
 
     ``dev`` (n_frames, P_m): ``|D - median| / band`` of the marker's stiff pairs (NaN where unobserved); ``ok``
-    (n_frames,) bool: observed and not yet found; ``events`` (E,) int: steps between frames ``e`` and ``e + 1``.
+    (n_frames,) bool: observed and not yet found; ``events`` (E,) int: steps between frames ``e`` and ``e + 1``;
+    ``displaced`` (n_frames,) bool, optional: stretches already found displaced.
     The timeline splits into *pieces* at gaps and steps.  A piece of at most ``longest`` frames is displaced when,
     across one of its steps, the neighbouring piece lies much nearer the pair's usual distances: the piece's
     deviation (median over frames, then over pairs) exceeds ``STEP_RATIO`` times the neighbour's plus
@@ -309,6 +311,10 @@ def _stepped_pieces(dev: np.ndarray, ok: np.ndarray, events: np.ndarray, longest
         if seen.any():  # pairs whose partner is missing throughout the piece have no say
             per_pair = np.nanmedian(dev[s:t][:, seen.any(axis=0)], axis=0)
             level[i] = np.median(per_pair)
+    # the marker's usual level: over all its pieces, weighted by length (most of a marker's samples are clean)
+    lengths = stops - starts
+    seen = np.isfinite(level)
+    usual = float(np.median(np.repeat(level[seen], lengths[seen]))) if seen.any() else np.nan
     for i, (s, t) in enumerate(zip(starts, stops)):
         if t - s > longest or not np.isfinite(level[i]):
             continue
@@ -317,6 +323,9 @@ def _stepped_pieces(dev: np.ndarray, ok: np.ndarray, events: np.ndarray, longest
             neighbours.append(level[i - 1])
         if i + 1 < len(starts) and cut[t] and starts[i + 1] == t:
             neighbours.append(level[i + 1])
+        # next to a stretch already found displaced (another offset, overlapping shifts): the usual level decides
+        if displaced is not None and ((s > 0 and displaced[s - 1]) or (t < n and displaced[t])):
+            neighbours.append(usual)
         refs = [q for q in neighbours if np.isfinite(q)]
         if refs and level[i] > STEP_RATIO * min(refs) + STEP_MARGIN:
             # frame by frame too: a piece that holds two missed spikes is not displaced between them
@@ -462,7 +471,7 @@ def _shifted_once(positions: np.ndarray, *, rate: float, max_run: float, units: 
         if one_sided:
             # stretches with a step at one end only (the other end is a gap, or another displaced stretch)
             dev = np.abs(_pair_dist(positions, mine) - centre[rows]) * w  # (n_frames, P_m), in bands
-            found[:, m] |= _stepped_pieces(dev, observed[:, m] & ~found[:, m], e, longest)
+            found[:, m] |= _stepped_pieces(dev, observed[:, m] & ~found[:, m], e, longest, found[:, m])
     return found & observed
 
 

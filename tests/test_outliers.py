@@ -188,3 +188,38 @@ def test_degenerate_inputs():
         reject_outliers(np.zeros((5, 3, 3)), units="ft")
     with pytest.raises(MocapfillError):
         reject_outliers(np.zeros((5, 3, 3)), delta=-1)
+
+
+def test_fill_reject_outliers_writes_refilled_samples_as_filled_in_a_c3d(test_data, tmp_path):
+    """A rejected and refilled sample gets residual 0 (filled) in the rewritten C3D, not its original residual."""
+    from click.testing import CliRunner
+
+    import mocapfill
+    from mocapfill.cli import cli
+    from mocapfill.io import c3dfile
+    from mocapfill.io.c3d import _decode_points
+
+    data = mocapfill.read(test_data / "ADemo1_rewrite_c3d_pc_float.c3d")  # real residuals (> 0)
+    marker = 5
+    frames = [f for f in (100, 250, 400) if not data.missing[f - 1:f + 2, marker].any()]
+    assert frames
+    corrupted = data.positions.copy()
+    corrupted[frames, marker] += [300.0, 0.0, 0.0]  # changed observed samples keep their residual word
+    source, out = tmp_path / "bad.c3d", tmp_path / "o.c3d"
+    mocapfill.write(data.with_positions(corrupted), source)
+
+    def residuals(path):
+        f = c3dfile.parse(path.read_bytes(), str(path))
+        extra = mocapfill.read(path).extra
+        return _decode_points(f, f.point_block()[:, extra.marker_points, :])[1]
+
+    before = residuals(source)
+    result = CliRunner().invoke(cli, ["fill", str(source), str(out), "-m", "linear", "--reject-outliers", "-q"])
+    assert result.exit_code == 0, result.output
+    after = residuals(out)
+    assert (before[frames, marker] > 0).all() and (after[frames, marker] == 0).all()
+    filled = mocapfill.read(out)
+    assert np.isfinite(filled.positions[frames, marker]).all()
+    # everything else the file had keeps its residual, unless rejected (then filled too: residual 0)
+    changed = after != before
+    assert (after[changed] == 0).all() and changed.sum() < 0.01 * changed.size

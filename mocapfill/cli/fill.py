@@ -170,6 +170,10 @@ def fill_command(input_path: str, output_path: str, method: str, hidden: int | N
             settings["smooth"] = {"window": smooth_window, "order": smooth_order}
 
         out_data = data.with_positions(positions)
+        if rejected is not None:  # a rejected sample filled again is written as filled, not with its old residual
+            from ..io.c3d import mark_refilled
+
+            out_data = mark_refilled(out_data, rejected)
         if force:
             # The writer refuses the path the data came from; --force says the user wants exactly that.
             out_data = dataclasses.replace(out_data, path=None)
