@@ -7,8 +7,8 @@ one window, and each window is a take of the length the fill was tuned on.
 
 How (:func:`fill_in_windows`):
 
-1. **Windows.**  ``ceil((n - overlap) / (window - overlap))`` windows of about ``window`` frames, spread evenly so
-   that neighbours share at least ``overlap`` frames.  Each inner edge then moves, by at most a quarter of the
+1. **Windows.**  ``ceil((n - overlap) / (window - overlap))`` windows of one length (at most ``window`` frames),
+   spread evenly so that neighbours share ``overlap`` frames.  Each inner edge then moves, by at most a quarter of the
    overlap, to the frame where the fewest markers are missing, so that few gaps are cut by an edge.
 2. **Fill** every window on its own with ``fill(positions[start:stop]) -> result`` (anything with ``positions``
    (n, n_markers, 3), optional ``std`` (n, n_markers) and ``info``, e.g. a :class:`FillResult`).
@@ -41,9 +41,10 @@ from ..errors import MethodError
 from ..gaps import runs
 from .base import FillResult, finish
 
-#: Defaults: windows of 5,000 frames (the length the default fill is measured on), 10 % overlap.
+#: Defaults: windows of at most 5,000 frames (the length the default fill is measured on), 400 shared (3.3 s at
+#: 120 Hz: longer than most gaps, so that one window holds each gap whole).
 DEFAULT_WINDOW = 5000
-DEFAULT_OVERLAP = 500
+DEFAULT_OVERLAP = 400
 #: Weight factor of a window on a gap it sees cut by its own edge.
 CUT_WEIGHT = 1e-12
 
@@ -52,9 +53,10 @@ def window_bounds(missing: np.ndarray, window: int = DEFAULT_WINDOW, overlap: in
                   ) -> list[tuple[int, int]]:
     """The windows ``[(start, stop), ...]`` of a take whose missing mask is ``missing`` (n_frames, n_markers) bool.
 
-    One window ``(0, n_frames)`` when the take fits in ``window`` frames.  Otherwise windows of about ``window``
-    frames, neighbours sharing at least ``overlap // 2`` frames (``overlap`` before the edges move), each inner edge
-    moved by at most ``overlap // 4`` to the frame with the fewest markers missing (nearest the nominal edge on ties).
+    One window ``(0, n_frames)`` when the take fits in ``window`` frames.  Otherwise the fewest windows of at most
+    ``window`` frames that share ``overlap`` frames with their neighbours, all of one length (so no more overlap
+    than asked), spread evenly; then each inner edge moves by at most ``overlap // 4`` to the frame with the fewest
+    markers missing (nearest the nominal edge on ties), so neighbours share at least ``overlap // 2`` frames.
     """
     missing = np.asarray(missing, dtype=bool)
     n = missing.shape[0]
@@ -65,7 +67,9 @@ def window_bounds(missing: np.ndarray, window: int = DEFAULT_WINDOW, overlap: in
     if n <= window:
         return [(0, n)]
     count = math.ceil((n - overlap) / (window - overlap))
-    starts = [round(k * (n - window) / (count - 1)) for k in range(count)]
+    # as short as the count allows (no more overlap than asked): the time is the fill's on `length` frames, x count
+    length = min(window, math.ceil((n + (count - 1) * overlap) / count))
+    starts = [round(k * (n - length) / (count - 1)) for k in range(count)]
     per_frame = missing.sum(axis=1)
     slack = overlap // 4
 
@@ -80,7 +84,7 @@ def window_bounds(missing: np.ndarray, window: int = DEFAULT_WINDOW, overlap: in
 
     bounds = []
     for k, s in enumerate(starts):
-        e = s + window
+        e = s + length
         if k > 0:  # the window's first frame should have every marker observed (context before each gap)
             s = best(s, s - slack, s + slack, lambda f: f)
         if k < count - 1:  # and its last frame too (context after each gap)
