@@ -107,6 +107,30 @@ def test_one_marker_held_300_mm_away_for_five_frames(cmu):
     assert not reject_outliers(corrupted, units=cmu.units, runs=False).rejected.any()
 
 
+@pytest.mark.parametrize("where", ["after a gap", "before a gap", "into another shift"])
+def test_a_stretch_with_one_step_only(cmu, where):
+    """A marker that comes back from a gap displaced (or is displaced until it vanishes, or moves from one offset to
+    another) steps only once: found by its step and by which side sits far from its partners' usual distances."""
+    corrupted = cmu.positions.copy()
+    m, shift = 12, np.array([250.0, -150.0, 100.0])
+    if where == "after a gap":
+        corrupted[280:300, m] = np.nan
+        displaced = slice(300, 330)
+    elif where == "before a gap":
+        corrupted[330:350, m] = np.nan
+        displaced = slice(300, 330)
+    else:  # two offsets back to back: 300-314 one way, 315-329 another, no way back between them
+        corrupted[300:315, m] += [0.0, 300.0, 0.0]
+        displaced = slice(300, 330)
+    corrupted[displaced.start + (15 if where == "into another shift" else 0):displaced.stop, m] += shift
+    result = reject_outliers(corrupted, units=cmu.units, rate=cmu.rate)
+    assert result.rejected[displaced, m].all()
+    assert result.rejected.sum() == 30  # nothing else
+    if where != "into another shift":
+        # without the one-step rule the stretch stays
+        assert not shifted_runs(corrupted, rate=cmu.rate, one_sided=False)[displaced, m].any()
+
+
 def test_stretch_length_is_in_seconds(cmu):
     # 85_02 resampled to 240 Hz (linear interpolation): a 0.45 s stretch is 108 frames, within max_run (0.5 s) at
     # the true rate but 0.9 s, out of reach, read at 120 Hz
