@@ -88,7 +88,8 @@ def detection(data, trials) -> dict:
             for start, length in runs(shifted[:, m]):
                 # split where the offset changes (overlapping stretches of one marker)
                 o = offsets[start:start + length, m]
-                cuts = [0] + [i for i in range(1, length) if np.abs(o[i] - o[i - 1]).max() > 0] + [length]
+                tol = 1e-6 * max(1.0, float(np.abs(o).max()))  # (x + offset) - x is the offset up to rounding
+                cuts = [0] + [i for i in range(1, length) if np.abs(o[i] - o[i - 1]).max() > tol] + [length]
                 for a, b in zip(cuts[:-1], cuts[1:]):
                     left = "shift" if a > 0 else _edge(m, start + a - 1, observed, shifted)
                     right = "shift" if b < length else _edge(m, start + b, observed, shifted)
