@@ -42,16 +42,18 @@ The reference
   Measured with ``python benchmarks/bench_distances.py --outliers 20 --outliers-only`` (20 seeds per corruption;
   "runs": 8 stretches of 2-30 frames at 120 Hz, one marker moved 5-50 cm throughout; "swaps": 8 stretches where two
   markers >= 5 cm apart exchange positions; "long": 1-60 frames).  CMU 85_02 (120 Hz): uncorrupted, nothing
-  rejected; single frames (the paper's corruption) precision >= 0.98 and recall >= 0.979 in every seed; runs
-  precision 1.000, recall median 1.000, min 0.860 (16 of 20 seeds >= 0.95 on both); swaps precision >= 0.941,
-  recall median 1.000, min 0.857 (17/20); long runs recall median 1.000, min 0.782 (16/20); ``mocapfill evaluate
-  --protocol random`` trials (many markers displaced at once, 0.05-0.5 s) shifted samples found median 0.867, min
-  0.736, precision >= 0.98 (without step 0: none found).  The misses are
-  stretches during the clip's acrobatics (frames 430-720), where the stiff partners' distances change by several
-  centimetres within the stretch, and overlapping swaps.  The "complete" tennis serve (50 Hz) loses 11 of its
-  42,588 samples uncorrupted: the racket arm at the serves, several inside vendor-interpolated stretches (equal
-  steps) that do break its bone lengths, and two head-marker samples; corrupted, precision over the other samples
-  >= 0.967 and recall median 1.000 (min 0.78-0.97 by corruption; random protocol median 0.865).  Give a clean
+  rejected; single frames (the paper's corruption) precision >= 0.98 and recall >= 0.98 in every seed; runs
+  precision 1.000, recall median 1.000, min 0.860 (16 of 20 seeds >= 0.95 on both); swaps precision >= 0.949,
+  recall median 1.000, min 0.916 (18/20); long runs recall median 1.000, min 0.782 (16/20); ``mocapfill evaluate
+  --protocol random`` trials (many markers displaced at once, 0.05-0.5 s, overlapping gaps and other shifts)
+  shifted samples found median 0.994, min 0.919, precision >= 0.98 (without step 0: none found; without its
+  one-step rule, 4.: median 0.867, min 0.736, and 4-9 % of the stretches that begin or end at a gap).  The misses
+  are stretches during the clip's acrobatics (frames 430-720), where the stiff partners' distances change by
+  several centimetres within the stretch, stretches whose partners are displaced at the same time, and overlapping
+  swaps.  The "complete" tennis serve (50 Hz) loses 11 of its 42,588 samples uncorrupted: the racket arm at the
+  serves, several inside vendor-interpolated stretches (equal steps) that do break its bone lengths, and two
+  head-marker samples; corrupted, precision over the other samples >= 0.967 and recall median 1.000 (min 0.78-0.97
+  by corruption; random protocol median 0.988).  Give a clean
   ``reference`` when the file may hold errors longer than ``max_run`` or when even these few clean extremes must
   stay.
 
@@ -379,8 +381,8 @@ def shifted_runs(positions: np.ndarray, *, rate: float, max_run: float = 0.5, un
        cut into pieces at its gaps and events; a piece of at most ``max_run`` seconds is displaced when, across one
        of its events, the neighbouring piece lies much nearer the usual distances of the stiff pairs (the side a
        step leads *away* from the body's geometry is the displaced one; :func:`_stepped_pieces`).  On the ``random``
-       protocol's 85_02 trials this took the stretches that begin or end at a gap from 4-9 % caught to 92 %, and
-       all shifted samples from median 0.867 to 0.99.
+       protocol's 85_02 trials this took the stretches that begin or end at a gap from 4-9 % caught to 92-95 %,
+       and all shifted samples from median 0.867 to 0.994 (``benchmarks/bench_corruption.py``).
 
     When many markers are displaced at once (``mocapfill evaluate --protocol random``), a marker's partners are
     displaced too and blur its steps: up to ``passes`` times (default 3), what was found is blanked out and the
