@@ -9,7 +9,7 @@ seed 0).  Each fill runs in its own subprocess, which reports its wall time and 
 - ``default``: the whole take with ``mocapfill.fill(data)``: whatever ``auto`` is in this checkout;
 - ``windows``: the whole take with ``mocapfill.methods.windows.fill_in_windows(positions, default fill)`` applied
   from the outside (windows of at most 5,000 frames, 400 shared), i.e. what ``auto`` gives once it delegates long
-  takes to the windows.
+  takes to the windows; ``windows-2jobs``: the same with two windows at a time in worker processes (``jobs=2``).
 
 Errors: the per-sample 3-D error over the hidden samples (mm), median and RMSE.  Targets of the issue: the default
 fill of the take in at most 60 s, at most 16x the time of one 5,000-frame part, peak memory at most 1.5 GB, and a
@@ -17,7 +17,7 @@ median error at most 1.5x the part's.
 
 Run from the repository root::
 
-    python benchmarks/bench_long_take.py [--frames 72000] [--part 5000] [--modes part,windows,default]
+    python benchmarks/bench_long_take.py [--frames 72000] [--part 5000] [--modes part,windows,windows-2jobs,default]
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ import subprocess  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
+from functools import partial  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -59,6 +60,16 @@ def build_take(frames: int, missing: float, seed: int):
     return truth, trial.hidden_mask(*take.shape[:2]) & ~np.isnan(take).any(axis=2)
 
 
+def fill_window(positions: np.ndarray, labels: list, rate: float, units: str):
+    """The default fill of one window (positions (n, n_markers, 3)) of the take: picklable, for worker processes."""
+    import mocapfill
+    from mocapfill.markers import MarkerData
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return mocapfill.fill(MarkerData(positions, labels, rate, units))
+
+
 def worker(mode: str, frames: int, part: int, missing: float, seed: int, window: int, overlap: int) -> dict:
     """One fill in this process; returns the figures as a dict."""
     import mocapfill
@@ -76,11 +87,11 @@ def worker(mode: str, frames: int, part: int, missing: float, seed: int, window:
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        if mode == "windows":
+        if mode in ("windows", "windows-2jobs"):
             # a window is the same capture (labels, rate, units) over fewer frames
-            result = fill_in_windows(corrupted, lambda p: mocapfill.fill(MarkerData(p, data.labels, data.rate,
-                                                                                    data.units)),
-                                     window=window, overlap=overlap)
+            result = fill_in_windows(corrupted, partial(fill_window, labels=data.labels, rate=data.rate,
+                                                        units=data.units),
+                                     window=window, overlap=overlap, jobs=2 if mode == "windows-2jobs" else 1)
         else:
             result = mocapfill.fill(data)
     seconds = time.perf_counter() - t0
@@ -88,6 +99,7 @@ def worker(mode: str, frames: int, part: int, missing: float, seed: int, window:
     return {"mode": mode, "frames": int(truth.n_frames), "markers": int(truth.n_markers),
             "missing": float(hidden.mean()), "seconds": seconds,
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "rss_before_mb": rss_before,
+            "worker_peak_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024,
             "median_mm": float(np.nanmedian(err)), "rmse_mm": float(np.sqrt(np.nanmean(err ** 2))),
             "unfilled": int(np.isnan(err).sum()), "windows": len(result.info.get("windows", [])) or 1}
 
@@ -100,7 +112,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--window", type=int, default=5_000)
     parser.add_argument("--overlap", type=int, default=400)
-    parser.add_argument("--modes", default="part,windows,default")
+    parser.add_argument("--modes", default="part,windows,windows-2jobs,default")
     parser.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
@@ -130,18 +142,21 @@ def main() -> None:
         print(f"{mode:>8}: {row['frames']:>6} frames x {row['markers']} markers, {row['missing']:.1%} hidden, "
               f"{row['windows']:>2} window(s): {row['seconds']:7.2f} s, peak RSS {row['peak_rss_mb']:6.0f} MB "
               f"(before the fill {row['rss_before_mb']:.0f} MB), median {row['median_mm']:.2f} mm, RMSE "
-              f"{row['rmse_mm']:.2f} mm, unfilled {row['unfilled']}", flush=True)
+              f"{row['rmse_mm']:.2f} mm, unfilled {row['unfilled']}"
+              + (f"; each of the 2 worker processes peaked at {row['worker_peak_mb']:.0f} MB"
+                 if mode == "windows-2jobs" else ""), flush=True)
     part = rows.get("part")
-    for mode in ("windows", "default"):
+    for mode in ("windows", "windows-2jobs", "default"):
         row = rows.get(mode)
         if not row or not part:
             continue
         ratio_t = row["seconds"] / part["seconds"]
         ratio_e = row["median_mm"] / part["median_mm"]
+        peak = row["peak_rss_mb"] + (2 * row["worker_peak_mb"] if mode == "windows-2jobs" else 0.0)
         ok = lambda b: "met" if b else "NOT met"  # noqa: E731
         print(f"# {mode}: time {row['seconds']:.1f} s <= 60 s {ok(row['seconds'] <= 60)}; {ratio_t:.1f}x the part "
-              f"<= 16x {ok(ratio_t <= 16)}; peak {row['peak_rss_mb']:.0f} MB <= 1536 MB "
-              f"{ok(row['peak_rss_mb'] <= 1536)}; median error {ratio_e:.2f}x the part's <= 1.5x {ok(ratio_e <= 1.5)}")
+              f"<= 16x {ok(ratio_t <= 16)}; peak {peak:.0f} MB (all processes) <= 1536 MB {ok(peak <= 1536)}; "
+              f"median error {ratio_e:.2f}x the part's <= 1.5x {ok(ratio_e <= 1.5)}")
 
 
 if __name__ == "__main__":

@@ -124,3 +124,10 @@ def test_short_take_is_one_call():
 
     out = fill_in_windows(pos, fill, window=100, overlap=20)
     assert calls == [(50, 4, 3)] and out.filled.sum() == 10
+
+
+def test_windows_in_worker_processes_give_the_same_fill(long_take):
+    pos = _with_gaps(long_take, 2)
+    serial = fill_in_windows(pos, fill_linear, window=1000, overlap=200)
+    parallel = fill_in_windows(pos, fill_linear, window=1000, overlap=200, jobs=2)
+    np.testing.assert_array_equal(parallel.positions, serial.positions)

@@ -119,8 +119,32 @@ def _cut_gaps(missing: np.ndarray, at_take_start: bool, at_take_end: bool) -> np
     return cut
 
 
+def _window_results(positions: np.ndarray, bounds: list[tuple[int, int]], fill: Callable, jobs: int):
+    """The fills of the windows, in order: here, or in ``jobs`` worker processes (at most ``jobs`` windows in
+    flight, so memory stays that of a few windows)."""
+    if jobs <= 1:
+        for start, stop in bounds:
+            yield fill(positions[start:stop])
+        return
+    import concurrent.futures as cf
+    import multiprocessing
+    from collections import deque
+
+    ctx = multiprocessing.get_context("spawn")  # nothing inherited from the caller (threads, BLAS state)
+    with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
+        todo = iter(bounds)
+        first = [next(todo) for _ in range(min(jobs, len(bounds)))]
+        pending = deque(pool.submit(fill, positions[a:b]) for a, b in first)
+        while pending:
+            result = pending.popleft().result()
+            following = next(todo, None)
+            if following is not None:
+                pending.append(pool.submit(fill, positions[following[0]:following[1]]))
+            yield result
+
+
 def fill_in_windows(positions: np.ndarray, fill: Callable[[np.ndarray], Any], *, window: int = DEFAULT_WINDOW,
-                    overlap: int = DEFAULT_OVERLAP) -> FillResult:
+                    overlap: int = DEFAULT_OVERLAP, jobs: int = 1) -> FillResult:
     """Fill ``positions`` (n_frames, n_markers, 3), NaN = missing, window by window with ``fill`` (see the module
     docstring).
 
@@ -134,6 +158,9 @@ def fill_in_windows(positions: np.ndarray, fill: Callable[[np.ndarray], Any], *,
     window, overlap : int
         Frames per window and shared by neighbours (``window >= 2 * overlap``, ``overlap >= 2``).  A take of at
         most ``window`` frames is filled in one call (its result passed through :func:`finish`).
+    jobs : int
+        Windows filled at once in worker processes (default 1: here, one after the other).  With ``jobs > 1``,
+        ``fill`` must be picklable (a module-level function or a :func:`functools.partial` of one, not a lambda).
 
     Returns
     -------
@@ -161,9 +188,8 @@ def fill_in_windows(positions: np.ndarray, fill: Callable[[np.ndarray], Any], *,
     # owner[g] of each gap of the take: (weight summed over the gap, window index), the heaviest window wins
     owner_weight = np.zeros((n, n_markers))
     owner = np.full((n, n_markers), -1, dtype=np.intp)
-    for k, (start, stop) in enumerate(bounds):
+    for k, ((start, stop), res) in enumerate(zip(bounds, _window_results(positions, bounds, fill, int(jobs)))):
         part = positions[start:stop]
-        res = fill(part)
         est = np.asarray(res.positions, dtype=np.float64)
         if est.shape != part.shape:
             raise MethodError(f"the fill returned shape {est.shape} for a window of shape {part.shape}")
