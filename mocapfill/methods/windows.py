@@ -185,7 +185,7 @@ def fill_in_windows(positions: np.ndarray, fill: Callable[[np.ndarray], Any], *,
     var_sum = np.zeros((n, n_markers))
     var_weight = np.zeros((n, n_markers))
     infos, n_iter, converged = [], 0, True
-    # owner[g] of each gap of the take: (weight summed over the gap, window index), the heaviest window wins
+    # per sample, the window with the most weight there: its entry describes the gap in the merged info
     owner_weight = np.zeros((n, n_markers))
     owner = np.full((n, n_markers), -1, dtype=np.intp)
     for k, ((start, stop), res) in enumerate(zip(bounds, _window_results(positions, bounds, fill, int(jobs)))):
