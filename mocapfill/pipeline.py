@@ -158,7 +158,12 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
         positions = savgol_smooth(positions, **smooth_options)
         record["smooth"] = {"window": settings.smooth_window, "order": settings.smooth_order}
 
-    return FillOutcome(data, work, result, data.with_positions(positions), rejected, bones, record, seconds)
+    output = data.with_positions(positions)
+    if rejected is not None:  # a rejected sample filled again is written as filled, not with its old residual
+        from .io.c3d import mark_refilled
+
+        output = mark_refilled(output, rejected)
+    return FillOutcome(data, work, result, output, rejected, bones, record, seconds)
 
 
 def write_fill_report(outcome: FillOutcome, path: str, *, method: str, input_path: str | None,

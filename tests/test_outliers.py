@@ -107,6 +107,30 @@ def test_one_marker_held_300_mm_away_for_five_frames(cmu):
     assert not reject_outliers(corrupted, units=cmu.units, runs=False).rejected.any()
 
 
+@pytest.mark.parametrize("where", ["after a gap", "before a gap", "into another shift"])
+def test_a_stretch_with_one_step_only(cmu, where):
+    """A marker that comes back from a gap displaced (or is displaced until it vanishes, or moves from one offset to
+    another) steps only once: found by its step and by which side sits far from its partners' usual distances."""
+    corrupted = cmu.positions.copy()
+    m, shift = 12, np.array([250.0, -150.0, 100.0])
+    if where == "after a gap":
+        corrupted[280:300, m] = np.nan
+        displaced = slice(300, 330)
+    elif where == "before a gap":
+        corrupted[330:350, m] = np.nan
+        displaced = slice(300, 330)
+    else:  # two offsets back to back: 300-314 one way, 315-329 another, no way back between them
+        corrupted[300:315, m] += [0.0, 300.0, 0.0]
+        displaced = slice(300, 330)
+    corrupted[displaced.start + (15 if where == "into another shift" else 0):displaced.stop, m] += shift
+    result = reject_outliers(corrupted, units=cmu.units, rate=cmu.rate)
+    assert result.rejected[displaced, m].all()
+    assert result.rejected.sum() == 30  # nothing else
+    if where != "into another shift":
+        # without the one-step rule the stretch stays
+        assert not shifted_runs(corrupted, rate=cmu.rate, one_sided=False)[displaced, m].any()
+
+
 def test_stretch_length_is_in_seconds(cmu):
     # 85_02 resampled to 240 Hz (linear interpolation): a 0.45 s stretch is 108 frames, within max_run (0.5 s) at
     # the true rate but 0.9 s, out of reach, read at 120 Hz
@@ -188,3 +212,38 @@ def test_degenerate_inputs():
         reject_outliers(np.zeros((5, 3, 3)), units="ft")
     with pytest.raises(MocapfillError):
         reject_outliers(np.zeros((5, 3, 3)), delta=-1)
+
+
+def test_fill_reject_outliers_writes_refilled_samples_as_filled_in_a_c3d(test_data, tmp_path):
+    """A rejected and refilled sample gets residual 0 (filled) in the rewritten C3D, not its original residual."""
+    from click.testing import CliRunner
+
+    import mocapfill
+    from mocapfill.cli import cli
+    from mocapfill.io import c3dfile
+    from mocapfill.io.c3d import _decode_points
+
+    data = mocapfill.read(test_data / "ADemo1_rewrite_c3d_pc_float.c3d")  # real residuals (> 0)
+    marker = 5
+    frames = [f for f in (100, 250, 400) if not data.missing[f - 1:f + 2, marker].any()]
+    assert frames
+    corrupted = data.positions.copy()
+    corrupted[frames, marker] += [300.0, 0.0, 0.0]  # changed observed samples keep their residual word
+    source, out = tmp_path / "bad.c3d", tmp_path / "o.c3d"
+    mocapfill.write(data.with_positions(corrupted), source)
+
+    def residuals(path):
+        f = c3dfile.parse(path.read_bytes(), str(path))
+        extra = mocapfill.read(path).extra
+        return _decode_points(f, f.point_block()[:, extra.marker_points, :])[1]
+
+    before = residuals(source)
+    result = CliRunner().invoke(cli, ["fill", str(source), str(out), "-m", "linear", "--reject-outliers", "-q"])
+    assert result.exit_code == 0, result.output
+    after = residuals(out)
+    assert (before[frames, marker] > 0).all() and (after[frames, marker] == 0).all()
+    filled = mocapfill.read(out)
+    assert np.isfinite(filled.positions[frames, marker]).all()
+    # everything else the file had keeps its residual, unless rejected (then filled too: residual 0)
+    changed = after != before
+    assert (after[changed] == 0).all() and changed.sum() < 0.01 * changed.size

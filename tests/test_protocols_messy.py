@@ -72,3 +72,21 @@ def test_cli_dense_and_segment(sample_data):
         assert '"rmse"' in result.stdout
     bad = CliRunner().invoke(cli, ["evaluate", path, "-m", "linear", "-p", "segment", "--radius", "far"])
     assert bad.exit_code == 1 and "--radius" in bad.stderr
+
+
+@pytest.mark.parametrize("protocol, options", [("dense", {"missing": 0.1}), ("segment", {"events": 2})])
+def test_dense_and_segment_replay_from_a_saved_spec(cmu, tmp_path, protocol, options):
+    from mocapfill.evaluation import evaluate
+
+    spec = tmp_path / f"{protocol}.json"
+    first = evaluate(cmu, ["linear"], protocol, trials=2, seed=3, save_occlusions=spec, **options)
+    again = evaluate(cmu, ["linear"], occlusions=spec, seed=3)
+    assert again.trials == first.trials
+    np.testing.assert_array_equal(again.values("rmse"), first.values("rmse"))
+    import json
+
+    source = json.loads(spec.read_text())["source"]
+    assert source["protocol"] == protocol and all(source[k] == v for k, v in options.items())
+    # the --json output of a run replays too
+    replay_json = evaluate(cmu, ["linear"], occlusions=first.to_dict(), seed=3)
+    assert replay_json.trials == first.trials

@@ -10,6 +10,7 @@ import sys
 import warnings
 
 import click
+import numpy as np
 from rich.table import Table
 
 from ..errors import MocapfillError
@@ -121,10 +122,12 @@ def _show(result, quiet: bool) -> None:
             wins.add_row(a, *["" if a == b else ("\u2013" if rates[a][b] is None else f"{100 * rates[a][b]:.0f} %")
                               for b in ranking])
         out.print(wins)
-    detected = [s.detected for s in result.scores if s.detected is not None]
+    # one value per trial (every method of a trial shares its rejection)
+    detected = [s.detected for s in result.scores[::len(result.methods)] if s.detected is not None]
     if detected:
-        out.print(f"outlier rejection caught {100 * sum(detected) / len(detected):.0f} % of the shifted samples "
-                  f"(mean over trials)")
+        out.print(f"outlier rejection caught {100 * sum(detected) / len(detected):.1f} % of the shifted samples "
+                  f"(mean over trials; median {100 * float(np.median(detected)):.1f} %, worst trial "
+                  f"{100 * min(detected):.1f} %)")
     errors = sorted({f"{s.method}: {s.error}" for s in result.scores if s.error})
     for message in errors[:10]:
         out.print(f"[yellow]failure[/yellow] {message}", highlight=False)

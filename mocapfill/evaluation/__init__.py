@@ -4,7 +4,7 @@ Public API
 ----------
 - :func:`evaluate` (data, methods, protocol, trials, seed, ...) -> :class:`EvaluationResult`
 - :func:`make_occlusions` (data, protocol, trials, seed, ...) -> list of :class:`Trial`: the protocols
-  (``marker``, ``limb``, ``blackout``, ``random``; see :mod:`mocapfill.evaluation.occlusions`)
+  (``marker``, ``limb``, ``blackout``, ``random``, ``dense``, ``segment``; see :mod:`mocapfill.evaluation.occlusions`)
 - :func:`load_spec` / :func:`save_spec` / :func:`trials_from_spec` / :func:`spec_of`: replayable occlusion specs
   (see :mod:`mocapfill.evaluation.spec` and ``docs/occlusions.md``)
 - metrics in :mod:`mocapfill.evaluation.metrics` (RMSE, max error, the BoLeRO paper's MSE, bone-length error)
@@ -227,9 +227,11 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
     methods : sequence of str
         Names from :data:`mocapfill.methods.METHODS`.
     protocol : str
-        "marker", "limb", "blackout" or "random" (see :func:`make_occlusions`); ignored when ``occlusions`` is given.
+        "marker", "limb", "blackout", "random", "dense" or "segment" (see :func:`make_occlusions`); ignored when
+        ``occlusions`` is given.
     trials, seed, gap_min, gap_max, **protocol_options
-        Passed to :func:`make_occlusions` (``limb_size``, ``occlusion_rate``, ``shift_rate``, ``shift_scale``).
+        Passed to :func:`make_occlusions` (``limb_size``, ``occlusion_rate``, ``shift_rate``, ``shift_scale``,
+        ``missing``, ``radius``, ``events``).
         With ``seed=None`` a seed is drawn and recorded in the result so that the run can be repeated.
     occlusions : list of Trial, spec path, or parsed spec, optional
         Replay exactly these trials instead of drawing them (protocol "replay").
@@ -297,8 +299,10 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
     if not trial_list:
         raise MocapfillError("no trials to run")
     if save_occlusions is not None:
+        # the protocol's own settings (gap range in frames, missing, radius, events, ...) are for the reader only
         source = {"file": data.path, "protocol": protocol, "seed": seed,
-                  **{k: v for k, v in settings.items() if k.startswith("gap_")}}
+                  **{k: v for k, v in settings.items() if k not in ("options", "method_options", "reject_outliers",
+                                                                   "occlusions")}}
         save_spec(trial_list, data, save_occlusions, source=source)
     # Method seeds: one per trial, from a stream independent of the occlusions' streams.
     seeds = [int(s.generate_state(1, np.uint32)[0]) for s in np.random.SeedSequence([seed, 1]).spawn(len(trial_list))]

@@ -209,7 +209,7 @@ def make_occlusions(data, protocol: str = "marker", *, trials: int = 10, seed: i
     data : MarkerData
         The clean capture, positions (n_frames, n_markers, 3); its rate converts lengths in seconds, its units the
         default shift scale, its positions choose limb chains.
-    protocol : "marker", "limb", "blackout" or "random"
+    protocol : "marker", "limb", "blackout", "random", "dense" or "segment"
     trials : int
         Number of trials.
     seed : int or None

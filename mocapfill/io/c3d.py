@@ -7,13 +7,15 @@ renamed ``LABEL_2``, ``LABEL_3`` ... and listed in ``MarkerData.notes``.
 
 Writing a C3D that was read by this module copies the original bytes (header, every parameter, analog words,
 events, model outputs, the storage format and scale, the processor type) and re-encodes only the marker samples whose
-position changed: changed observed samples keep their residual word, newly filled samples get residual 0 and camera
-mask 0, samples that became missing get (0, 0, 0) and residual -1.  Data without a C3D origin (CSV, TRC) is written
+position changed: changed observed samples keep their residual word, newly filled samples (and samples rejected as
+outliers and filled again, :func:`mark_refilled`) get residual 0 and camera mask 0, samples that became missing get
+(0, 0, 0) and residual -1.  Data without a C3D origin (CSV, TRC) is written
 as a fresh float C3D (Intel) with POINT, ANALOG (no channels), TRIAL and MANUFACTURER groups.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import struct
 import warnings
 from dataclasses import dataclass
@@ -28,7 +30,7 @@ from .labels import make_unique, normalise_units
 
 MODEL_OUTPUT_PARAMS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS")
 
-__all__ = ["C3DExtra", "read_c3d", "c3d_bytes", "MODEL_OUTPUT_PARAMS"]
+__all__ = ["C3DExtra", "read_c3d", "c3d_bytes", "mark_refilled", "MODEL_OUTPUT_PARAMS"]
 
 
 @dataclass
@@ -43,6 +45,9 @@ class C3DExtra:
     file: C3DFile
     marker_points: np.ndarray
     model_outputs: list[str]
+    #: (n_frames, n_markers) bool or None: samples observed in the original that the caller dropped and filled
+    #: again (rejected outliers); the rewrite marks them filled (residual 0), not observed.  See :func:`mark_refilled`.
+    refilled: np.ndarray | None = None
 
     @property
     def processor(self) -> str:
@@ -122,6 +127,18 @@ def read_c3d(raw: bytes, name: str) -> MarkerData:
 
 # --- writing -------------------------------------------------------------------------------------------------------
 
+def mark_refilled(data: MarkerData, refilled: np.ndarray) -> MarkerData:
+    """``data`` whose C3D rewrite marks the samples of ``refilled`` (n_frames, n_markers) bool as filled.
+
+    For samples the file had but that were dropped (rejected outliers) and filled again: their new position is
+    written with residual 0 / camera mask 0 like any filled sample, not with the original's residual.  Data that
+    did not come from a C3D is returned as it is.
+    """
+    if not isinstance(data.extra, C3DExtra):
+        return data
+    return dataclasses.replace(data, extra=dataclasses.replace(data.extra, refilled=np.asarray(refilled, dtype=bool)))
+
+
 def c3d_bytes(data: MarkerData, name: str = "<c3d>") -> bytes:
     """The bytes of a C3D holding ``data`` (a faithful rewrite when ``data.extra`` comes from a C3D read)."""
     extra = data.extra
@@ -156,6 +173,7 @@ def _rewrite(data: MarkerData, extra: C3DExtra, name: str) -> bytes:
     was_missing = np.isnan(original).any(axis=2)
     now_missing = np.isnan(new).any(axis=2)
     changed = ~same
+    refilled = np.zeros_like(changed) if extra.refilled is None else np.asarray(extra.refilled, dtype=bool)
     if not changed.any():
         return bytes(buf)
 
@@ -191,8 +209,9 @@ def _rewrite(data: MarkerData, extra: C3DExtra, name: str) -> bytes:
             counts = counts[~bad]
         xyz = counts
     put(moved, 0, xyz)
-    # Newly filled: residual 0, camera mask 0 (valid, so other software shows them).
-    filled = moved & was_missing
+    # Newly filled (or dropped as an outlier and filled again): residual 0, camera mask 0 (valid, so other software
+    # shows them).
+    filled = moved & (was_missing | refilled)
     put(filled, 3, np.zeros((int(filled.sum()), 1)))
     # Observed before, missing now (e.g. rejected outliers): (0, 0, 0) and residual -1.
     dropped = changed & now_missing & ~was_missing

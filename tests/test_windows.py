@@ -1,0 +1,133 @@
+"""Filling a long take in overlapping windows (:mod:`mocapfill.methods.windows`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import mocapfill
+from mocapfill.errors import MethodError
+from mocapfill.methods.base import finish
+from mocapfill.methods.interp import fill_linear
+from mocapfill.methods.pca import fill_pca
+from mocapfill.methods.windows import fill_in_windows, window_bounds
+
+
+@pytest.fixture(scope="module")
+def long_take(sample_data):
+    """85_02 played forwards and backwards to 3,000 frames, 41 markers, mm."""
+    data = mocapfill.read(sample_data / "85_02.c3d")
+    cycle = np.concatenate([data.positions, data.positions[-2:0:-1]])
+    return np.tile(cycle, (2, 1, 1))[:3000]
+
+
+def _with_gaps(truth, seed, n_gaps=60, lo=20, hi=120):
+    rng = np.random.default_rng(seed)
+    pos = truth.copy()
+    for _ in range(n_gaps):
+        m, length = rng.integers(truth.shape[1]), rng.integers(lo, hi)
+        start = rng.integers(1, truth.shape[0] - length - 1)
+        pos[start:start + length, m] = np.nan
+    return pos
+
+
+def test_bounds_cover_the_take_with_overlaps_and_prefer_complete_edge_frames():
+    missing = np.zeros((10_000, 5), dtype=bool)
+    missing[:, 0] = True
+    missing[4000:4600:3, 1] = True  # a striped region near the nominal edges: edges move to clean frames
+    bounds = window_bounds(missing[:, 1:], window=2000, overlap=200)
+    assert bounds[0][0] == 0 and bounds[-1][1] == 10_000
+    for (a0, a1), (b0, b1) in zip(bounds, bounds[1:]):
+        assert b0 < a1 and a1 - b0 >= 100 and b0 > a0
+    for s, e in bounds:
+        assert not missing[s, 1] or s == 0
+        assert not missing[e - 1, 1] or e == 10_000
+    assert window_bounds(missing, 20_000, 200) == [(0, 10_000)]
+    with pytest.raises(MethodError):
+        window_bounds(missing, 300, 200)
+
+
+def test_windowed_linear_equals_the_whole_linear_fill(long_take):
+    """Linear interpolation needs only each gap's two ends: if every gap is held whole by some window, the windowed
+    fill is the whole fill (up to rounding in the blend), including gaps across window edges."""
+    pos = _with_gaps(long_take, 0)
+    # a gap straddling the first nominal edge (frame 1000 + ...): held whole by the first window only
+    pos[880:1010, 7] = np.nan
+    whole = fill_linear(pos)
+    win = fill_in_windows(pos, fill_linear, window=1000, overlap=200)
+    missing = np.isnan(pos).any(axis=2)
+    assert np.array_equal(win.positions[~missing], pos[~missing])  # observed: bit-identical
+    assert np.array_equal(win.filled, whole.filled)
+    np.testing.assert_allclose(win.positions, whole.positions, rtol=0, atol=1e-9)
+
+
+def test_windowed_pca_is_as_accurate_and_keeps_per_gap_info(long_take):
+    pos = _with_gaps(long_take, 1)
+    missing = np.isnan(pos).any(axis=2)
+    whole = fill_pca(pos)
+    win = fill_in_windows(pos, fill_pca, window=1200, overlap=240)
+    assert len(win.info["windows"]) >= 3
+    assert np.array_equal(win.positions[~missing], pos[~missing])
+    # the blend is a convex combination: no sample is worse than the worst window holding it
+    worst = np.zeros(missing.shape)
+    for w in win.info["windows"]:
+        a, b = w["start"], w["stop"]
+        own = fill_pca(pos[a:b]).positions
+        worst[a:b] = np.maximum(worst[a:b], np.linalg.norm(own - long_take[a:b], axis=2))
+    err = np.linalg.norm(win.positions - long_take, axis=2)
+    assert (err[missing] <= worst[missing] + 1e-9).all()
+    # windows of 1,200 frames see less of the (repeated) motion than the whole take, yet stay close
+    err_whole = np.linalg.norm(whole.positions[missing] - long_take[missing], axis=1)
+    assert np.median(err[missing]) <= 2.0 * np.median(err_whole)
+    # no jump where windows meet: every filled step stays within what the truth does
+    step = np.linalg.norm(np.diff(win.positions, axis=0), axis=2)
+    true_step = np.linalg.norm(np.diff(long_take, axis=0), axis=2)
+    assert step.max() <= 2 * true_step.max()
+
+
+def test_gap_info_is_merged_in_take_frames():
+    """A toy fill that names each gap: the merged list has one entry per gap of the take, in the take's frames."""
+    rng = np.random.default_rng(3)
+    truth = np.cumsum(rng.normal(size=(900, 3, 3)), axis=0)
+    pos = truth.copy()
+    gaps = [(0, 100, 30), (1, 290, 40), (2, 455, 20), (0, 700, 50)]
+    for m, s, n in gaps:
+        pos[s:s + n, m] = np.nan
+
+    def toy(p):
+        res = fill_linear(p)
+        from mocapfill.gaps import find_gaps
+
+        res.info = {"gap_methods": [{"marker_index": g.marker, "start": g.start, "length": g.length,
+                                     "method": "linear"} for g in find_gaps(np.isnan(p).any(axis=2))],
+                    "rank": 3, "frames": float(p[0, 0, 0])}
+        res.std = np.where(res.filled, 1.0, 0.0)
+        return res
+
+    out = fill_in_windows(pos, toy, window=400, overlap=120)
+    got = [(e["marker_index"], e["start"], e["length"]) for e in out.info["gap_methods"]]
+    assert got == sorted((m, s, n) for m, s, n in gaps)
+    assert out.info["rank"] == 3 and "frames" not in out.info
+    assert all("frames" in w and "start" in w for w in out.info["windows"])
+    np.testing.assert_allclose(out.std[out.filled], 1.0)
+    assert (out.std[~np.isnan(pos).any(axis=2)] == 0).all()
+
+
+def test_short_take_is_one_call():
+    pos = np.random.default_rng(0).normal(size=(50, 4, 3))
+    pos[10:20, 1] = np.nan
+    calls = []
+
+    def fill(p):
+        calls.append(p.shape)
+        return finish(p, np.nan_to_num(p))
+
+    out = fill_in_windows(pos, fill, window=100, overlap=20)
+    assert calls == [(50, 4, 3)] and out.filled.sum() == 10
+
+
+def test_windows_in_worker_processes_give_the_same_fill(long_take):
+    pos = _with_gaps(long_take, 2)
+    serial = fill_in_windows(pos, fill_linear, window=1000, overlap=200)
+    parallel = fill_in_windows(pos, fill_linear, window=1000, overlap=200, jobs=2)
+    np.testing.assert_array_equal(parallel.positions, serial.positions)
