@@ -118,7 +118,7 @@ def _figure(svg: str, caption: str, kind: str, name: str) -> str:
 
 
 def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers: int = 40,
-                max_bones: int = 40) -> str:
+                max_bones: int = 40, player: bool = True) -> str:
     """The self-contained HTML page of ``report`` (from :func:`build_fill_report`).
 
     Parameters
@@ -133,6 +133,8 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
         pairs (B, 2), lengths (B,): the bones touching filled markers get a length-over-time plot.
     max_markers, max_bones : int
         Caps on the number of trajectory and bone plots.
+    player : bool
+        Put the 3-D player (:mod:`.player`, the page's only script) near the top.
 
     Raises
     ------
@@ -157,7 +159,7 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
 
     title = s["file"] or "capture"
     parts = [f"<h1>mocapfill fill report<small>{_e(title)}</small></h1>"]
-    parts.append('<nav><a href="#summary">Summary</a><a href="#overview">Overview</a><a href="#gaps">Gaps</a>'
+    parts.append('<nav>' + ('<a href="#player">Player</a>' if player else '') + '<a href="#summary">Summary</a><a href="#overview">Overview</a><a href="#gaps">Gaps</a>'
                  '<a href="#markers">Markers</a><a href="#bones">Bones</a><a href="#convergence">Convergence</a></nav>')
 
     # Alerts first: what needs a person's attention.
@@ -175,6 +177,11 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
     parts.extend(f'<div class="alert">{_e(a)}</div>' for a in alerts)
     if s["notes"]:
         parts.append("<p class=\"note\">Reader notes: " + "; ".join(_e(n) for n in s["notes"]) + "</p>")
+    if player:
+        from .player import player_payload, player_section
+
+        parts.append(player_section(player_payload(data, positions=output, filled=filled, std=std, rejected=rejected,
+                                                   gaps=report["gaps"], bones=bones)))
 
     parts.append('<h2 id="summary">Summary</h2><table class="summary"><tbody>')
     parts.extend(f"<tr><th>{_e(k)}</th><td>{_e(v)}</td></tr>" for k, v in _summary_rows(report))
@@ -317,8 +324,14 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
                 for k, v in info.items()]
         parts.append("<h3>Method details</h3>" + _table(["key", "value"], rows, set()))
 
-    body = "\n".join(parts)
+    return page(title=f"mocapfill report: {title}", body="\n".join(parts), script=player)
+
+
+def page(*, title: str, body: str, script: bool = False) -> str:
+    """One self-contained HTML document around ``body``; ``script``: record script errors (the player's self-test)."""
+    from .player import ERROR_HOOK
+
     return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
             "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
-            f"<title>mocapfill report: {_e(title)}</title><style>{_CSS}</style></head>"
+            f"<title>{_e(title)}</title>{ERROR_HOOK if script else ''}<style>{_CSS}</style></head>"
             f"<body><main>\n{body}\n</main></body></html>\n")
