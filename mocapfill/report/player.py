@@ -33,13 +33,36 @@ MAX_GAPS = 20_000
 MAX_REJECTED = 20_000
 
 
+def _floor_evidence(pos: np.ndarray) -> dict[tuple[int, int], float]:
+    """Axes along which the markers of ``pos`` (n_frames, n_markers, 3) stay on one side of zero, as
+    ``{(axis, sign): distance of the lowest markers from zero / extent}``: a capture's floor is almost always at zero
+    with the subject above it, so a small value says "this axis points up"."""
+    out = {}
+    for axis in range(3):
+        values = pos[..., axis][np.isfinite(pos[..., axis])]
+        if values.size < 2:
+            continue
+        low, high = np.percentile(values, [1, 99])
+        extent = max(high - low, 1e-12)
+        if low >= -0.05 * extent:
+            out[(axis, 1)] = max(low, 0.0) / extent
+        elif high <= 0.05 * extent:
+            out[(axis, -1)] = max(-high, 0.0) / extent
+    return out
+
+
 def up_axis(data) -> tuple[int, int, str]:
     """The vertical axis of ``data`` as (axis 0/1/2, sign +1/-1, where it came from).
 
-    From the C3D parameter POINT:Y_SCREEN (the axis pointing up the screen) when the file has it; else from the
-    positions (n_frames, n_markers, 3): the axis along which the markers of one frame spread most (a standing body is
-    taller than wide), its sign pointing away from the floor (most markers sit above the lowest ones).
+    The axis from the C3D parameter POINT:Y_SCREEN (the axis pointing up the screen) when the file has it, its sign
+    too unless the markers clearly stand above zero on the other side.  Without it, from the positions
+    (n_frames, n_markers, 3): among the axes along which the markers stay on one side of zero (a floor at zero), the
+    one whose lowest markers come nearest to it; failing that, the axis along which the markers of one frame spread
+    most (a standing body is taller than wide), pointing to where most markers cluster (the upper body).
     """
+    pos = np.asarray(data.positions, dtype=float)
+    sample = pos[:: max(1, pos.shape[0] // 500)]
+    evidence = _floor_evidence(sample)
     c3d = getattr(getattr(data, "extra", None), "file", None)
     strings = getattr(c3d, "strings", None)
     if callable(strings):
@@ -49,11 +72,13 @@ def up_axis(data) -> tuple[int, int, str]:
             values = []
         text = (values[0] if values else "").strip().upper()
         if len(text) == 2 and text[0] in "+-" and text[1] in "XYZ":
-            return "XYZ".index(text[1]), 1 if text[0] == "+" else -1, "C3D POINT:Y_SCREEN"
-    pos = np.asarray(data.positions, dtype=float)
-    if pos.size == 0 or not np.isfinite(pos).any():
-        return 2, 1, "default (no data)"
-    sample = pos[::max(1, pos.shape[0] // 500)]
+            axis, sign = "XYZ".index(text[1]), 1 if text[0] == "+" else -1
+            if (axis, -sign) in evidence:
+                return axis, -sign, "C3D POINT:Y_SCREEN for the axis; the markers, all on one side, for its sign"
+            return axis, sign, "C3D POINT:Y_SCREEN"
+    if evidence:
+        axis, sign = min(evidence, key=evidence.get)
+        return axis, sign, "markers: the floor at zero"
     seen = np.isfinite(sample).all(axis=2)
     rows = seen.sum(axis=1) >= 2
     if not rows.any():
@@ -61,16 +86,9 @@ def up_axis(data) -> tuple[int, int, str]:
     lo = np.where(seen[..., None], sample, np.inf).min(axis=1)[rows]
     hi = np.where(seen[..., None], sample, -np.inf).max(axis=1)[rows]
     axis = int(np.argmax(np.median(hi - lo, axis=0)))
-    values = sample[..., axis][seen]
-    low, mid, high = np.percentile(values, [1, 50, 99])
-    margin = 0.05 * max(high - low, 1e-12)
-    if low >= -margin:  # the floor at zero and everything above it: the usual convention
-        sign = 1
-    elif high <= margin:
-        sign = -1
-    else:  # markers cluster on the upper body: the median sits nearer the top than the floor
-        sign = 1 if (high - mid) <= (mid - low) else -1
-    return axis, sign, "markers' spread"
+    low, mid, high = np.percentile(sample[..., axis][seen], [1, 50, 99])
+    sign = 1 if (high - mid) <= (mid - low) else -1
+    return axis, sign, "markers: the body's longest extent"
 
 
 def _b64(array: np.ndarray) -> str:
