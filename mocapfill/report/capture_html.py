@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from .html_report import _e, _table, page
+from .html_report import _e, _table, page, reader_notes
 from .player import player_payload, player_section
 
 #: Bones for the player's lines are estimated on at most this many frames (evenly spaced): enough for stable
@@ -55,7 +55,7 @@ def render_capture_html(data, summary: dict[str, Any]) -> str:
     parts = [f"<h1>mocapfill capture report<small>{_e(title)}</small></h1>",
              '<nav><a href="#player">Player</a><a href="#summary">Summary</a><a href="#markers">Markers</a></nav>']
     if summary["notes"]:
-        parts.append('<p class="note">Reader notes: ' + "; ".join(_e(n) for n in summary["notes"]) + "</p>")
+        parts.append(reader_notes(summary["notes"]))
     parts.append(player_section(player_payload(data, bones=_bones(data)), heading="Player (the raw capture)"))
     parts.append('<h2 id="summary">Summary</h2><table class="summary"><tbody>')
     parts.extend(f"<tr><th>{_e(k)}</th><td>{_e(v)}</td></tr>" for k, v in rows)

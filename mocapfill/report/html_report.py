@@ -102,6 +102,17 @@ def _summary_rows(report: dict) -> list[tuple[str, str]]:
     return rows
 
 
+def reader_notes(notes: list[str], shown: int = 2) -> str:
+    """The reader's notes; past ``shown`` folded, so that a file with dozens of renamed labels does not push the
+    player off the screen."""
+    text = "; ".join(_e(n) for n in notes[:shown])
+    if len(notes) <= shown:
+        return f'<p class="note">Reader notes: {text}</p>'
+    rest = "; ".join(_e(n) for n in notes[shown:])
+    return (f'<details class="note"><summary>Reader notes ({len(notes)}): {text} ...</summary>'
+            f"<p>{rest}</p></details>")
+
+
 def _table(headers: list[str], rows: list[list[str]], numeric: set[int]) -> str:
     head = "".join(f'<th class="num">{_e(h)}</th>' if i in numeric else f"<th>{_e(h)}</th>"
                    for i, h in enumerate(headers))
@@ -176,7 +187,7 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
         parts.append(f'<div class="alert ok">Every gap was filled ({s["filled_samples"]} samples).</div>')
     parts.extend(f'<div class="alert">{_e(a)}</div>' for a in alerts)
     if s["notes"]:
-        parts.append("<p class=\"note\">Reader notes: " + "; ".join(_e(n) for n in s["notes"]) + "</p>")
+        parts.append(reader_notes(s["notes"]))
     if player:
         from .player import player_payload, player_section
 

@@ -72,7 +72,7 @@
     }
   }
   var body = P.body > 0 ? P.body : diag;
-  var HOME = {az: -Math.PI / 3, el: 0.3, dist: Math.min(1.9 * diag, 2.6 * body), target: centre.slice()};
+  var HOME = {az: -Math.PI / 3, el: 0.3, dist: Math.min(1.9 * diag, 2.0 * body), target: centre.slice()};
   var cam = {az: HOME.az, el: HOME.el, dist: HOME.dist, target: HOME.target.slice()};
   var frame = 0, selected = -1, playing = false, clock = 0, lastTick = 0;
   var drawn = 0, basis = null, shownPoints = [];
@@ -223,8 +223,14 @@
     (rejectedAt[frame] || []).forEach(function (r) {
       var pr = project(scene([r[2], r[3], r[4]]));
       if (!pr) return;
-      var d = 5 * dpr;
+      var d = 5 * dpr, now = pts[r[1]];
       ctx.strokeStyle = C.rejected;
+      if (now) {  // from the rejected original to what the fill put there
+        ctx.lineWidth = dpr;
+        ctx.setLineDash([3 * dpr, 3 * dpr]);
+        ctx.beginPath(); ctx.moveTo(pr[0], pr[1]); ctx.lineTo(now.x, now.y); ctx.stroke();
+        ctx.setLineDash([]);
+      }
       ctx.lineWidth = 2 * dpr;
       ctx.beginPath();
       ctx.moveTo(pr[0] - d, pr[1] - d); ctx.lineTo(pr[0] + d, pr[1] + d);
