@@ -25,6 +25,7 @@ import numpy as np
 
 from mocapfill.blas import single_blas_thread
 from mocapfill.io import read
+from mocapfill.markers import MarkerData
 from mocapfill.pipeline import FillSettings, fill_capture, write_fill_report
 from mocapfill.report.capture_html import write_capture_report
 from mocapfill.summary import summarize
@@ -47,10 +48,9 @@ def tiled(data, n_frames: int, missing: float, seed: int = 0):
         start = int(rng.integers(0, n_frames - length))
         hidden[start:start + length, int(rng.integers(0, pos.shape[1]))] = True
     pos[hidden] = np.nan
-    out = data.with_positions(pos)
-    out.extra = None  # the C3D payload describes the short file
-    out.path = f"{Path(data.path).name} tiled to {n_frames} frames"
-    return out
+    # no C3D payload: it describes the short file
+    return MarkerData(pos, list(data.labels), data.rate, data.units, data.first_frame, None, None,
+                      f"{Path(data.path).name} tiled to {n_frames} frames")
 
 
 def player_share(page: str) -> tuple[float, str]:
