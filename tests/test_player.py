@@ -109,7 +109,7 @@ def test_the_fill_report_holds_a_self_contained_player(fill_report):
     assert not re.search(r"""\s(src|href)\s*=\s*(?!["']?#)""", page), "external src/href"
     payload = _payload_of(page)
     assert payload["fill"] and payload["gaps"] and payload["bones"]
-    assert any(g[4] for g in payload["gaps"])  # the method that filled each gap, for the click info
+    assert any(payload["texts"][g[4]].startswith("local-pca") for g in payload["gaps"] if g[4] >= 0)  # for the click info
     _, status = _decode(payload)
     assert (status >= 2).any()
 
@@ -154,3 +154,14 @@ def test_the_player_draws_and_its_slider_moves_the_frame_in_headless_chromium(fi
     assert min(state["drawn"]) > 30  # the tennis serve's 39 markers, but for gaps
     assert min(state["inked"]) > 200  # pixels actually painted
     assert state["labels"][0] != state["labels"][1] and f"frame {(n - 1) // 2 + 1} of" in state["labels"][1]
+
+
+def test_the_player_is_decimated_further_to_keep_the_page_under_its_budget():
+    from mocapfill.report.player import fit_player
+
+    data = _capture(n_frames=4000, n_markers=10)
+    whole = fit_player(data, 0)
+    assert '"stride":1,' in whole
+    budget = len(whole.encode()) + 1000
+    section = fit_player(data, 300_000, budget=budget)  # the rest of the page takes 300 kB more than is left
+    assert len(section.encode()) + 300_000 <= budget and '"stride":1,' not in section

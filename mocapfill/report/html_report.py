@@ -188,11 +188,7 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
     parts.extend(f'<div class="alert">{_e(a)}</div>' for a in alerts)
     if s["notes"]:
         parts.append(reader_notes(s["notes"]))
-    if player:
-        from .player import player_payload, player_section
-
-        parts.append(player_section(player_payload(data, positions=output, filled=filled, std=std, rejected=rejected,
-                                                   gaps=report["gaps"], bones=bones)))
+    player_at = len(parts)  # the player goes here, sized last to what the rest of the page leaves (fit_player)
 
     parts.append('<h2 id="summary">Summary</h2><table class="summary"><tbody>')
     parts.extend(f"<tr><th>{_e(k)}</th><td>{_e(v)}</td></tr>" for k, v in _summary_rows(report))
@@ -335,6 +331,12 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
                 for k, v in info.items()]
         parts.append("<h3>Method details</h3>" + _table(["key", "value"], rows, set()))
 
+    if player:
+        from .player import fit_player
+
+        rest = sum(len(p.encode()) for p in parts)
+        parts.insert(player_at, fit_player(data, rest, positions=output, filled=filled, std=std, rejected=rejected,
+                                           gaps=report["gaps"], bones=bones))
     return page(title=f"mocapfill report: {title}", body="\n".join(parts), script=player)
 
 

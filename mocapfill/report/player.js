@@ -11,6 +11,10 @@
   var pickText = section.querySelector(".pick"), namesBox = section.querySelector(".names");
   var followBox = section.querySelector(".follow");
   var C = P.colours;
+  P.gaps = P.gaps.map(function (g) {  // [marker, first, last, status, method, mean std, max std, reason]
+    function text(i) { return i < 0 ? null : P.texts[i]; }
+    return [g[0], g[1], g[2], text(g[3]), text(g[4]), g[5], g[6], text(g[7])];
+  });
 
   function bytes(text) {
     var bin = atob(text), out = new Uint8Array(bin.length);

@@ -24,6 +24,8 @@ from . import plots
 
 #: Most frame x marker samples embedded (7 bytes each before base64): about 5.6 MB of base64 at the cap.
 MAX_SAMPLES = 600_000
+#: A page with the player stays under this many bytes (the issue's limit is 8 MB; the rest is margin).
+PAGE_BUDGET = 7_500_000
 #: Status bytes: 0 observed, 1 missing (not drawn), 2 filled without an uncertainty, 3..255 filled with one.
 OBSERVED, MISSING, FILLED_NO_STD, STD0 = 0, 1, 2, 3
 STD_LEVELS = 252
@@ -89,6 +91,10 @@ def up_axis(data) -> tuple[int, int, str]:
     low, mid, high = np.percentile(sample[..., axis][seen], [1, 50, 99])
     sign = 1 if (high - mid) <= (mid - low) else -1
     return axis, sign, "markers: the body's longest extent"
+
+
+def _round(value, digits: int = 4):
+    return None if value is None else float(f"{float(value):.{digits}g}")
 
 
 def _b64(array: np.ndarray) -> str:
@@ -183,12 +189,18 @@ def player_payload(data, *, positions: np.ndarray | None = None, filled: np.ndar
     if gaps is None:
         gaps = [{"marker": labels[g.marker], "first_frame": first + g.start, "last_frame": first + g.stop - 1,
                  "status": "missing"} for g in find_gaps(np.asarray(data.missing))]
+    texts: dict[str, int] = {}  # status, method and reason strings repeat over thousands of gaps: stored once
+
+    def text(value) -> int:
+        return -1 if value is None else texts.setdefault(str(value), len(texts))
+
     for g in list(gaps)[:MAX_GAPS]:
         m = index.get(g.get("marker"))
         if m is None:
             continue
-        gap_rows.append([m, int(g["first_frame"]) - first, int(g["last_frame"]) - first, g.get("status"),
-                         g.get("method"), g.get("mean_std"), g.get("max_std"), g.get("reason")])
+        gap_rows.append([m, int(g["first_frame"]) - first, int(g["last_frame"]) - first, text(g.get("status")),
+                         text(g.get("method")), _round(g.get("mean_std")), _round(g.get("max_std")),
+                         text(g.get("reason"))])
 
     rej_rows = []
     if rejected is not None:
@@ -223,6 +235,7 @@ def player_payload(data, *, positions: np.ndarray | None = None, filled: np.ndar
         "body": body,
         "bones": pairs,
         "gaps": gap_rows,
+        "texts": list(texts),
         "gaps_total": len(gaps),
         "rejected": rej_rows,
         "colours": {"observed": "#4a4a4a", "filled": plots.FILLED, "band": plots.BAND, "rejected": plots.REJECTED,
@@ -299,6 +312,23 @@ def player_section(payload: dict[str, Any], *, heading: str = "Player") -> str:
         + f'<script type="application/json" class="player-data">{blob}</script>'
         f"<script>{_script()}</script></section>"
     )
+
+
+def fit_player(data, rest_bytes: int, *, budget: int = PAGE_BUDGET, **payload_options) -> str:
+    """:func:`player_section` of :func:`player_payload` (``payload_options``), decimated further when needed so that
+    it and the ``rest_bytes`` of the page stay under ``budget`` bytes."""
+    samples = MAX_SAMPLES
+    for _ in range(4):
+        section = player_section(player_payload(data, max_samples=samples, **payload_options))
+        size = len(section.encode())
+        if rest_bytes + size <= budget:
+            break
+        # what the samples take (9.4 bytes each in base64) shrinks in proportion; the rest of the section stays
+        per_sample = 28 / 3
+        shown = data.n_markers * -(-data.n_frames // max(1, -(-data.n_frames * data.n_markers // samples)))
+        fixed = size - per_sample * shown
+        samples = max(data.n_markers, int((budget - rest_bytes - fixed) / per_sample * 0.95))
+    return section
 
 
 #: A tiny first script: errors of any later script (the player's included) are recorded for the self-test.
