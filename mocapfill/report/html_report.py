@@ -15,6 +15,14 @@ import numpy as np
 
 from . import plots
 
+#: Points per plotted line; takes longer than LONG_TAKE frames get fewer (about one per two pixels of the page), so
+#: that their plots leave the 3-D player room under the page budget (:data:`.player.PAGE_BUDGET`).
+PLOT_POINTS = 1000
+LONG_TAKE = 20_000
+LONG_PLOT_POINTS = 400
+#: ... and at most this many trajectory and bone plots each (the player shows every marker; the page says which
+#: plots were left out).
+LONG_TAKE_PLOTS = 20
 #: More gap rows than this are cut from the table (the JSON report has them all).
 MAX_TABLE_ROWS = 500
 #: Gap tables longer than this are folded under a <details> element, with the longest gaps shown above.
@@ -143,7 +151,7 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
     bones : BoneSet or None
         pairs (B, 2), lengths (B,): the bones touching filled markers get a length-over-time plot.
     max_markers, max_bones : int
-        Caps on the number of trajectory and bone plots.
+        Caps on the number of trajectory and bone plots (at most ``LONG_TAKE_PLOTS`` each past ``LONG_TAKE`` frames).
     player : bool
         Put the 3-D player (:mod:`.player`, the page's only script) near the top.
 
@@ -159,6 +167,10 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
     units = s["units"]
     n_frames, n_markers = data.n_frames, data.n_markers
     frames = first + np.arange(n_frames)
+    points = PLOT_POINTS
+    if n_frames > LONG_TAKE:
+        points = LONG_PLOT_POINTS
+        max_markers, max_bones = min(max_markers, LONG_TAKE_PLOTS), min(max_bones, LONG_TAKE_PLOTS)
     rejected = _frames_mask(report["rejected"], labels, first, (n_frames, n_markers))
     observed = data.positions.copy()
     observed[rejected] = np.nan
@@ -277,7 +289,8 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
         window = plots.plot_window(filled[:, m] | unfilled[:, m])
         svg = plots.trajectory_svg(frames, observed[:, m], output[:, m], filled[:, m], unfilled[:, m],
                                    None if std is None else std[:, m], label=labels[m], units=units,
-                                   outliers=outliers[:, m] if rejected[:, m].any() else None, window=window)
+                                   outliers=outliers[:, m] if rejected[:, m].any() else None, window=window,
+                                   max_points=points)
         n_gaps = sum(1 for g in gaps if g["marker"] == labels[m])
         shown = "" if window is None else f" Frames {frames[window[0]]}-{frames[window[1] - 1]} shown."
         parts.append(_figure(svg, f"{_e(labels[m])}: {int(counts[m])} filled samples in {n_gaps} gap(s).{shown}",
@@ -314,7 +327,7 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
             either = filled[:, a] | filled[:, c]
             window = plots.plot_window(either)
             svg = plots.bone_svg(frames, dist(observed, a, c), dist(output, a, c), float(lengths[b]), either,
-                                 name=name, units=units, window=window)
+                                 name=name, units=units, window=window, max_points=points)
             shown = "" if window is None else f" Frames {frames[window[0]]}-{frames[window[1] - 1]} shown."
             parts.append(_figure(svg, f"Length of {_e(name)} in the input (breaks at gaps) and after the fill."
                                  + shown, "bone", name))
