@@ -184,6 +184,22 @@
     ctx.font = (11 * dpr) + "px sans-serif";
     if (tp) { ctx.fillStyle = "#2b6cb0"; ctx.fillText((S > 0 ? "+" : "-") + "XYZ"[K] + " up", tp[0] + 4 * dpr, tp[1]); }
 
+    // The file's axes in the corner, turning with the view (the vertical one says "up").
+    var ox = 40 * dpr, oy = h - 40 * dpr, len = 28 * dpr;
+    ctx.font = (11 * dpr) + "px sans-serif";
+    for (var ax = 0; ax < 3; ax++) {
+      var unit = [0, 0, 0];
+      unit[ax] = 1;
+      var d3 = scene(unit), b = basis;
+      var sx = d3[0] * b.right[0] + d3[1] * b.right[1] + d3[2] * b.right[2];
+      var sy = d3[0] * b.up[0] + d3[1] * b.up[1] + d3[2] * b.up[2];
+      ctx.strokeStyle = ctx.fillStyle = C.axes[ax];
+      ctx.lineWidth = 2 * dpr;
+      ctx.beginPath(); ctx.moveTo(ox, oy); ctx.lineTo(ox + len * sx, oy - len * sy); ctx.stroke();
+      ctx.fillText("XYZ"[ax] + (ax === K ? (S > 0 ? " up" : " down") : ""), ox + (len + 4 * dpr) * sx - 3 * dpr,
+                   oy - (len + 4 * dpr) * sy + 4 * dpr);
+    }
+
     // Markers of this frame.
     var pts = new Array(M);
     shownPoints = [];

@@ -239,7 +239,8 @@ def player_payload(data, *, positions: np.ndarray | None = None, filled: np.ndar
         "gaps_total": len(gaps),
         "rejected": rej_rows,
         "colours": {"observed": "#4a4a4a", "filled": plots.FILLED, "band": plots.BAND, "rejected": plots.REJECTED,
-                    "bone": "#9aa7b0", "selected": plots.REFERENCE},
+                    "bone": "#9aa7b0", "selected": plots.REFERENCE,
+                    "axes": ["#B03A2E", "#1E8449", "#2E5FA8"]},  # x red, y green, z blue, as 3-D programs draw them
         "fill": filled is not None,
     }
 
@@ -256,7 +257,7 @@ _CSS = """
 #player .controls { display: flex; flex-wrap: wrap; gap: 0.4em; align-items: center; margin-top: 0.4em;
   font-size: 0.9em; }
 #player .controls input[type=range] { flex: 1 1 200px; }
-#player .frame { font-variant-numeric: tabular-nums; min-width: 15em; }
+#player .frame { font-variant-numeric: tabular-nums; }
 #player .pick { min-height: 2.6em; font-size: 0.9em; margin-top: 0.3em; }
 #player .legend span { margin-right: 1.2em; }
 #player .dot { display: inline-block; width: 0.8em; height: 0.8em; border-radius: 50%; vertical-align: -0.1em;
@@ -293,7 +294,7 @@ def player_section(payload: dict[str, Any], *, heading: str = "Player") -> str:
         "</canvas></div>"
         '<canvas class="strip" width="960" height="14" aria-label="where the gaps are over the take"></canvas>'
         '<div class="controls">'
-        '<button type="button" class="play" title="play / pause (space)">Play</button>'
+        '<button type="button" class="play" title="play / pause">Play</button>'
         '<label>speed <select class="speed"><option value="0.1">0.1x</option><option value="0.25">0.25x</option>'
         '<option value="0.5">0.5x</option><option value="1" selected>1x</option><option value="2">2x</option>'
         '<option value="4">4x</option></select></label>'
@@ -301,11 +302,11 @@ def player_section(payload: dict[str, Any], *, heading: str = "Player") -> str:
         '<button type="button" class="next-gap" title="jump to the next gap">next gap &#xBB;</button>'
         f'<input type="range" class="slider" min="0" max="{max(payload["n_shown"] - 1, 0)}" value="0" step="1" '
         'aria-label="frame">'
-        '<span class="frame"></span>'
-        '<label title="keep the subject in the middle of the view"><input type="checkbox" class="follow" checked> '
-        "follow</label>"
-        '<label><input type="checkbox" class="names"> names</label>'
+        '<span class="frame"></span></div><div class="controls">'
         '<button type="button" class="reset" title="reset the view">reset view</button>'
+        '<label title="keep the subject in the middle of the view"><input type="checkbox" class="follow" checked> '
+        "follow the subject</label>"
+        '<label><input type="checkbox" class="names"> marker names</label>'
         "</div>"
         f'<div class="pick note"></div><p class="legend note">{"".join(legend)}</p>'
         + "".join(f'<p class="note">{n}</p>' for n in notes)
