@@ -1,9 +1,10 @@
-"""The HTML fill report: one self-contained page (inline CSS and SVG, no script, no network) a technician opens to
-see what a fill did to their capture.
+"""The HTML fill report: one self-contained page (inline CSS, SVG and the player's script; no network) a technician
+opens to see what a fill did to their capture.
 
-Sections: summary, overview (marker x frame map), gap table, per-marker trajectories with the filled stretches and
-the uncertainty band, bone lengths before / after the fill, the objective per iteration.  Plots are capped
-(``max_markers``, ``max_bones``) and the page says what was left out.
+Sections: the 3-D player (:mod:`.player`), summary, overview (marker x frame map), gap table, per-marker
+trajectories with the filled stretches and the uncertainty band, bone lengths before / after the fill, the objective
+per iteration.  Plots are capped (``max_markers``, ``max_bones``; fewer and coarser past ``LONG_TAKE`` frames) and
+the page says what was left out.
 """
 
 from __future__ import annotations
