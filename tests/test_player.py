@@ -165,3 +165,13 @@ def test_the_player_is_decimated_further_to_keep_the_page_under_its_budget():
     budget = len(whole.encode()) + 1000
     section = fit_player(data, 300_000, budget=budget)  # the rest of the page takes 300 kB more than is left
     assert len(section.encode()) + 300_000 <= budget and '"stride":1,' not in section
+
+
+def test_a_capture_with_nothing_observed_still_gets_a_player():
+    from mocapfill.report.player import player_section
+
+    data = _capture(n_frames=20, n_markers=3)
+    data.positions[:] = np.nan
+    payload = player_payload(data)
+    _, status = _decode(payload)
+    assert (status == 1).all() and 'id="player"' in player_section(payload)

@@ -203,7 +203,7 @@
     // Markers of this frame.
     var pts = new Array(M);
     shownPoints = [];
-    for (var m = 0; m < M; m++) {
+    for (var m = 0; m < M && F > 0; m++) {
       var code = status[frame * M + m];
       if (code === 1) continue;
       var wpos = world(frame, m);
@@ -407,7 +407,10 @@
   // #player-selftest: move the slider as a user would and record what was drawn (read back by the test suite).
   function inked() {
     var ctx = view.getContext("2d"), img = ctx.getImageData(0, 0, view.width, view.height).data, n = 0;
-    for (var i = 0; i < img.length; i += 4) if (img[i] < 200 && img[i + 1] < 200) n++;  // marker-dark pixels
+    for (var i = 0; i < img.length; i += 4) {  // the observed markers' dark grey, nothing else on the canvas has it
+      var r = img[i], g = img[i + 1], b = img[i + 2];
+      if (r < 120 && Math.abs(r - g) < 16 && Math.abs(g - b) < 16 && img[i + 3] > 200) n++;
+    }
     return n;
   }
   if (hash.indexOf("player-selftest") === 0) {

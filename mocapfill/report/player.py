@@ -215,7 +215,7 @@ def player_payload(data, *, positions: np.ndarray | None = None, filled: np.ndar
     pairs = [] if bones is None else np.asarray(getattr(bones, "pairs", []), dtype=int).reshape(-1, 2).tolist()
     return {
         "labels": labels,
-        "rate": float(data.rate),
+        "rate": float(data.rate) if np.isfinite(data.rate) and data.rate > 0 else 0.0,
         "first_frame": first,
         "n_frames": int(n_frames),
         "stride": int(stride),
