@@ -6,7 +6,7 @@ For each capture: the fill (``auto`` unless ``--method``; not counted), then the
 bones estimated, JSON record, plots, player) and the raw capture's page (``info --report``): seconds and megabytes,
 the player's share of the page and its decimation.  Prints a Markdown table on stdout.
 
-    python benchmarks/bench_report.py [--method auto] [--long-frames 72000] [--skip-long]
+    python benchmarks/bench_report.py [--method auto] [--long-frames 72000] [--skip-long] [MORE.c3d ...]
 """
 
 from __future__ import annotations
@@ -87,13 +87,15 @@ def main() -> None:
     parser.add_argument("--long-missing", type=float, default=10.0)
     parser.add_argument("--long-method", default=None, help="fill method of the long take (default: --method)")
     parser.add_argument("--skip-long", action="store_true")
+    parser.add_argument("extra", nargs="*", help="more captures to measure (after the bundled samples)")
     args = parser.parse_args()
     warnings.simplefilter("ignore")
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, load average {load:.1f} "
           f"(1 min) at the start, Python {platform.python_version()}, NumPy {np.__version__}; fill method "
           f"{args.method}")
-    captures = [(Path(p).name, read(p)) for p in sorted(glob.glob(str(ROOT / "sample_data" / "*.c3d")))]
+    paths = sorted(glob.glob(str(ROOT / "sample_data" / "*.c3d"))) + list(args.extra)
+    captures = [(Path(p).name, read(p)) for p in paths]
     if not args.skip_long:
         base = read(str(ROOT / "sample_data" / "85_02.c3d"))
         captures.append((f"85_02 tiled, {args.long_frames} frames, {args.long_missing:g} % hidden",
