@@ -177,9 +177,10 @@ def player_payload(data, *, positions: np.ndarray | None = None, filled: np.ndar
     else:
         lo, hi, floor = np.zeros(3), np.ones(3), 0.0
 
-    # The size of the body in one frame (median over frames of the markers' bounding-box diagonal): the camera that
-    # follows the subject stands a few body sizes away, whatever the size of the capture volume.
-    sample = pos_k[:: max(1, len(keep) // 500)]
+    # The size of the body in one frame (median over frames of the observed markers' bounding-box diagonal; a fill
+    # gone astray must not push the camera away): the camera that follows the subject stands a few body sizes away,
+    # whatever the size of the capture volume.
+    sample = np.asarray(data.positions, dtype=float)[keep][:: max(1, len(keep) // 500)]
     seen = np.isfinite(sample).all(axis=2)
     sizes = [float(np.linalg.norm(np.ptp(frame_pos[ok], axis=0))) for frame_pos, ok in zip(sample, seen) if ok.sum() >= 2]
     body = float(np.median(sizes)) if sizes else 0.0
