@@ -154,6 +154,8 @@ def test_the_player_draws_and_its_slider_moves_the_frame_in_headless_chromium(fi
     assert min(state["drawn"]) > 30  # the tennis serve's 39 markers, but for gaps
     assert min(state["inked"]) > 200  # pixels actually painted
     assert state["labels"][0] != state["labels"][1] and f"frame {(n - 1) // 2 + 1} of" in state["labels"][1]
+    assert state["pick_text"].startswith(state["picked"] + " at frame")  # a click on a marker names it
+    assert state["played"][1] > state["played"][0] and state["played"][2] == "Pause"  # play moves the frame on
 
 
 def test_the_player_is_decimated_further_to_keep_the_page_under_its_budget():

@@ -424,7 +424,26 @@
     slider.dispatchEvent(new Event("input", {bubbles: true}));
     record();
     state.n_shown = F;
+    // a click on a marker names it
+    var target = shownPoints[0];
+    if (target) {
+      var r = view.getBoundingClientRect(), k = r.width / view.width;
+      var at = {clientX: r.left + target.x * k, clientY: r.top + target.y * k, pointerId: 1, bubbles: true};
+      view.dispatchEvent(new PointerEvent("pointerdown", at));
+      view.dispatchEvent(new PointerEvent("pointerup", at));
+      state.picked = P.labels[target.m];
+      state.pick_text = pickText.textContent;
+    }
     state.errors = window.__playerErrors || [];
     document.documentElement.setAttribute("data-player-selftest", JSON.stringify(state));
+    // play for a moment: the frame must move on by itself
+    var before = frame;
+    playButton.click();
+    setTimeout(function () {
+      state.played = [before, frame, playButton.textContent];
+      playButton.click();
+      state.errors = window.__playerErrors || [];
+      document.documentElement.setAttribute("data-player-selftest", JSON.stringify(state));
+    }, 1000);
   }
 })();
