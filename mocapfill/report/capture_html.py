@@ -18,11 +18,12 @@ BONE_FRAMES = 5000
 
 def _bones(data):
     from ..bones import estimate_bones
+    from ..errors import MocapfillError
 
     step = max(1, -(-data.n_frames // BONE_FRAMES))
     try:
         bones = estimate_bones(data.positions[::step], units=data.units, labels=data.labels)
-    except Exception:  # lines are a help for the eye; a capture they cannot be estimated for still gets its page
+    except MocapfillError:  # lines help the eye; a capture they cannot be estimated for still gets its page
         return None
     return bones if len(bones) else None
 

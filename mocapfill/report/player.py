@@ -68,10 +68,7 @@ def up_axis(data) -> tuple[int, int, str]:
     c3d = getattr(getattr(data, "extra", None), "file", None)
     strings = getattr(c3d, "strings", None)
     if callable(strings):
-        try:
-            values = strings("POINT", "Y_SCREEN")
-        except Exception:  # an odd parameter is no reason to lose the report
-            values = []
+        values = strings("POINT", "Y_SCREEN")
         text = (values[0] if values else "").strip().upper()
         if len(text) == 2 and text[0] in "+-" and text[1] in "XYZ":
             axis, sign = "XYZ".index(text[1]), 1 if text[0] == "+" else -1
