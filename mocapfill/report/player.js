@@ -367,6 +367,7 @@
   var drag = null;
   view.addEventListener("pointerdown", function (e) {
     drag = {x: e.clientX, y: e.clientY, az: cam.az, el: cam.el, moved: false};
+    view.focus({preventScroll: true});
     view.setPointerCapture(e.pointerId);
   });
   view.addEventListener("pointermove", function (e) {
@@ -397,6 +398,11 @@
     draw();
   }, {passive: false});
   window.addEventListener("resize", draw);
+  view.addEventListener("keydown", function (e) {  // with the view focused: space plays, arrows step
+    if (e.key === " ") { setPlaying(!playing); e.preventDefault(); }
+    else if (e.key === "ArrowRight") { setPlaying(false); show(frame + 1); e.preventDefault(); }
+    else if (e.key === "ArrowLeft") { setPlaying(false); show(frame - 1); e.preventDefault(); }
+  });
 
   // #player-frame=N&marker=NAME opens the player at a frame (file numbering) with a marker picked.
   var hash = decodeURIComponent((location.hash || "").slice(1)), opts = {};

@@ -283,12 +283,12 @@ def player_section(payload: dict[str, Any], *, heading: str = "Player") -> str:
     axis, sign = payload["up"]
     notes.append(f"Vertical axis: {'+' if sign > 0 else '-'}{'XYZ'[axis]} (from the {html.escape(payload['up_source'])}"
                  f"); grid step {payload['grid']:g} {html.escape(payload['units'])}. Drag to rotate, wheel to zoom, "
-                 "click a marker for its name.")
+                 "click a marker for its name; with the view focused, space plays and the arrow keys step.")
     if payload["gaps_total"] > len(payload["gaps"]):
         notes.append(f"The gap buttons know the first {len(payload['gaps'])} of {payload['gaps_total']} gaps.")
     return (
         f'<section id="player"><h2>{html.escape(heading)}</h2><style>{_CSS}</style>'
-        '<div class="stage"><canvas class="view" width="960" height="520" aria-label="3-D view of the markers">'
+        '<div class="stage"><canvas class="view" width="960" height="520" tabindex="0" aria-label="3-D view of the markers">'
         "</canvas></div>"
         '<canvas class="strip" width="960" height="14" aria-label="where the gaps are over the take"></canvas>'
         '<div class="controls">'
