@@ -170,19 +170,12 @@
     ctx.lineWidth = dpr;
     if (followBox.checked && F) cam.target = [smooth[3 * frame], smooth[3 * frame + 1], smooth[3 * frame + 2]];
 
-    // Ground grid at the floor, and the vertical axis at the grid's origin corner.
+    // Ground grid at the floor.
     ctx.strokeStyle = "#dde1e6";
     ctx.beginPath();
     for (var gx = gx0; gx <= gx1 + 1e-9; gx += grid) line(ctx, [gx, gy0, floorZ], [gx, gy1, floorZ]);
     for (var gy = gy0; gy <= gy1 + 1e-9; gy += grid) line(ctx, [gx0, gy, floorZ], [gx1, gy, floorZ]);
     ctx.stroke();
-    var base = [gx0, gy0, floorZ], top = [gx0, gy0, floorZ + 2 * grid];
-    ctx.strokeStyle = "#2b6cb0";
-    ctx.lineWidth = 2 * dpr;
-    ctx.beginPath(); line(ctx, base, top); ctx.stroke();
-    var tp = project(top);
-    ctx.font = (11 * dpr) + "px sans-serif";
-    if (tp) { ctx.fillStyle = "#2b6cb0"; ctx.fillText((S > 0 ? "+" : "-") + "XYZ"[K] + " up", tp[0] + 4 * dpr, tp[1]); }
 
     // The file's axes in the corner, turning with the view (the vertical one says "up").
     var ox = 40 * dpr, oy = h - 40 * dpr, len = 28 * dpr;
