@@ -75,18 +75,31 @@ def _show(summary: dict, quiet: bool) -> None:
 @cli.command("info")
 @click.argument("file", type=str)
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout instead of tables.")
+@click.option("--report", "report_path", type=str, default=None,
+              help="Also write FILE.html: a self-contained page with a 3-D player of the raw capture and its gaps.")
 @input_options
 @quiet_option
-def info(file: str, as_json: bool, reading: ReadOptions, quiet: bool) -> None:
+def info(file: str, as_json: bool, report_path: str | None, reading: ReadOptions, quiet: bool) -> None:
     """Show frames, rate, units, markers and the gaps of FILE ("-" reads stdin).
 
     Per marker: percent missing, number of gaps, the longest gap (frames and seconds), gaps touching the start or
-    the end, markers missing throughout; and the blackout frames (every marker missing).
+    the end, markers missing throughout; and the blackout frames (every marker missing).  With --report take.html,
+    also a page to look at the raw capture in 3-D before repairing it.
     """
     from ..summary import summarize
 
+    if report_path is not None:
+        from ..io.atomic import check_output_path
+
+        if not report_path.lower().endswith((".html", ".htm")):
+            raise click.BadParameter("must end in .html", param_hint="--report")
+        check_output_path(report_path, file)
     data = read_input(file, reading, show_notes=False)  # the notes are part of the table below
     summary = summarize(data)
+    if report_path is not None:
+        from ..report.capture_html import write_capture_report
+
+        write_capture_report(data, summary, report_path)
     if as_json:
         sys.stdout.write(json.dumps(summary, indent=2, allow_nan=False) + "\n")
         sys.stdout.flush()

@@ -4,8 +4,10 @@ Public API
 ----------
 - :func:`build_fill_report` -> dict: JSON-ready summary, gap table, unfilled gaps, rejected samples, bones
   (validates against ``fill_report.schema.json`` beside this module; see :data:`SCHEMA_PATH`).
-- :func:`write_report`: writes that dict as ``.json``, or as a self-contained ``.html`` page with inline SVG plots
-  (needs matplotlib, the optional extra ``mocapfill[report]``), chosen by the path's extension.
+- :func:`write_report`: writes that dict as ``.json``, or as a self-contained ``.html`` page with a 3-D player
+  (:mod:`.player`) and inline SVG plots (needs matplotlib, the optional extra ``mocapfill[report]``), chosen by the
+  path's extension.
+- :func:`.capture_html.write_capture_report`: the page of a raw capture (``mocapfill info --report``).
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ def _atomic_write_text(path: str | Path, text: str) -> None:
 
 
 def write_report(report: dict[str, Any], path: str | Path, *, data, result, bones=None,
-                 max_markers: int = 40, max_bones: int = 40) -> None:
+                 max_markers: int = 40, max_bones: int = 40, player: bool = True) -> None:
     """Write ``report`` (from :func:`build_fill_report`) to ``path``: JSON or HTML by extension.
 
     Parameters
@@ -46,6 +48,8 @@ def write_report(report: dict[str, Any], path: str | Path, *, data, result, bone
         Bones (pairs (B, 2), lengths (B,)) whose length-over-time plots go into the HTML page.
     max_markers, max_bones : int
         Caps on the number of trajectory and bone plots in the HTML page; the page says what was left out.
+    player : bool
+        Put the 3-D player (:mod:`.player`) at the top of the HTML page.
     """
     path_str = str(path)
     suffix = Path(path_str).suffix.lower()
@@ -55,6 +59,6 @@ def write_report(report: dict[str, Any], path: str | Path, *, data, result, bone
         from .html_report import render_html
 
         _atomic_write_text(path, render_html(report, data=data, result=result, bones=bones,
-                                             max_markers=max_markers, max_bones=max_bones))
+                                             max_markers=max_markers, max_bones=max_bones, player=player))
     else:
         raise InputError(f"report {path_str}: unknown extension {suffix or '(none)'!r}; use .json or .html")

@@ -1,9 +1,10 @@
-"""The HTML fill report: one self-contained page (inline CSS and SVG, no script, no network) a technician opens to
-see what a fill did to their capture.
+"""The HTML fill report: one self-contained page (inline CSS, SVG and the player's script; no network) a technician
+opens to see what a fill did to their capture.
 
-Sections: summary, overview (marker x frame map), gap table, per-marker trajectories with the filled stretches and
-the uncertainty band, bone lengths before / after the fill, the objective per iteration.  Plots are capped
-(``max_markers``, ``max_bones``) and the page says what was left out.
+Sections: the 3-D player (:mod:`.player`), summary, overview (marker x frame map), gap table, per-marker
+trajectories with the filled stretches and the uncertainty band, bone lengths before / after the fill, the objective
+per iteration.  Plots are capped (``max_markers``, ``max_bones``; fewer and coarser past ``LONG_TAKE`` frames) and
+the page says what was left out.
 """
 
 from __future__ import annotations
@@ -15,6 +16,14 @@ import numpy as np
 
 from . import plots
 
+#: Points per plotted line; takes longer than LONG_TAKE frames get fewer (about one per two pixels of the page), so
+#: that their plots leave the 3-D player room under the page budget (:data:`.player.PAGE_BUDGET`).
+PLOT_POINTS = 1000
+LONG_TAKE = 20_000
+LONG_PLOT_POINTS = 400
+#: ... and at most this many trajectory and bone plots each (the player shows every marker; the page says which
+#: plots were left out).
+LONG_TAKE_PLOTS = 20
 #: More gap rows than this are cut from the table (the JSON report has them all).
 MAX_TABLE_ROWS = 500
 #: Gap tables longer than this are folded under a <details> element, with the longest gaps shown above.
@@ -102,6 +111,17 @@ def _summary_rows(report: dict) -> list[tuple[str, str]]:
     return rows
 
 
+def reader_notes(notes: list[str], shown: int = 2) -> str:
+    """The reader's notes; past ``shown`` folded, so that a file with dozens of renamed labels does not push the
+    player off the screen."""
+    text = "; ".join(_e(n) for n in notes[:shown])
+    if len(notes) <= shown:
+        return f'<p class="note">Reader notes: {text}</p>'
+    rest = "; ".join(_e(n) for n in notes[shown:])
+    return (f'<details class="note"><summary>Reader notes ({len(notes)}): {text} ...</summary>'
+            f"<p>{rest}</p></details>")
+
+
 def _table(headers: list[str], rows: list[list[str]], numeric: set[int]) -> str:
     head = "".join(f'<th class="num">{_e(h)}</th>' if i in numeric else f"<th>{_e(h)}</th>"
                    for i, h in enumerate(headers))
@@ -118,7 +138,7 @@ def _figure(svg: str, caption: str, kind: str, name: str) -> str:
 
 
 def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers: int = 40,
-                max_bones: int = 40) -> str:
+                max_bones: int = 40, player: bool = True) -> str:
     """The self-contained HTML page of ``report`` (from :func:`build_fill_report`).
 
     Parameters
@@ -132,7 +152,9 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
     bones : BoneSet or None
         pairs (B, 2), lengths (B,): the bones touching filled markers get a length-over-time plot.
     max_markers, max_bones : int
-        Caps on the number of trajectory and bone plots.
+        Caps on the number of trajectory and bone plots (at most ``LONG_TAKE_PLOTS`` each past ``LONG_TAKE`` frames).
+    player : bool
+        Put the 3-D player (:mod:`.player`, the page's only script) near the top.
 
     Raises
     ------
@@ -146,6 +168,10 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
     units = s["units"]
     n_frames, n_markers = data.n_frames, data.n_markers
     frames = first + np.arange(n_frames)
+    points = PLOT_POINTS
+    if n_frames > LONG_TAKE:
+        points = LONG_PLOT_POINTS
+        max_markers, max_bones = min(max_markers, LONG_TAKE_PLOTS), min(max_bones, LONG_TAKE_PLOTS)
     rejected = _frames_mask(report["rejected"], labels, first, (n_frames, n_markers))
     observed = data.positions.copy()
     observed[rejected] = np.nan
@@ -157,7 +183,7 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
 
     title = s["file"] or "capture"
     parts = [f"<h1>mocapfill fill report<small>{_e(title)}</small></h1>"]
-    parts.append('<nav><a href="#summary">Summary</a><a href="#overview">Overview</a><a href="#gaps">Gaps</a>'
+    parts.append('<nav>' + ('<a href="#player">Player</a>' if player else '') + '<a href="#summary">Summary</a><a href="#overview">Overview</a><a href="#gaps">Gaps</a>'
                  '<a href="#markers">Markers</a><a href="#bones">Bones</a><a href="#convergence">Convergence</a></nav>')
 
     # Alerts first: what needs a person's attention.
@@ -174,7 +200,8 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
         parts.append(f'<div class="alert ok">Every gap was filled ({s["filled_samples"]} samples).</div>')
     parts.extend(f'<div class="alert">{_e(a)}</div>' for a in alerts)
     if s["notes"]:
-        parts.append("<p class=\"note\">Reader notes: " + "; ".join(_e(n) for n in s["notes"]) + "</p>")
+        parts.append(reader_notes(s["notes"]))
+    player_at = len(parts)  # the player goes here, sized last to what the rest of the page leaves (fit_player)
 
     parts.append('<h2 id="summary">Summary</h2><table class="summary"><tbody>')
     parts.extend(f"<tr><th>{_e(k)}</th><td>{_e(v)}</td></tr>" for k, v in _summary_rows(report))
@@ -263,7 +290,8 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
         window = plots.plot_window(filled[:, m] | unfilled[:, m])
         svg = plots.trajectory_svg(frames, observed[:, m], output[:, m], filled[:, m], unfilled[:, m],
                                    None if std is None else std[:, m], label=labels[m], units=units,
-                                   outliers=outliers[:, m] if rejected[:, m].any() else None, window=window)
+                                   outliers=outliers[:, m] if rejected[:, m].any() else None, window=window,
+                                   max_points=points)
         n_gaps = sum(1 for g in gaps if g["marker"] == labels[m])
         shown = "" if window is None else f" Frames {frames[window[0]]}-{frames[window[1] - 1]} shown."
         parts.append(_figure(svg, f"{_e(labels[m])}: {int(counts[m])} filled samples in {n_gaps} gap(s).{shown}",
@@ -300,7 +328,7 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
             either = filled[:, a] | filled[:, c]
             window = plots.plot_window(either)
             svg = plots.bone_svg(frames, dist(observed, a, c), dist(output, a, c), float(lengths[b]), either,
-                                 name=name, units=units, window=window)
+                                 name=name, units=units, window=window, max_points=points)
             shown = "" if window is None else f" Frames {frames[window[0]]}-{frames[window[1] - 1]} shown."
             parts.append(_figure(svg, f"Length of {_e(name)} in the input (breaks at gaps) and after the fill."
                                  + shown, "bone", name))
@@ -317,8 +345,20 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
                 for k, v in info.items()]
         parts.append("<h3>Method details</h3>" + _table(["key", "value"], rows, set()))
 
-    body = "\n".join(parts)
+    if player:
+        from .player import fit_player
+
+        rest = sum(len(p.encode()) for p in parts)
+        parts.insert(player_at, fit_player(data, rest, positions=output, filled=filled, std=std, rejected=rejected,
+                                           gaps=report["gaps"], bones=bones))
+    return page(title=f"mocapfill report: {title}", body="\n".join(parts), script=player)
+
+
+def page(*, title: str, body: str, script: bool = False) -> str:
+    """One self-contained HTML document around ``body``; ``script``: record script errors (the player's self-test)."""
+    from .player import ERROR_HOOK
+
     return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
             "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
-            f"<title>mocapfill report: {_e(title)}</title><style>{_CSS}</style></head>"
+            f"<title>{_e(title)}</title>{ERROR_HOOK if script else ''}<style>{_CSS}</style></head>"
             f"<body><main>\n{body}\n</main></body></html>\n")
