@@ -46,17 +46,18 @@ fill).
 
 from __future__ import annotations
 
+import warnings
 from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import MethodError
+from ..errors import ConvergenceWarning, MethodError
 from ..gaps import find_gaps
 from .base import FillResult, finish
 from ..blas import single_blas_thread
 from ..bones import resolve_bones
 from .bone_refinement import refine_bones
-from .plausibility import implausible, observed_speed
+from .plausibility import EXTENT, body_centre, implausible, observed_speed
 from .local_pca import DEFAULT_ALIGN_MM, DEFAULT_SCALES_MM, reconstruct_local
 from ..units import length_factor
 
@@ -161,8 +162,10 @@ def _fill_auto(positions: np.ndarray, *, units: str, labels, rate, bones, knn: i
     few = (local_info["anchors"] <= 3) & ~(local_info["anchor_reach"] <= NEAR_ANCHORS_MM * mm)
     trust, why = pca_trust(positions, pca, pca_std, few, limit, mm)
     gap = missing & ~missing.all(axis=0)
+    guide = dynamics_guide(positions, trust, gap, spline_max)
+    info["fallback_guide"] = "dynammo" if guide is not None else "none"
     for attempt in range(JUMP_PASSES):
-        fallback, splined = fallback_path(positions, pca, trust >= 1.0, spline_max)
+        fallback, splined = fallback_path(positions, pca, trust >= 1.0, spline_max, guide)
         alpha = limit_trust_changes(trust, np.linalg.norm(np.nan_to_num(pca - fallback), axis=2),
                                     BLEND_STEP * speed, gap)
         estimate, std = blend(positions, pca, pca_std, fallback, alpha)
@@ -183,7 +186,7 @@ def _fill_auto(positions: np.ndarray, *, units: str, labels, rate, bones, knn: i
     splined &= (alpha == 0) & ~calm
     # (long takes: the one place a windowed call of the whole body above would wrap in, see methods/windows.py)
     info["gap_methods"] = _gap_methods(missing, std, local_info, boneset, labels, units, splined, spline_max,
-                                       alpha, why)
+                                       alpha, why, guided=guide is not None)
     return finish(positions, estimate, std=std, info=info)
 
 
@@ -195,7 +198,8 @@ def calm_down(positions: np.ndarray, estimate: np.ndarray, std: np.ndarray, gap:
     observed steps; limit (n_frames - 1, n_markers) the step reference (:func:`step_reference`: a filled step may
     reach ``STEP_BOUND`` times the larger of the marker's largest observed step and the body's largest step then;
     the blend above already holds almost every step within that).  A straight line stays between the observations it joins and, edges held, never leaves the
-    observed extent; its uncertainty grows like a Brownian bridge whose step is the marker's largest observed one
+    observed extent (the line runs in the frame of the body's centre, :func:`.plausibility.body_centre`, so its
+    offsets stay within the observed ones); its uncertainty grows like a Brownian bridge whose step is the marker's largest observed one
     (the data cannot support more).  Returns estimate, std and the (n_frames, n_markers) mask of replaced samples.
     """
     from ..gaps import runs
@@ -206,13 +210,23 @@ def calm_down(positions: np.ndarray, estimate: np.ndarray, std: np.ndarray, gap:
     if not bad.any():
         return estimate, std, calm
     missing = np.isnan(positions).any(axis=2)
+    centre, radius = body_centre(positions, missing)
+    # the moving line follows the median of the whole filled body: the median of the observed markers jumps
+    # whenever one of them vanishes
+    with np.errstate(all="ignore"):
+        follow = np.where(np.isfinite(estimate).all(axis=2).any(axis=1)[:, None],
+                          np.nanmedian(estimate, axis=1), centre)
     estimate, std = estimate.copy(), std.copy()
     for m in np.flatnonzero(bad.any(axis=0)):
+        # a straight line; where that leaves the body (a held position stays behind a subject running out of the
+        # volume) a line in the frame of the body's centre, which keeps the marker's offset from it
         line = _linear_fallback(positions[:, m], missing[:, m])
+        moving = follow + _linear_fallback(positions[:, m] - follow, missing[:, m])
         for start, length in runs(gap[:, m]):
             if bad[start:start + length, m].any():
                 sl = slice(start, start + length)
-                estimate[sl, m] = line[sl]
+                far = np.linalg.norm(line[sl] - centre[sl], axis=1) > EXTENT * radius
+                estimate[sl, m] = moving[sl] if far.any() else line[sl]
                 d = np.arange(1, length + 1, dtype=float)
                 std[sl, m] = speed[m] * np.sqrt(d * (length + 1 - d) / (length + 1)) / np.sqrt(3.0)
                 calm[sl, m] = True
@@ -233,8 +247,28 @@ def step_reference(positions: np.ndarray, missing: np.ndarray, speed: np.ndarray
     return np.maximum(speed[None, :], body[:, None])
 
 
-def fallback_path(positions: np.ndarray, pca: np.ndarray, trusted: np.ndarray, longest: int
-                  ) -> tuple[np.ndarray, np.ndarray]:
+def dynamics_guide(positions: np.ndarray, trust: np.ndarray, gap: np.ndarray, longest: int) -> np.ndarray | None:
+    """DynaMMo's fill (n_frames, n_markers, 3), or None when no untrusted stretch is longer than ``longest``.
+
+    positions (n_frames, n_markers, 3); trust / gap (n_frames, n_markers).  When many markers are missing at once
+    (20-30 % of the samples in 0.25-2 s gaps) some markers lose every near neighbour and the local PCA doubts
+    itself over whole seconds; a straight line there missed a tennis player's hand by up to a metre.  The linear
+    dynamical system learns from every frame, complete or not, and follows the motion through such stretches.
+    """
+    from ..gaps import runs
+    from .dynammo import run_dynammo
+
+    untrusted = gap & (trust < 1.0)
+    if not any(length > longest for m in np.flatnonzero(untrusted.any(axis=0))
+               for _, length in runs(untrusted[:, m])):
+        return None
+    with warnings.catch_warnings():  # a guide needs no convergence to the last digit; say nothing
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        return run_dynammo(positions, seed=0, uncertainty=False).positions
+
+
+def fallback_path(positions: np.ndarray, pca: np.ndarray, trusted: np.ndarray, longest: int,
+                  guide: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The bounded, smooth fill every untrusted PCA sample is blended towards.
 
     It passes through the observations and the fully trusted PCA samples (``trusted`` (n_frames, n_markers) bool,
@@ -255,7 +289,13 @@ def fallback_path(positions: np.ndarray, pca: np.ndarray, trusted: np.ndarray, l
     n_frames = positions.shape[0]
     todo = np.flatnonzero((~known).any(axis=0) & known.any(axis=0))
     for m in todo:
-        out[:, m] = _linear_fallback(series[:, m], ~known[:, m])
+        if guide is None:
+            out[:, m] = _linear_fallback(series[:, m], ~known[:, m])
+        else:  # interior runs: the guide, shifted linearly to meet the known samples at the run's ends
+            out[:, m] = _linear_fallback(series[:, m], ~known[:, m])
+            shifted = guide[:, m] + _linear_fallback(series[:, m] - guide[:, m], ~known[:, m])
+            seen = np.flatnonzero(known[:, m])
+            out[seen[0]:seen[-1], m] = shifted[seen[0]:seen[-1]]
         for start, length in runs(~known[:, m]):
             if length <= longest and start > 0 and start + length < n_frames:
                 splined[start:start + length, m] = True
@@ -362,7 +402,8 @@ def jumps(estimate: np.ndarray, gap: np.ndarray, bound: np.ndarray) -> np.ndarra
 
 
 def _gap_methods(missing: np.ndarray, std: np.ndarray, local_info: dict, boneset, labels, units: str,
-                 splined: np.ndarray, spline_max: int, alpha: np.ndarray, why: dict) -> list[dict]:
+                 splined: np.ndarray, spline_max: int, alpha: np.ndarray, why: dict, guided: bool = False
+                 ) -> list[dict]:
     """One record per gap: which method filled it and why (JSON-ready).
 
     missing / std / splined / alpha (n_frames, n_markers): the final uncertainty, splined fallback samples and the
@@ -426,7 +467,8 @@ def _gap_methods(missing: np.ndarray, std: np.ndarray, local_info: dict, boneset
                 count = int(why[key][sl, m].sum())
                 if count:
                     parts.append(f"{count} frame(s) with {text}")
-            kind = "spline" if splined[sl, m].any() else "linear interpolation / hold"
+            kind = ("spline" if splined[sl, m].any() else
+                    "DynaMMo's fill, shifted to meet the trusted samples" if guided else "linear interpolation / hold")
             reason += (f"; PCA not trusted in {int((trusted < 1).sum())} of {gap.length} frames ("
                        + ", ".join(parts) + f"): blended smoothly into the {kind} there")
         rec.update(method=method, reason=reason)
