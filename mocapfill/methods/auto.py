@@ -9,6 +9,10 @@ see ``benchmarks/bench_default.py`` and the README's figures):
    cross-validation instead of the 99 % rule; three weight widths (150, 200, 300 mm) are averaged by their inverse
    cross-validated variance; a k-nearest-pose residual correction adds what the linear map misses; the residual at
    the frames just outside a gap is carried into it (Ornstein-Uhlenbeck bridge), so fills meet the observations.
+   When many markers are missing at once (issue 9: 20-30 % of the samples in 0.25-2 s gaps leave 0-2 % of the
+   frames complete) each model conditions only on the markers observed where it predicts and keeps the nearest of
+   them that still leave 100 training frames: it learns from incomplete frames (CMU 85_02 at 20 % missing: median
+   / RMSE 169 / 331 mm on the issue's clips before, 9.6 / 26 mm now; ``benchmarks/bench_messy.py``).
 2. **Bone refinement** (:mod:`.bone_refinement`).  Bones are estimated from the observed frames of the input (never
    from anything hidden) unless given; each frame's filled markers move to the most probable positions given the
    PCA estimate (weighted by its uncertainty) and the bone lengths (weighted by their spread).  This keeps a limb
@@ -16,21 +20,32 @@ see ``benchmarks/bench_default.py`` and the README's figures):
 3. **Fallback**: a stretch with fewer than three usable neighbours or ten training frames (whole-body blackouts,
    mostly) is filled by a cubic spline through the marker's own observations when it is at most 0.5 s long
    (blackout protocol, 10 trials: median RMSE 8 mm on the CMU clip and 4 mm on the tennis serve, against 39 and
-   25 mm for straight lines), and by linear interpolation beyond (a cubic runs away over long stretches: median
-   624 mm on the 10-50 % one-marker gaps of the CMU clip); edges hold the nearest observed value.  These samples
-   carry no uncertainty (NaN) and are not moved by the bone refinement.
+   25 mm for straight lines).  Beyond that, when some untrusted stretch (step 4) is longer than 0.5 s, DynaMMo's
+   fill (:func:`.dynammo.run_dynammo`, which learns from every frame, complete or not) guides it, shifted linearly
+   to meet the known samples at the stretch's ends (on the dense protocol a straight line there missed a tennis
+   player's hand by a metre: tennis serve, 20 % missing, RMSE 85 mm with lines, 35 mm with the guide); otherwise
+   linear interpolation; edges hold the nearest observed value.  These samples carry no uncertainty (NaN) and are
+   not moved by the bone refinement.
 4. **Trust check and smooth blend** (:func:`pca_trust`, :func:`limit_trust_changes`).  With few neighbours left
-   (a subject walking out of the volume) the local frame rests on three far points and the PCA jumped by up to
+   (a subject walking out of the volume) the local frame rests on a few far points and the PCA jumped by up to
    700 mm between frames (VER4C3D's toe).  Each PCA sample gets a trust in [0, 1]: lowered by its uncertainty
-   (50-150 mm), by its step to the neighbouring frames (1.5-3x the larger of the marker's largest observed step and
-   the body's largest step at that frame) and when only three neighbours define its frame (at most 0.5).  The
-   fallback path then runs through the observations and the fully trusted samples (spline over short stretches,
-   linear over long ones, held at the clip's edges); trust is lowered further so that it changes by at most half a
-   largest observed step per frame, and each filled sample is trust x PCA + (1 - trust) x fallback.  A final guard
-   distrusts an ever wider stretch around any filled step still above 3x the reference step.  On the benchmark's
-   trials nothing changed (same medians and means); over the 34 shared-data C3D files with gaps the worst filled step
-   fell from up to 137x the marker's largest observed step to below 5x (above that only markers whose own
-   observations jump, unlabelled ``*`` markers seen in a few frames).
+   (50-150 mm) and by its step to the neighbouring frames (1.5-3x the larger of the marker's largest observed step
+   and the body's largest step at that frame).  (A cap for frames defined by only three neighbours was dropped in
+   issue 9: on dense gaps the nearest three often define it well, and the cap blended good estimates into
+   interpolation, tennis serve at 30 %: 12 / 63 mm with it, 8 / 29 without; the step checks keep the walk-outs
+   calm.)  The fallback path then runs through the observations and the fully trusted samples; trust is lowered
+   further so that it changes by at most half a largest observed step per frame, and each filled sample is
+   trust x PCA + (1 - trust) x fallback.  A guard distrusts an ever wider stretch around any filled step still
+   above 3x the reference step.
+5. **Plausibility guard** (:func:`calm_down`, :mod:`.plausibility`).  A gap run that still holds a sample beyond
+   1.1x the body's observed extent or a step beyond 3x the reference becomes a straight line through its ends
+   (in the frame of the body's centre where a held position would leave the body), with an uncertainty that grows
+   towards the middle like a Brownian bridge of the marker's largest observed step.  ``benchmarks/bench_messy.py``
+   reports the extent and speed ratios on every capture with real gaps; ``tests/test_plausibility.py`` guards the
+   committed ones.
+
+Long takes: :func:`_fill_auto` is one call on the whole array; a windowed fill (``methods/windows.py``, issue 9's
+long-take part) wraps exactly that call (see the comment at its end).
 
 Candidates measured and left out (``benchmarks/bench_default.py``, 20 trials per clip and protocol, median RMSE in
 mm on the CMU clip / tennis serve; the default: 11.6 / 3.7 one-marker, 15.3 / 5.8 limb): the published PCA alone
@@ -78,13 +93,6 @@ DISTRUST_STD_MM = 150.0
 #: guard: no filled step longer than it keeps any PCA trust.
 FAST = 1.5
 STEP_BOUND = 3.0
-#: Trust when only the minimum of three observed neighbours defines the local frame (its rotation is then set by
-#: three points, often far from the marker: the walk-out of VER4C3D's toe gave jumps of 700 mm).
-FEW_ANCHORS_TRUST = 1.0
-#: ... unless those three are near the marker (median mean distance within this, mm): on dense gaps (20-30 % of
-#: the samples missing) the nearest observed three often define it, and capping their trust blended good
-#: estimates into interpolation (tennis serve, 30 %: median / RMSE 12 / 63 mm with the cap, 8 / 29 without).
-NEAR_ANCHORS_MM = 250.0
 #: Blending moves a fill by at most this fraction of the marker's largest observed step per frame (a ramp, not a
 #: switch, between the PCA and the fallback).
 BLEND_STEP = 0.5
@@ -136,6 +144,7 @@ def fill_auto(
     if labels is not None and len(labels) != positions.shape[1]:
         raise MethodError(f"{len(labels)} labels for {positions.shape[1]} markers")
     with single_blas_thread():  # thousands of small decompositions: BLAS threads only add contention
+        # long takes: the one place to wire in the overlapping-window helper (methods/windows.py), wrapping this call
         return _fill_auto(positions, units=units, labels=labels, rate=rate, bones=bones, knn=knn, refine=refine)
 
 
@@ -159,8 +168,7 @@ def _fill_auto(positions: np.ndarray, *, units: str, labels, rate, bones, knn: i
     info["bones"] = 0 if boneset is None else int(len(boneset))
     speed = observed_speed(positions, missing, floor=MIN_SPEED_MM * mm)
     limit = step_reference(positions, missing, speed)
-    few = (local_info["anchors"] <= 3) & ~(local_info["anchor_reach"] <= NEAR_ANCHORS_MM * mm)
-    trust, why = pca_trust(positions, pca, pca_std, few, limit, mm)
+    trust, why = pca_trust(positions, pca, pca_std, limit, mm)
     gap = missing & ~missing.all(axis=0)
     guide = dynamics_guide(positions, trust, gap, spline_max)
     info["fallback_guide"] = "dynammo" if guide is not None else "none"
@@ -184,7 +192,6 @@ def _fill_auto(positions: np.ndarray, *, units: str, labels, rate, bones, knn: i
     alpha[calm] = 0.0
     why["implausible"] = calm
     splined &= (alpha == 0) & ~calm
-    # (long takes: the one place a windowed call of the whole body above would wrap in, see methods/windows.py)
     info["gap_methods"] = _gap_methods(missing, std, local_info, boneset, labels, units, splined, spline_max,
                                        alpha, why, guided=guide is not None)
     return finish(positions, estimate, std=std, info=info)
@@ -308,18 +315,17 @@ def fallback_path(positions: np.ndarray, pca: np.ndarray, trusted: np.ndarray, l
     return out, splined
 
 
-def pca_trust(positions: np.ndarray, pca: np.ndarray, std: np.ndarray, few: np.ndarray, limit: np.ndarray,
+def pca_trust(positions: np.ndarray, pca: np.ndarray, std: np.ndarray, limit: np.ndarray,
               mm: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Per-sample trust in the local PCA estimate, in [0, 1], and the reasons it is lowered.
 
     positions / pca (n_frames, n_markers, 3); std (n_frames, n_markers) the PCA's uncertainty (NaN where it made
-    no estimate); few (n_frames, n_markers) bool: only three far observed neighbours defined the local frame; limit
+    no estimate); limit
     (n_frames - 1, n_markers) the reference step (:func:`step_reference`); mm data units per millimetre.  Trust
     falls linearly from 1 to 0 as the uncertainty grows from ``TRUST_STD_MM`` to ``DISTRUST_STD_MM`` and as the
-    estimate's step to the next or previous frame grows from ``FAST`` to ``STEP_BOUND`` times the reference step;
-    a frame defined by three far neighbours (``few``) is trusted at most ``FEW_ANCHORS_TRUST``.  Returns trust
-    (n_frames, n_markers) (1 on observed samples, 0 where there is no estimate) and masks ``uncertain``, ``fast``,
-    ``few_neighbours`` and ``jump`` (filled by the caller's final check).
+    estimate's step to the next or previous frame grows from ``FAST`` to ``STEP_BOUND`` times the reference step.
+    Returns trust (n_frames, n_markers) (1 on observed samples, 0 where there is no estimate) and masks
+    ``uncertain``, ``fast`` and ``jump`` (filled by the caller's final check).
     """
     missing = np.isnan(positions).any(axis=2)
     est = missing & np.isfinite(std)
@@ -334,9 +340,8 @@ def pca_trust(positions: np.ndarray, pca: np.ndarray, std: np.ndarray, few: np.n
     ratio[1:] = step
     ratio[:-1] = np.maximum(ratio[:-1], step)
     by_speed = np.clip((STEP_BOUND - ratio) / (STEP_BOUND - FAST), 0.0, 1.0)
-    by_anchors = np.where(few, FEW_ANCHORS_TRUST, 1.0)
-    trust[est] = np.minimum(np.minimum(by_std, by_speed), by_anchors)[est]
-    why = {"uncertain": est & (by_std < 1), "fast": est & (by_speed < 1), "few_neighbours": est & few,
+    trust[est] = np.minimum(by_std, by_speed)[est]
+    why = {"uncertain": est & (by_std < 1), "fast": est & (by_speed < 1),
            "jump": np.zeros_like(est)}
     return trust, why
 
@@ -459,7 +464,6 @@ def _gap_methods(missing: np.ndarray, std: np.ndarray, local_info: dict, boneset
                 parts.append(f"{int(no_pca[sl, m].sum())} frame(s) without 3 observed neighbours or 10 training "
                              f"frames")
             labels_why = {"uncertain": f"uncertainty above {TRUST_STD_MM:g} mm",
-                          "few_neighbours": "only 3 far observed neighbours define the local frame",
                           "fast": f"steps above {FAST:g}x the largest observed (its own or the body's then)",
                           "jump": f"a filled step above {STEP_BOUND:g}x the largest observed (its own or the "
                                   f"body's then) or beyond the body's extent / 1.5x its own largest observed step"}

@@ -284,15 +284,13 @@ def reconstruct_local(
     estimate (n_frames, n_markers, 3) (NaN where nothing could be estimated), std (n_frames, n_markers) per-
     coordinate RMS (0 observed, NaN unknown), info with ``fallback`` markers, ``groups`` (one record per marker
     and pattern: marker, frames, components per scale, cross-validated RMS) and ``anchors`` (n_frames, n_markers)
-    int: how many observed neighbours defined the local frame of each estimated sample (0 elsewhere) and
-    ``anchor_reach`` (n_frames, n_markers) their median mean distance to the marker (data units, NaN elsewhere).
+    int: how many observed neighbours defined the local frame of each estimated sample (0 elsewhere).
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
     estimate = positions.copy()
     std = np.where(missing, np.nan, 0.0)
-    info: dict[str, Any] = {"fallback": [], "groups": [], "anchors": np.zeros((n_frames, n_markers), dtype=int),
-                            "anchor_reach": np.full((n_frames, n_markers), np.nan)}
+    info: dict[str, Any] = {"fallback": [], "groups": [], "anchors": np.zeros((n_frames, n_markers), dtype=int)}
     gap_markers = np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0))
     for m in gap_markers:
         frames = np.flatnonzero(missing[:, m])
@@ -363,7 +361,6 @@ def reconstruct_local(
             estimate[group, m] = est
             std[group, m] = rms_mix * np.sqrt((1.0 + leverage[n_train:]) * factor)
             info["anchors"][group, m] = len(anchors)
-            info["anchor_reach"][group, m] = float(np.median(dist[anchors]))
             info["groups"].append({"marker": int(m), "frames": int(len(group)), "components": ks,
                                    "cv_rms": [float(r) for r in rmss]})
     info["fallback"] = sorted(set(info["fallback"]))
@@ -396,6 +393,5 @@ def fill_local_pca(
         estimate, std, info = reconstruct_local(positions, scales=scales, align_scale=align,
                                                 missing_weight=missing_weight, normalise=normalise, knn=knn,
                                                 edge=edge)
-    info.pop("anchors")  # per-sample arrays: internal to the default's trust check, not for reports
-    info.pop("anchor_reach")
+    info.pop("anchors")  # per-sample array: internal to the default's trust check, not for reports
     return finish(positions, estimate, std=std, info=info)
