@@ -204,10 +204,11 @@ def calm_down(positions: np.ndarray, estimate: np.ndarray, std: np.ndarray, gap:
     positions / estimate (n_frames, n_markers, 3); std / gap (n_frames, n_markers); speed (n_markers,) the largest
     observed steps; limit (n_frames - 1, n_markers) the step reference (:func:`step_reference`: a filled step may
     reach ``STEP_BOUND`` times the larger of the marker's largest observed step and the body's largest step then;
-    the blend above already holds almost every step within that).  A straight line stays between the observations it joins and, edges held, never leaves the
-    observed extent (the line runs in the frame of the body's centre, :func:`.plausibility.body_centre`, so its
-    offsets stay within the observed ones); its uncertainty grows like a Brownian bridge whose step is the marker's largest observed one
-    (the data cannot support more).  Returns estimate, std and the (n_frames, n_markers) mask of replaced samples.
+    the blend above already holds almost every step within that).  A straight line stays between the observations
+    it joins; where it would leave the body's extent (a position held beyond the clip's edge while the subject
+    moves on) the line runs in the frame of the body's median centre instead, keeping the marker's offset from it.
+    Its uncertainty grows like a Brownian bridge whose step is the marker's largest observed one (the data cannot
+    support more).  Returns estimate, std and the (n_frames, n_markers) mask of replaced samples.
     """
     from ..gaps import runs
     from .pca import _linear_fallback
@@ -433,9 +434,9 @@ def _gap_methods(missing: np.ndarray, std: np.ndarray, local_info: dict, boneset
             out.append(rec)
             continue
         if why["implausible"][sl, m].any():
-            rec.update(method="linear", reason="plausibility guard: every fill tried left the body's observed extent "
-                                               "or stepped beyond 3x the largest observed (its own or the body's then); a "
-                                               "straight line through the observations instead (edges held), its "
+            rec.update(method="linear", reason="plausibility guard: the fill left the body's observed extent or "
+                                               "stepped beyond 3x the largest observed (its own or the body's "
+                                               "then); a straight line through the observations instead, its "
                                                "uncertainty growing towards the middle")
             out.append(rec)
             continue

@@ -197,7 +197,7 @@ def _anchor_set(predictors: np.ndarray, weight: np.ndarray, min_anchors: int = 3
 
 
 def _training(missing: np.ndarray, m: int, predictors: np.ndarray) -> np.ndarray:
-    """Frames (ascending) where marker ``m`` and every one of ``predictors`` are observed; missing (n_frames, n_markers)."""
+    """Frames (ascending) where marker ``m`` and all ``predictors`` are observed; missing (n_frames, n_markers)."""
     return np.flatnonzero(~missing[:, m] & ~missing[:, predictors].any(axis=1))
 
 
