@@ -20,6 +20,11 @@ protocols of :func:`mocapfill.evaluation.occlusions.make_occlusions`:
 Run from the repository root (about 20 min on the shared 2-core machine; bolero-hc / bolero-sc dominate)::
 
     python benchmarks/bench_messy.py [--trials 1] [--seed 0] [--methods all] [--skip dense,segment,plausibility]
+
+or, one clip per process, then the pooled tables::
+
+    python benchmarks/bench_messy.py --skip segment,plausibility --clips cmu-85_02 --dump /tmp/messy  (per clip)
+    python benchmarks/bench_messy.py --skip segment,plausibility --merge /tmp/messy
 """
 
 from __future__ import annotations
@@ -85,13 +90,30 @@ def _row(err: np.ndarray) -> str:
     return f"{np.nanmedian(err):7.1f} / {np.sqrt(np.nanmean(err ** 2)):6.1f}"
 
 
-def dense(clips: dict, methods: list[str], trials: int, seed: int) -> None:
+def dense(clips: dict, methods: list[str], trials: int, seed: int, dump: str = "", merge: str = "") -> None:
     print("\n## dense: median / RMSE of the per-sample 3-D error (mm), pooled over the hidden samples", file=sys.stderr)
     print(f"{trials} trial(s) per clip and density, clips: {', '.join(clips)}", file=sys.stderr)
     pooled = {(m, f): [] for m in methods for f in DENSITIES}
     per_clip = {}
     seconds = {m: [] for m in methods}
-    for name, data in clips.items():
+    if merge:  # tables from the errors that --dump runs (one clip each, in parallel) saved
+        clips = {}
+        for path in sorted(Path(merge).glob("dense-*.npz")):
+            saved = np.load(path)
+            name = path.stem[len("dense-"):]
+            clips[name] = None
+            for key in saved.files:
+                kind, m, frac = key.split("|")
+                if m not in methods:
+                    continue
+                if kind == "err":
+                    pooled[m, float(frac)].append(saved[key])
+                    per_clip.setdefault((name, m, float(frac)), []).append(saved[key])
+                else:
+                    seconds[m].append(float(saved[key]))
+        print(f"merged from {merge}: {', '.join(clips)}", file=sys.stderr)
+    for name, data in clips.items() if not merge else ():
+        store = {}
         for frac in DENSITIES:
             for trial in make_occlusions(data, "dense", trials=trials, seed=seed, missing=frac):
                 for m in methods:
@@ -99,7 +121,12 @@ def dense(clips: dict, methods: list[str], trials: int, seed: int) -> None:
                     pooled[m, frac].append(err)
                     per_clip.setdefault((name, m, frac), []).append(err)
                     seconds[m].append(sec)
+                    store[f"err|{m}|{frac}"] = np.concatenate(per_clip[name, m, frac])
+                    store[f"sec|{m}|{frac}"] = sec
             print(f"  {name} {frac:.0%} done", file=sys.stderr, flush=True)
+            if dump:
+                Path(dump).mkdir(parents=True, exist_ok=True)
+                np.savez(Path(dump) / f"dense-{name}.npz", **store)
     head = "| method | " + " | ".join(f"{f:.0%}" for f in DENSITIES) + " | s per fill |"
     print("\nAll clips pooled:\n" + head + "\n|---|" + "---|" * (len(DENSITIES) + 1), file=sys.stderr)
     for m in methods:
@@ -207,6 +234,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--methods", default="all", help="comma-separated registered methods (auto first), or all")
     parser.add_argument("--clips", default="", help="comma-separated clip names (default: all present)")
+    parser.add_argument("--dump", default="", help="directory: save each clip's dense errors there (npz)")
+    parser.add_argument("--merge", default="", help="directory: dense tables from the errors --dump runs saved")
     parser.add_argument("--skip", default="", help="comma-separated sections to skip: dense,segment,plausibility")
     args = parser.parse_args(argv)
     methods = list(METHODS) if args.methods == "all" else args.methods.split(",")
@@ -219,7 +248,7 @@ def main(argv: list[str] | None = None) -> None:
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()
     if "dense" not in skip:
-        dense(clips, methods, args.trials, args.seed)
+        dense(clips, methods, args.trials, args.seed, args.dump, args.merge)
     if "segment" not in skip:
         segment(clips, methods, args.segment_trials, args.seed)
     if "plausibility" not in skip:
