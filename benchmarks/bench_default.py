@@ -48,7 +48,7 @@ from mocapfill import api  # noqa: E402
 from mocapfill.bones import estimate_bones  # noqa: E402
 from mocapfill.evaluation import evaluate, make_occlusions, score  # noqa: E402
 from mocapfill.io import read  # noqa: E402
-from mocapfill.methods.hybrid_local import fill_local_pca  # noqa: E402
+from mocapfill.methods.local_pca import fill_local_pca  # noqa: E402
 
 CLIPS = {
     "cmu-85_02": REPO / "sample_data" / "85_02.c3d",

@@ -3,34 +3,49 @@
 Pipeline (each step chosen by measurement with the ``marker`` and ``limb`` protocols on the repository's real clips,
 see ``benchmarks/bench_default.py`` and the README's figures):
 
-1. **Local-frame weighted PCA** (:mod:`.hybrid_local`).  Gløersen & Federolf's distance-weighted PCA, computed in
+1. **Local-frame weighted PCA** (:mod:`.local_pca`).  Gløersen & Federolf's distance-weighted PCA, computed in
    the frame of each missing marker's observed neighbourhood (weighted Kabsch alignment per frame), so that turns,
    jumps and flips no longer break its linear model; the number of components is chosen by leave-one-block-out
    cross-validation instead of the 99 % rule; three weight widths (150, 200, 300 mm) are averaged by their inverse
    cross-validated variance; a k-nearest-pose residual correction adds what the linear map misses; the residual at
    the frames just outside a gap is carried into it (Ornstein-Uhlenbeck bridge), so fills meet the observations.
-2. **Bone refinement** (:mod:`.hybrid_bones`).  Bones are estimated from the observed frames of the input (never
+   When many markers are missing at once (issue 9: 20-30 % of the samples in 0.25-2 s gaps leave 0-2 % of the
+   frames complete) each model conditions only on the markers observed where it predicts and keeps the nearest of
+   them that still leave 100 training frames: it learns from incomplete frames (CMU 85_02 at 20 % missing: median
+   / RMSE 169 / 331 mm on the issue's clips before, 9.6 / 26 mm now; ``benchmarks/bench_messy.py``).
+2. **Bone refinement** (:mod:`.bone_refinement`).  Bones are estimated from the observed frames of the input (never
    from anything hidden) unless given; each frame's filled markers move to the most probable positions given the
    PCA estimate (weighted by its uncertainty) and the bone lengths (weighted by their spread).  This keeps a limb
    rigid where the reconstruction drifts, which is where two-marker limb gaps lose.
 3. **Fallback**: a stretch with fewer than three usable neighbours or ten training frames (whole-body blackouts,
    mostly) is filled by a cubic spline through the marker's own observations when it is at most 0.5 s long
    (blackout protocol, 10 trials: median RMSE 8 mm on the CMU clip and 4 mm on the tennis serve, against 39 and
-   25 mm for straight lines), and by linear interpolation beyond (a cubic runs away over long stretches: median
-   624 mm on the 10-50 % one-marker gaps of the CMU clip); edges hold the nearest observed value.  These samples
-   carry no uncertainty (NaN) and are not moved by the bone refinement.
+   25 mm for straight lines).  Beyond that, when some untrusted stretch (step 4) is longer than 0.5 s, DynaMMo's
+   fill (:func:`.dynammo.run_dynammo`, which learns from every frame, complete or not) guides it, shifted linearly
+   to meet the known samples at the stretch's ends (on the dense protocol a straight line there missed a tennis
+   player's hand by a metre: tennis serve, 20 % missing, RMSE 85 mm with lines, 35 mm with the guide); otherwise
+   linear interpolation; edges hold the nearest observed value.  These samples carry no uncertainty (NaN) and are
+   not moved by the bone refinement.
 4. **Trust check and smooth blend** (:func:`pca_trust`, :func:`limit_trust_changes`).  With few neighbours left
-   (a subject walking out of the volume) the local frame rests on three far points and the PCA jumped by up to
+   (a subject walking out of the volume) the local frame rests on a few far points and the PCA jumped by up to
    700 mm between frames (VER4C3D's toe).  Each PCA sample gets a trust in [0, 1]: lowered by its uncertainty
-   (50-150 mm), by its step to the neighbouring frames (1.5-3x the larger of the marker's largest observed step and
-   the body's largest step at that frame) and when only three neighbours define its frame (at most 0.5).  The
-   fallback path then runs through the observations and the fully trusted samples (spline over short stretches,
-   linear over long ones, held at the clip's edges); trust is lowered further so that it changes by at most half a
-   largest observed step per frame, and each filled sample is trust x PCA + (1 - trust) x fallback.  A final guard
-   distrusts an ever wider stretch around any filled step still above 3x the reference step.  On the benchmark's
-   trials nothing changed (same medians and means); over the 34 shared-data C3D files with gaps the worst filled step
-   fell from up to 137x the marker's largest observed step to below 5x (above that only markers whose own
-   observations jump, unlabelled ``*`` markers seen in a few frames).
+   (50-150 mm) and by its step to the neighbouring frames (1.5-3x the larger of the marker's largest observed step
+   and the body's largest step at that frame).  (A cap for frames defined by only three neighbours was dropped in
+   issue 9: on dense gaps the nearest three often define it well, and the cap blended good estimates into
+   interpolation, tennis serve at 30 %: 12 / 63 mm with it, 8 / 29 without; the step checks keep the walk-outs
+   calm.)  The fallback path then runs through the observations and the fully trusted samples; trust is lowered
+   further so that it changes by at most half a largest observed step per frame, and each filled sample is
+   trust x PCA + (1 - trust) x fallback.  A guard distrusts an ever wider stretch around any filled step still
+   above 3x the reference step.
+5. **Plausibility guard** (:func:`calm_down`, :mod:`.plausibility`).  A gap run that still holds a sample beyond
+   1.1x the body's observed extent or a step beyond 3x the reference becomes a straight line through its ends
+   (in the frame of the body's centre where a held position would leave the body), with an uncertainty that grows
+   towards the middle like a Brownian bridge of the marker's largest observed step.  ``benchmarks/bench_messy.py``
+   reports the extent and speed ratios on every capture with real gaps; ``tests/test_plausibility.py`` guards the
+   committed ones.
+
+Long takes: :func:`_fill_auto` is one call on the whole array; a windowed fill (``methods/windows.py``, issue 9's
+long-take part) wraps exactly that call (see the comment at its end).
 
 Candidates measured and left out (``benchmarks/bench_default.py``, 20 trials per clip and protocol, median RMSE in
 mm on the CMU clip / tennis serve; the default: 11.6 / 3.7 one-marker, 15.3 / 5.8 limb): the published PCA alone
@@ -46,17 +61,19 @@ fill).
 
 from __future__ import annotations
 
+import warnings
 from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import MethodError
+from ..errors import ConvergenceWarning, MethodError
 from ..gaps import find_gaps
 from .base import FillResult, finish
 from ..blas import single_blas_thread
 from ..bones import resolve_bones
-from .hybrid_bones import refine_bones
-from .hybrid_local import DEFAULT_ALIGN_MM, DEFAULT_SCALES_MM, reconstruct_local
+from .bone_refinement import refine_bones
+from .plausibility import EXTENT, body_centre, implausible, observed_speed
+from .local_pca import DEFAULT_ALIGN_MM, DEFAULT_SCALES_MM, reconstruct_local
 from ..units import length_factor
 
 #: The PCA uncertainty is multiplied by this before the bone refinement weighs it against the bones' spread
@@ -76,16 +93,12 @@ DISTRUST_STD_MM = 150.0
 #: guard: no filled step longer than it keeps any PCA trust.
 FAST = 1.5
 STEP_BOUND = 3.0
-#: Trust when only the minimum of three observed neighbours defines the local frame (its rotation is then set by
-#: three points, often far from the marker: the walk-out of VER4C3D's toe gave jumps of 700 mm).
-FEW_ANCHORS_TRUST = 0.5
 #: Blending moves a fill by at most this fraction of the marker's largest observed step per frame (a ramp, not a
 #: switch, between the PCA and the fallback).
 BLEND_STEP = 0.5
 #: Below this trust a sample is the fallback's (no uncertainty, not moved by the bones).
 MIN_ALPHA = 0.05
-#: Observed steps needed to know a marker's speed; slowest speed limit (mm per frame); passes of the final guard.
-MIN_STEPS = 10
+#: Slowest speed limit (mm per frame); passes of the final guard.
 MIN_SPEED_MM = 1.0
 JUMP_PASSES = 6
 
@@ -131,6 +144,7 @@ def fill_auto(
     if labels is not None and len(labels) != positions.shape[1]:
         raise MethodError(f"{len(labels)} labels for {positions.shape[1]} markers")
     with single_blas_thread():  # thousands of small decompositions: BLAS threads only add contention
+        # long takes: the one place to wire in the overlapping-window helper (methods/windows.py), wrapping this call
         return _fill_auto(positions, units=units, labels=labels, rate=rate, bones=bones, knn=knn, refine=refine)
 
 
@@ -154,10 +168,12 @@ def _fill_auto(positions: np.ndarray, *, units: str, labels, rate, bones, knn: i
     info["bones"] = 0 if boneset is None else int(len(boneset))
     speed = observed_speed(positions, missing, floor=MIN_SPEED_MM * mm)
     limit = step_reference(positions, missing, speed)
-    trust, why = pca_trust(positions, pca, pca_std, local_info["anchors"], limit, mm)
+    trust, why = pca_trust(positions, pca, pca_std, limit, mm)
     gap = missing & ~missing.all(axis=0)
+    guide = dynamics_guide(positions, trust, gap, spline_max)
+    info["fallback_guide"] = "dynammo" if guide is not None else "none"
     for attempt in range(JUMP_PASSES):
-        fallback, splined = fallback_path(positions, pca, trust >= 1.0, spline_max)
+        fallback, splined = fallback_path(positions, pca, trust >= 1.0, spline_max, guide)
         alpha = limit_trust_changes(trust, np.linalg.norm(np.nan_to_num(pca - fallback), axis=2),
                                     BLEND_STEP * speed, gap)
         estimate, std = blend(positions, pca, pca_std, fallback, alpha)
@@ -172,30 +188,57 @@ def _fill_auto(positions: np.ndarray, *, units: str, labels, rate, bones, knn: i
             break
         trust[jump] = 0.0
         why["jump"] |= jump
-    splined &= alpha == 0
+    estimate, std, calm = calm_down(positions, estimate, std, gap, speed, limit)
+    alpha[calm] = 0.0
+    why["implausible"] = calm
+    splined &= (alpha == 0) & ~calm
     info["gap_methods"] = _gap_methods(missing, std, local_info, boneset, labels, units, splined, spline_max,
-                                       alpha, why)
+                                       alpha, why, guided=guide is not None)
     return finish(positions, estimate, std=std, info=info)
 
 
-def observed_speed(positions: np.ndarray, missing: np.ndarray, *, floor: float) -> np.ndarray:
-    """Each marker's largest observed frame-to-frame step (n_markers,), in data units per frame.
+def calm_down(positions: np.ndarray, estimate: np.ndarray, std: np.ndarray, gap: np.ndarray, speed: np.ndarray,
+              limit: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Replace every gap run that still holds an implausible sample by a straight line through its ends.
 
-    positions (n_frames, n_markers, 3); missing (n_frames, n_markers).  Markers with fewer than ``MIN_STEPS``
-    observed steps (too few to know how fast they move) get the largest over the markers; every value is at least
-    ``floor`` and a quarter of the markers' median (a nearly still marker's noise is no speed limit).
+    positions / estimate (n_frames, n_markers, 3); std / gap (n_frames, n_markers); speed (n_markers,) the largest
+    observed steps; limit (n_frames - 1, n_markers) the step reference (:func:`step_reference`: a filled step may
+    reach ``STEP_BOUND`` times the larger of the marker's largest observed step and the body's largest step then;
+    the blend above already holds almost every step within that).  A straight line stays between the observations
+    it joins; where it would leave the body's extent (a position held beyond the clip's edge while the subject
+    moves on) the line runs in the frame of the body's median centre instead, keeping the marker's offset from it.
+    Its uncertainty grows like a Brownian bridge whose step is the marker's largest observed one (the data cannot
+    support more).  Returns estimate, std and the (n_frames, n_markers) mask of replaced samples.
     """
-    both = ~missing[1:] & ~missing[:-1]
-    step = np.where(both, np.linalg.norm(np.nan_to_num(np.diff(positions, axis=0)), axis=2), 0.0)
-    speed = step.max(axis=0) if len(step) else np.zeros(positions.shape[1])
-    known = both.sum(axis=0) >= MIN_STEPS
-    if known.any():
-        speed[~known] = speed[known].max()
-        lower = 0.25 * np.median(speed[known])
-    else:
-        speed[:] = floor
-        lower = floor
-    return np.maximum(speed, max(floor, lower))
+    from ..gaps import runs
+    from .pca import _linear_fallback
+
+    bad = implausible(estimate, positions, limit, factor=STEP_BOUND)
+    calm = np.zeros_like(gap)
+    if not bad.any():
+        return estimate, std, calm
+    missing = np.isnan(positions).any(axis=2)
+    centre, radius = body_centre(positions, missing)
+    # the moving line follows the median of the whole filled body: the median of the observed markers jumps
+    # whenever one of them vanishes
+    with np.errstate(all="ignore"):
+        follow = np.where(np.isfinite(estimate).all(axis=2).any(axis=1)[:, None],
+                          np.nanmedian(estimate, axis=1), centre)
+    estimate, std = estimate.copy(), std.copy()
+    for m in np.flatnonzero(bad.any(axis=0)):
+        # a straight line; where that leaves the body (a held position stays behind a subject running out of the
+        # volume) a line in the frame of the body's centre, which keeps the marker's offset from it
+        line = _linear_fallback(positions[:, m], missing[:, m])
+        moving = follow + _linear_fallback(positions[:, m] - follow, missing[:, m])
+        for start, length in runs(gap[:, m]):
+            if bad[start:start + length, m].any():
+                sl = slice(start, start + length)
+                far = np.linalg.norm(line[sl] - centre[sl], axis=1) > EXTENT * radius
+                estimate[sl, m] = moving[sl] if far.any() else line[sl]
+                d = np.arange(1, length + 1, dtype=float)
+                std[sl, m] = speed[m] * np.sqrt(d * (length + 1 - d) / (length + 1)) / np.sqrt(3.0)
+                calm[sl, m] = True
+    return estimate, std, calm
 
 
 def step_reference(positions: np.ndarray, missing: np.ndarray, speed: np.ndarray) -> np.ndarray:
@@ -212,8 +255,28 @@ def step_reference(positions: np.ndarray, missing: np.ndarray, speed: np.ndarray
     return np.maximum(speed[None, :], body[:, None])
 
 
-def fallback_path(positions: np.ndarray, pca: np.ndarray, trusted: np.ndarray, longest: int
-                  ) -> tuple[np.ndarray, np.ndarray]:
+def dynamics_guide(positions: np.ndarray, trust: np.ndarray, gap: np.ndarray, longest: int) -> np.ndarray | None:
+    """DynaMMo's fill (n_frames, n_markers, 3), or None when no untrusted stretch is longer than ``longest``.
+
+    positions (n_frames, n_markers, 3); trust / gap (n_frames, n_markers).  When many markers are missing at once
+    (20-30 % of the samples in 0.25-2 s gaps) some markers lose every near neighbour and the local PCA doubts
+    itself over whole seconds; a straight line there missed a tennis player's hand by up to a metre.  The linear
+    dynamical system learns from every frame, complete or not, and follows the motion through such stretches.
+    """
+    from ..gaps import runs
+    from .dynammo import run_dynammo
+
+    untrusted = gap & (trust < 1.0)
+    if not any(length > longest for m in np.flatnonzero(untrusted.any(axis=0))
+               for _, length in runs(untrusted[:, m])):
+        return None
+    with warnings.catch_warnings():  # a guide needs no convergence to the last digit; say nothing
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        return run_dynammo(positions, seed=0, uncertainty=False).positions
+
+
+def fallback_path(positions: np.ndarray, pca: np.ndarray, trusted: np.ndarray, longest: int,
+                  guide: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The bounded, smooth fill every untrusted PCA sample is blended towards.
 
     It passes through the observations and the fully trusted PCA samples (``trusted`` (n_frames, n_markers) bool,
@@ -234,7 +297,13 @@ def fallback_path(positions: np.ndarray, pca: np.ndarray, trusted: np.ndarray, l
     n_frames = positions.shape[0]
     todo = np.flatnonzero((~known).any(axis=0) & known.any(axis=0))
     for m in todo:
-        out[:, m] = _linear_fallback(series[:, m], ~known[:, m])
+        if guide is None:
+            out[:, m] = _linear_fallback(series[:, m], ~known[:, m])
+        else:  # interior runs: the guide, shifted linearly to meet the known samples at the run's ends
+            out[:, m] = _linear_fallback(series[:, m], ~known[:, m])
+            shifted = guide[:, m] + _linear_fallback(series[:, m] - guide[:, m], ~known[:, m])
+            seen = np.flatnonzero(known[:, m])
+            out[seen[0]:seen[-1], m] = shifted[seen[0]:seen[-1]]
         for start, length in runs(~known[:, m]):
             if length <= longest and start > 0 and start + length < n_frames:
                 splined[start:start + length, m] = True
@@ -247,18 +316,17 @@ def fallback_path(positions: np.ndarray, pca: np.ndarray, trusted: np.ndarray, l
     return out, splined
 
 
-def pca_trust(positions: np.ndarray, pca: np.ndarray, std: np.ndarray, anchors: np.ndarray, limit: np.ndarray,
+def pca_trust(positions: np.ndarray, pca: np.ndarray, std: np.ndarray, limit: np.ndarray,
               mm: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Per-sample trust in the local PCA estimate, in [0, 1], and the reasons it is lowered.
 
     positions / pca (n_frames, n_markers, 3); std (n_frames, n_markers) the PCA's uncertainty (NaN where it made
-    no estimate); anchors (n_frames, n_markers) observed neighbours that defined the local frame; limit
+    no estimate); limit
     (n_frames - 1, n_markers) the reference step (:func:`step_reference`); mm data units per millimetre.  Trust
     falls linearly from 1 to 0 as the uncertainty grows from ``TRUST_STD_MM`` to ``DISTRUST_STD_MM`` and as the
-    estimate's step to the next or previous frame grows from ``FAST`` to ``STEP_BOUND`` times the reference step;
-    a frame defined by the minimum of three neighbours is trusted at most ``FEW_ANCHORS_TRUST``.  Returns trust
-    (n_frames, n_markers) (1 on observed samples, 0 where there is no estimate) and masks ``uncertain``, ``fast``,
-    ``few_neighbours`` and ``jump`` (filled by the caller's final check).
+    estimate's step to the next or previous frame grows from ``FAST`` to ``STEP_BOUND`` times the reference step.
+    Returns trust (n_frames, n_markers) (1 on observed samples, 0 where there is no estimate) and masks
+    ``uncertain``, ``fast`` and ``jump`` (filled by the caller's final check).
     """
     missing = np.isnan(positions).any(axis=2)
     est = missing & np.isfinite(std)
@@ -273,9 +341,8 @@ def pca_trust(positions: np.ndarray, pca: np.ndarray, std: np.ndarray, anchors: 
     ratio[1:] = step
     ratio[:-1] = np.maximum(ratio[:-1], step)
     by_speed = np.clip((STEP_BOUND - ratio) / (STEP_BOUND - FAST), 0.0, 1.0)
-    by_anchors = np.where(anchors <= 3, FEW_ANCHORS_TRUST, 1.0)
-    trust[est] = np.minimum(np.minimum(by_std, by_speed), by_anchors)[est]
-    why = {"uncertain": est & (by_std < 1), "fast": est & (by_speed < 1), "few_neighbours": est & (anchors <= 3),
+    trust[est] = np.minimum(by_std, by_speed)[est]
+    why = {"uncertain": est & (by_std < 1), "fast": est & (by_speed < 1),
            "jump": np.zeros_like(est)}
     return trust, why
 
@@ -341,7 +408,8 @@ def jumps(estimate: np.ndarray, gap: np.ndarray, bound: np.ndarray) -> np.ndarra
 
 
 def _gap_methods(missing: np.ndarray, std: np.ndarray, local_info: dict, boneset, labels, units: str,
-                 splined: np.ndarray, spline_max: int, alpha: np.ndarray, why: dict) -> list[dict]:
+                 splined: np.ndarray, spline_max: int, alpha: np.ndarray, why: dict, guided: bool = False
+                 ) -> list[dict]:
     """One record per gap: which method filled it and why (JSON-ready).
 
     missing / std / splined / alpha (n_frames, n_markers): the final uncertainty, splined fallback samples and the
@@ -363,6 +431,13 @@ def _gap_methods(missing: np.ndarray, std: np.ndarray, local_info: dict, boneset
         trusted = alpha[sl, m]
         if missing[:, m].all():
             rec.update(method="none", reason="marker missing in every frame: nothing to learn from")
+            out.append(rec)
+            continue
+        if why["implausible"][sl, m].any():
+            rec.update(method="linear", reason="plausibility guard: the fill left the body's observed extent or "
+                                               "stepped beyond 3x the largest observed (its own or the body's "
+                                               "then); a straight line through the observations instead, its "
+                                               "uncertainty growing towards the middle")
             out.append(rec)
             continue
         if no_pca[sl, m].all():
@@ -390,15 +465,15 @@ def _gap_methods(missing: np.ndarray, std: np.ndarray, local_info: dict, boneset
                 parts.append(f"{int(no_pca[sl, m].sum())} frame(s) without 3 observed neighbours or 10 training "
                              f"frames")
             labels_why = {"uncertain": f"uncertainty above {TRUST_STD_MM:g} mm",
-                          "few_neighbours": "only 3 observed neighbours define the local frame",
                           "fast": f"steps above {FAST:g}x the largest observed (its own or the body's then)",
                           "jump": f"a filled step above {STEP_BOUND:g}x the largest observed (its own or the "
-                                  f"body's then)"}
+                                  f"body's then) or beyond the body's extent / 1.5x its own largest observed step"}
             for key, text in labels_why.items():
                 count = int(why[key][sl, m].sum())
                 if count:
                     parts.append(f"{count} frame(s) with {text}")
-            kind = "spline" if splined[sl, m].any() else "linear interpolation / hold"
+            kind = ("spline" if splined[sl, m].any() else
+                    "DynaMMo's fill, shifted to meet the trusted samples" if guided else "linear interpolation / hold")
             reason += (f"; PCA not trusted in {int((trusted < 1).sum())} of {gap.length} frames ("
                        + ", ".join(parts) + f"): blended smoothly into the {kind} there")
         rec.update(method=method, reason=reason)

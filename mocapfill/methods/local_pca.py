@@ -50,6 +50,12 @@ from .pca import (
 #: Widths of the PCA distance weights (one reconstruction each, averaged) and of the alignment weights, in mm.
 DEFAULT_SCALES_MM = np.array([150.0, 200.0, 300.0])
 DEFAULT_ALIGN_MM = 200.0
+#: Training frames a local model wants before it gives up predictors (nearest kept): when many markers are missing
+#: at once, few frames have all of a marker's neighbours observed, and a model fitted to ten of them is worse than
+#: one on fewer, nearer neighbours fitted to a hundred.
+MIN_TRAIN_WANTED = 100
+#: Nearest observed candidates per frame that define the groups of such frames.
+NEAREST_OBSERVED = 8
 
 
 def kabsch_rotations(shapes: np.ndarray, reference: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -190,6 +196,57 @@ def _anchor_set(predictors: np.ndarray, weight: np.ndarray, min_anchors: int = 3
     return predictors[keep]
 
 
+def _training(missing: np.ndarray, m: int, predictors: np.ndarray) -> np.ndarray:
+    """Frames (ascending) where marker ``m`` and all ``predictors`` are observed; missing (n_frames, n_markers)."""
+    return np.flatnonzero(~missing[:, m] & ~missing[:, predictors].any(axis=1))
+
+
+def nearest_with_training(missing: np.ndarray, m: int, candidates: np.ndarray, wanted: int
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """The longest nearest-first prefix of ``candidates`` that leaves ``wanted`` training frames for marker ``m``.
+
+    candidates (p,) sorted by distance to ``m``; missing (n_frames, n_markers).  Each added predictor can only remove
+    training frames (a frame must have all of them observed), so the prefix lengths trade predictors for frames;
+    at least three predictors are kept.  Returns (predictors (k,), training frames (n,)).
+    """
+    ok = ~missing[:, m][:, None] & np.logical_and.accumulate(~missing[:, candidates], axis=1)  # (n_frames, p)
+    counts = ok.sum(axis=0)
+    enough = np.flatnonzero(counts >= wanted)
+    k = max(int(enough[-1]) + 1 if len(enough) else 0, min(3, len(candidates)))
+    return candidates[:k], np.flatnonzero(ok[:, k - 1]) if k else np.flatnonzero(~missing[:, m])
+
+
+def observed_groups(missing: np.ndarray, m: int, frames: np.ndarray, near: np.ndarray, max_patterns: int,
+                    wanted: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Split marker ``m``'s gap ``frames`` into (frames, predictors, training frames) groups.
+
+    near (p,) candidate predictors sorted by distance to ``m``; missing (n_frames, n_markers).  First the published
+    split (:func:`~.pca.pattern_groups`: a group's predictors are the candidates observed in all its frames); a
+    group that leaves fewer than ``wanted`` frames where the marker and all its predictors are observed (many
+    markers missing at once, few or no complete frames) is split again by which of its nearest observed
+    candidates each frame has, and each part keeps the nearest of them that still leave ``wanted`` training
+    frames (:func:`nearest_with_training`): the model learns from incomplete frames, conditioning only on markers
+    observed where it predicts.
+    """
+    out = []
+    for group, predictors in pattern_groups(missing, frames, near, max_patterns):
+        train = _training(missing, m, predictors)
+        if len(train) >= wanted and len(predictors) >= 3:
+            out.append((group, predictors, train))
+            continue
+        # per frame, the nearest observed candidates (how many: those a prefix can afford in training frames)
+        obs = ~missing[np.ix_(group, near)]
+        rank = np.cumsum(obs, axis=1)
+        pattern = obs & (rank <= NEAREST_OBSERVED)
+        uniq, inverse = np.unique(pattern, axis=0, return_inverse=True)
+        inverse = np.asarray(inverse).ravel()
+        for p in range(len(uniq)):
+            part = group[inverse == p]
+            preds, train = nearest_with_training(missing, m, near[uniq[p]], wanted)
+            out.append((part, preds, train))
+    return out
+
+
 def reconstruct_local(
     positions: np.ndarray,
     *,
@@ -202,6 +259,7 @@ def reconstruct_local(
     edge: float | str | None = 30.0,
     reach: float = 3.0,
     max_patterns: int = 3,
+    min_train: int = MIN_TRAIN_WANTED,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """Estimate every missing sample with the weighted PCA in each missing marker's local frame.
 
@@ -247,9 +305,9 @@ def reconstruct_local(
         others[m] = False
         other_idx = np.flatnonzero(others)
         near = other_idx[np.isfinite(dist[other_idx]) & (dist[other_idx] <= reach * max(scales))]
-        for group, predictors in pattern_groups(missing, frames, near, max_patterns):
+        near = near[np.argsort(dist[near], kind="stable")]
+        for group, predictors, train in observed_groups(missing, m, frames, near, max_patterns, min_train):
             needed = np.concatenate([[m], predictors])
-            train = np.flatnonzero(~missing[:, needed].any(axis=1))
             if len(predictors) < 3 or len(train) < MIN_TRAINING_FRAMES:
                 info["fallback"].append(int(m))
                 estimate[group, m] = _linear_fallback(positions[:, m], missing[:, m])[group]

@@ -1,0 +1,260 @@
+"""Benchmark of issue 9: the default fill (``auto``) on messy captures, against every registered method.
+
+What it measures, on real complete clips from two labs (``sample_data/85_02.c3d``: CMU, 41 markers, 810 frames at
+120 Hz, jumps and flips; ``sample_data/kinematics_tennis_serve.c3d``: OptiTrack, 39 markers, 1,092 frames at 50 Hz,
+metres; ``../shared/data/bolero/132_32.csv``: CMU as the BoLeRO authors ship it, 644 frames, read at 120 Hz;
+``../shared/data/pyorerun/example.c3d``: pyorerun's example, 33 markers, 800 frames at 100 Hz), with the occlusion
+protocols of :func:`mocapfill.evaluation.occlusions.make_occlusions`:
+
+- ``dense`` at 5, 10, 20 and 30 % of the samples missing (random single-marker gaps of 0.25-2 s): per method, the
+  median and the RMSE of the PER-SAMPLE 3-D error (mm) pooled over the hidden samples of every trial of every clip
+  (the issue's figures), and per clip;
+- ``segment`` (a marker and every marker within 250 mm median distance vanish together, 3 events of 0.5-3 s): the
+  median over trials of the per-trial RMSE (mm), per clip and over all trials;
+- plausibility: every capture with real gaps in ``sample_data/``, ``tests/data/`` and ``../shared/data`` filled
+  by the default, and the worst ratios of :func:`mocapfill.methods.plausibility.plausibility`: the largest filled
+  distance from the body's median centre over the farthest observed marker (must stay <= 1.1) and the largest
+  filled step over its marker's largest observed step (the issue asks <= 1.5), plus the same step over the larger
+  of that and the body's largest step at that frame (what the default guards).
+
+Run from the repository root (about 20 min on the shared 2-core machine; bolero-hc / bolero-sc dominate)::
+
+    python benchmarks/bench_messy.py [--trials 1] [--seed 0] [--methods all] [--skip dense,segment,plausibility]
+
+or, one clip per process, then the pooled tables::
+
+    python benchmarks/bench_messy.py --skip segment,plausibility --clips cmu-85_02 --dump /tmp/messy  (per clip)
+    python benchmarks/bench_messy.py --skip segment,plausibility --merge /tmp/messy
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+import warnings  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))
+
+from bench_default import machine  # noqa: E402
+from mocapfill import api  # noqa: E402
+from mocapfill.errors import MocapfillError  # noqa: E402
+from mocapfill.evaluation.occlusions import make_occlusions  # noqa: E402
+from mocapfill.io import read  # noqa: E402
+from mocapfill.methods import METHODS  # noqa: E402
+from mocapfill.methods.auto import MIN_SPEED_MM, step_reference  # noqa: E402
+from mocapfill.methods.plausibility import implausible, observed_speed, plausibility  # noqa: E402
+from mocapfill.units import length_factor  # noqa: E402
+
+SHARED = REPO.parent / "shared" / "data"
+CLIPS = {
+    "cmu-85_02": (REPO / "sample_data" / "85_02.c3d", {}),
+    "tennis-serve": (REPO / "sample_data" / "kinematics_tennis_serve.c3d", {}),
+    "bolero-132_32": (SHARED / "bolero" / "132_32.csv", {"rate": 120.0}),
+    "pyorerun-example": (SHARED / "pyorerun" / "example.c3d", {}),
+}
+DENSITIES = (0.05, 0.10, 0.20, 0.30)
+
+
+def _clips() -> dict:
+    out = {}
+    for name, (path, kw) in CLIPS.items():
+        if path.exists():
+            out[name] = read(path, **kw)
+        else:
+            print(f"  (skipping {name}: {path} absent)", file=sys.stderr)
+    return out
+
+
+def _errors(data, method: str, trial, seed: int) -> tuple[np.ndarray, float]:
+    """Per-sample 3-D errors (mm) over the trial's hidden samples, and the fill's seconds."""
+    pos, hidden, _ = trial.apply(data.positions)
+    t0 = time.perf_counter()
+    res = api.fill(data.with_positions(pos), method=method, seed=seed)
+    sec = time.perf_counter() - t0
+    err = np.linalg.norm(res.positions[hidden] - data.positions[hidden], axis=1) * length_factor(data.units, "mm")
+    return np.where(np.isfinite(err), err, np.nan), sec
+
+
+def _row(err: np.ndarray) -> str:
+    return f"{np.nanmedian(err):7.1f} / {np.sqrt(np.nanmean(err ** 2)):6.1f}"
+
+
+def dense(clips: dict, methods: list[str], trials: int, seed: int, dump: str = "", merge: str = "") -> None:
+    print("\n## dense: median / RMSE of the per-sample 3-D error (mm), pooled over the hidden samples", file=sys.stderr)
+    print(f"{trials} trial(s) per clip and density, clips: {', '.join(clips)}", file=sys.stderr)
+    pooled = {(m, f): [] for m in methods for f in DENSITIES}
+    per_clip = {}
+    seconds = {m: [] for m in methods}
+    if merge:  # tables from the errors that --dump runs (one clip each, in parallel) saved
+        clips = {}
+        for path in sorted(Path(merge).glob("dense-*.npz")):
+            saved = np.load(path)
+            name = path.stem[len("dense-"):]
+            clips[name] = None
+            for key in saved.files:
+                kind, m, frac = key.split("|")
+                if m not in methods:
+                    continue
+                if kind == "err":
+                    pooled[m, float(frac)].append(saved[key])
+                    per_clip.setdefault((name, m, float(frac)), []).append(saved[key])
+                else:
+                    seconds[m].append(float(saved[key]))
+        print(f"merged from {merge}: {', '.join(clips)}", file=sys.stderr)
+    for name, data in clips.items() if not merge else ():
+        store = {}
+        for frac in DENSITIES:
+            for trial in make_occlusions(data, "dense", trials=trials, seed=seed, missing=frac):
+                for m in methods:
+                    err, sec = _errors(data, m, trial, seed)
+                    pooled[m, frac].append(err)
+                    per_clip.setdefault((name, m, frac), []).append(err)
+                    seconds[m].append(sec)
+                    store[f"err|{m}|{frac}"] = np.concatenate(per_clip[name, m, frac])
+                    store[f"sec|{m}|{frac}"] = sec
+            print(f"  {name} {frac:.0%} done", file=sys.stderr, flush=True)
+            if dump:
+                Path(dump).mkdir(parents=True, exist_ok=True)
+                np.savez(Path(dump) / f"dense-{name}.npz", **store)
+    head = "| method | " + " | ".join(f"{f:.0%}" for f in DENSITIES) + " | s per fill |"
+    print("\nAll clips pooled:\n" + head + "\n|---|" + "---|" * (len(DENSITIES) + 1), file=sys.stderr)
+    for m in methods:
+        cells = " | ".join(_row(np.concatenate(pooled[m, f])) for f in DENSITIES)
+        print(f"| {m} | {cells} | {np.median(seconds[m]):.2f} |", file=sys.stderr)
+    for name in clips:
+        print(f"\n{name}:\n" + head.replace(" s per fill |", "") + "\n|---|" + "---|" * len(DENSITIES),
+              file=sys.stderr)
+        for m in methods:
+            cells = " | ".join(_row(np.concatenate(per_clip[name, m, f])) for f in DENSITIES)
+            print(f"| {m} | {cells} |", file=sys.stderr)
+    if "auto" in methods:
+        print("\nTargets (pooled):", file=sys.stderr)
+        auto = {f: np.concatenate(pooled["auto", f]) for f in DENSITIES}
+        for f in DENSITIES:
+            med, rmse = np.nanmedian(auto[f]), np.sqrt(np.nanmean(auto[f] ** 2))
+            worse = [m for m in methods if m != "auto" and not (
+                med < np.nanmedian(np.concatenate(pooled[m, f]))
+                and rmse < np.sqrt(np.nanmean(np.concatenate(pooled[m, f]) ** 2)))]
+            print(f"  {f:.0%}: auto beats every other method on median and RMSE: {not worse}"
+                  + (f" (not: {', '.join(worse)})" if worse else ""), file=sys.stderr)
+        ratio = np.nanmedian(auto[0.20]) / np.nanmedian(auto[0.05])
+        print(f"  auto median at 20 % / at 5 %: {ratio:.2f} (target <= 2)", file=sys.stderr)
+
+
+def segment(clips: dict, methods: list[str], trials: int, seed: int) -> None:
+    print("\n## segment (250 mm, 3 events of 0.5-3 s): median of the per-trial RMSE (mm)", file=sys.stderr)
+    print(f"{trials} trials per clip", file=sys.stderr)
+    rmse = {}
+    for name, data in clips.items():
+        for trial in make_occlusions(data, "segment", trials=trials, seed=seed):
+            for m in methods:
+                err, _ = _errors(data, m, trial, seed)
+                rmse.setdefault((name, m), []).append(np.sqrt(np.nanmean(err ** 2)))
+        print(f"  {name} done", file=sys.stderr, flush=True)
+    print("\n| method | " + " | ".join(clips) + " | all trials |\n|---|" + "---|" * (len(clips) + 1),
+          file=sys.stderr)
+    for m in methods:
+        cells = " | ".join(f"{np.median(rmse[name, m]):.1f}" for name in clips)
+        every = np.concatenate([rmse[name, m] for name in clips])
+        print(f"| {m} | {cells} | {np.median(every):.1f} |", file=sys.stderr)
+    if {"auto", "pca", "bolero-sc"} <= set(methods):
+        med = {m: np.median(np.concatenate([rmse[name, m] for name in clips])) for m in ("auto", "pca", "bolero-sc")}
+        print(f"\nTargets (all trials): auto / pca = {med['auto'] / med['pca']:.2f} (<= 0.6); auto "
+              f"{med['auto']:.1f} < bolero-sc {med['bolero-sc']:.1f}: {med['auto'] < med['bolero-sc']}",
+              file=sys.stderr)
+
+
+def _captures() -> list[Path]:
+    roots = [REPO / "sample_data", REPO / "tests" / "data", SHARED]
+    found = []
+    for root in roots:
+        if root.exists():
+            found += sorted(p for p in root.rglob("*") if p.suffix.lower() in (".c3d", ".trc", ".csv"))
+    return found
+
+
+def plausibility_scan() -> None:
+    print("\n## plausibility of the default's fills on every capture with real gaps", file=sys.stderr)
+    print("| capture | frames x markers | missing | extent (<= 1.1) | step / own largest (<= 1.5) | "
+          "step / max(own, body) | filled samples beyond 1.5x own | s |\n|---|---|---|---|---|---|---|---|",
+          file=sys.stderr)
+    worst = {"extent": 0.0, "speed": 0.0, "body": 0.0}
+    for path in _captures():
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                data = read(path, rate=120.0) if path.suffix.lower() == ".csv" else read(path)
+        except (MocapfillError, OSError, ValueError):
+            continue
+        pos = data.positions
+        missing = np.isnan(pos).any(axis=2)
+        gaps = missing & ~missing.all(axis=0) & (~missing).any(axis=1)[:, None]
+        if not gaps.any():
+            continue
+        t0 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = api.fill(data, method="auto")
+        sec = time.perf_counter() - t0
+        floor = MIN_SPEED_MM * length_factor("mm", data.units)
+        ratios = plausibility(res.positions, pos, floor=floor)
+        speed = observed_speed(pos, missing, floor=floor)
+        body = step_reference(pos, missing, speed)
+        step = np.linalg.norm(np.diff(res.positions, axis=0), axis=2)
+        filled = missing & np.isfinite(res.positions).all(axis=2)
+        touch = (filled[1:] | filled[:-1]) & np.isfinite(step)
+        body_ratio = float((step / body)[touch].max()) if touch.any() else 0.0
+        beyond = int((implausible(res.positions, pos, speed) & filled).sum())
+        worst["extent"] = max(worst["extent"], ratios["extent"])
+        worst["speed"] = max(worst["speed"], ratios["speed"])
+        worst["body"] = max(worst["body"], body_ratio)
+        rel = path.relative_to(SHARED) if SHARED in path.parents else path.relative_to(REPO)
+        print(f"| {rel} | {pos.shape[0]} x {pos.shape[1]} | {missing.mean():.1%} | {ratios['extent']:.2f} | "
+              f"{ratios['speed']:.2f} | {body_ratio:.2f} | {beyond} of {int(filled.sum())} | {sec:.2f} |",
+              file=sys.stderr, flush=True)
+    print(f"\nWorst: extent {worst['extent']:.2f}, step / own largest {worst['speed']:.2f}, step / max(own, body) "
+          f"{worst['body']:.2f}", file=sys.stderr)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--trials", type=int, default=1, help="dense trials per clip and density")
+    parser.add_argument("--segment-trials", type=int, default=3)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--methods", default="all", help="comma-separated registered methods (auto first), or all")
+    parser.add_argument("--clips", default="", help="comma-separated clip names (default: all present)")
+    parser.add_argument("--dump", default="", help="directory: save each clip's dense errors there (npz)")
+    parser.add_argument("--merge", default="", help="directory: dense tables from the errors --dump runs saved")
+    parser.add_argument("--skip", default="", help="comma-separated sections to skip: dense,segment,plausibility")
+    args = parser.parse_args(argv)
+    methods = list(METHODS) if args.methods == "all" else args.methods.split(",")
+    methods = ["auto"] + [m for m in methods if m != "auto"]
+    skip = set(filter(None, args.skip.split(",")))
+    print(f"# bench_messy ({machine()})", file=sys.stderr)
+    clips = _clips()
+    if args.clips:
+        clips = {k: v for k, v in clips.items() if k in args.clips.split(",")}
+    warnings.simplefilter("ignore")
+    t0 = time.perf_counter()
+    if "dense" not in skip:
+        dense(clips, methods, args.trials, args.seed, args.dump, args.merge)
+    if "segment" not in skip:
+        segment(clips, methods, args.segment_trials, args.seed)
+    if "plausibility" not in skip:
+        plausibility_scan()
+    print(f"\n{time.perf_counter() - t0:.0f} s in all; load now {os.getloadavg()[0]:.2f}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
