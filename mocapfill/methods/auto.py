@@ -61,7 +61,10 @@ fill).
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import warnings
+from functools import partial
 from typing import Any, Sequence
 
 import numpy as np
@@ -74,6 +77,7 @@ from ..bones import resolve_bones
 from .bone_refinement import refine_bones
 from .plausibility import EXTENT, body_centre, implausible, observed_speed
 from .local_pca import DEFAULT_ALIGN_MM, DEFAULT_SCALES_MM, reconstruct_local
+from .windows import DEFAULT_WINDOW, fill_in_windows
 from ..units import length_factor
 
 #: The PCA uncertainty is multiplied by this before the bone refinement weighs it against the bones' spread
@@ -113,8 +117,12 @@ def fill_auto(
     bones: Any = None,
     knn: int = 10,
     refine: bool = True,
+    jobs: int | None = None,
 ) -> FillResult:
     """Fill gaps with the default pipeline (see the module docstring).
+
+    A take longer than :data:`windows.DEFAULT_WINDOW` frames is filled in overlapping windows
+    (:func:`windows.fill_in_windows`), so time grows linearly with its length and memory stays bounded.
 
     Parameters
     ----------
@@ -126,6 +134,9 @@ def fill_auto(
     bones : BoneSet, None (estimate from the observed frames) or False (no bone refinement).
     knn : neighbours of the nearest-pose residual correction (0 disables it).
     refine : apply the bone refinement (same as ``bones=False`` when False).
+    jobs : worker processes for the windows of a long take (the output does not depend on it).  None: every core,
+        unless this process is itself a daemonic worker (``batch``, a Dask worker) or the platform cannot fork; then
+        one by one.
 
     Returns
     -------
@@ -143,9 +154,21 @@ def fill_auto(
         raise MethodError(f"positions must have shape (n_frames, n_markers, 3), got {positions.shape}")
     if labels is not None and len(labels) != positions.shape[1]:
         raise MethodError(f"{len(labels)} labels for {positions.shape[1]} markers")
+    core = partial(_fill_auto, units=units, labels=labels, rate=rate, bones=bones, knn=knn, refine=refine)
     with single_blas_thread():  # thousands of small decompositions: BLAS threads only add contention
-        # long takes: the one place to wire in the overlapping-window helper (methods/windows.py), wrapping this call
-        return _fill_auto(positions, units=units, labels=labels, rate=rate, bones=bones, knn=knn, refine=refine)
+        if positions.shape[0] > DEFAULT_WINDOW:  # long takes: overlapping windows, time linear in frames
+            return fill_in_windows(positions, core, jobs=_window_jobs(jobs))
+        return core(positions)
+
+
+def _window_jobs(jobs: int | None) -> int:
+    """Worker processes for the windows: ``jobs``, else every core where workers can be forked (not inside a
+    daemonic worker, which may not have children; not where only spawn exists, which re-imports the caller's script)."""
+    if jobs is not None:
+        return max(1, int(jobs))
+    if multiprocessing.current_process().daemon or "fork" not in multiprocessing.get_all_start_methods():
+        return 1
+    return max(1, os.cpu_count() or 1)
 
 
 def _fill_auto(positions: np.ndarray, *, units: str, labels, rate, bones, knn: int, refine: bool) -> FillResult:

@@ -130,7 +130,9 @@ def _window_results(positions: np.ndarray, bounds: list[tuple[int, int]], fill: 
     import multiprocessing
     from collections import deque
 
-    ctx = multiprocessing.get_context("spawn")  # nothing inherited from the caller (threads, BLAS state)
+    # fork where there is one: a spawned worker re-imports the caller's __main__, which re-runs a script without a
+    # `__main__` guard (and fails for code read from stdin); the fork inherits the one-thread BLAS limit too.
+    ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
     with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
         todo = iter(bounds)
         first = [next(todo) for _ in range(min(jobs, len(bounds)))]
