@@ -177,13 +177,13 @@ def body_frame_transform(Y: np.ndarray, observed: np.ndarray, frame: str, marker
     if frame == "none" or M < 3:
         return None, None, {"frame": "none"}
     Yn = np.where(observed[:, :, None], Y, np.nan)
+    axis = bf.vertical_axis(Yn)
     if markers is None:
-        idx = bf.frame_markers(Yn)
+        idx = bf.frame_markers(Yn, axis=axis)
     else:
         idx = np.unique(np.asarray(markers, dtype=np.intp).reshape(-1))
         if idx.size < 2 or idx.min() < 0 or idx.max() >= M:
             raise MethodError(f"frame_markers must be at least 2 indices of modelled markers (0..{M - 1})")
-    axis = bf.vertical_axis(Yn)
     w = bf.fade_weights(observed[:, idx])
     kind = frame
     if frame == "auto":
