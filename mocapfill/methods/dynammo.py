@@ -79,8 +79,8 @@ DEFAULT_TOL = 1e-5
 #: its start is tuned to: the PCA of the linearly interpolated data, whose imputation stays near the straight line
 #: across each gap.  (The authors start from random F, G and identity noise in metres, a few times the data's mean
 #: square.)  Measured on the 40 shared trials of the BoLeRO authors (``benchmarks/bench_authors.py``), median RMSE
-#: one marker / two markers: 40.4 / 95.9 mm with the PCA start's own noise estimates, 12.2 / 38.5 with 3, 13.7 /
-#: 21.8 with 30, 14.4 / 20.0 with 100, 14.9 / 22.5 with 1000 (axis-wise centring, 200 iterations).
+#: one marker / two markers: 14.7 / 72.7 mm with the PCA start's own noise estimates, 12.2 / 38.5 with 3, 13.7 /
+#: 21.8 with 30, 14.4 / 20.0 with 100, 14.9 / 22.5 with 1000 (no centring, pelvis frame, tol 1e-5).
 DEFAULT_INIT_NOISE = 100.0
 
 #: ``std`` adds to the model's posterior variance a Brownian bridge across each gap with this rate x sigma2 per
