@@ -1,10 +1,15 @@
 """Speed and memory of the DynaMMo engine (issue 3's targets).  Run: python benchmarks/bench_dynammo.py [--quick]
+[--uncertainty]
 
 Prints the machine, then:
   1. one EM iteration on 1,500 frames x 41 markers, H = 16 (target <= 10 ms), next to the straightforward dense
      reference implementation kept in tests/test_dynammo.py (one iteration, same data);
   2. a whole default `fill_dynammo` at 1k, 10k and 72k frames x 41 markers with 5 % missing (target at 72k:
      <= 30 s, peak memory <= 1.5 GB; time per EM iteration should grow linearly with frames).
+``--uncertainty`` instead measures whether DynaMMo's ``std`` is honest (issue 10): on every gap longer than 1 s of
+the BoLeRO authors' trials on 132_32 (``../shared/data/bolero``, when present) and of 5 + 5 one-marker / limb trials
+(``bench_bolero.py``'s protocol) on CMU 85_02 and the tennis serve, the ratio of the actual RMS error per coordinate
+over the gap to the RMS of the predicted ``std`` there (1 = honest; the target is 0.5-2).
 Data: the real CMU capture sample_data/85_02.c3d (810 frames, 41 markers, 120 Hz) tiled forward-backward-forward...
 to the length needed (no jumps at the seams), with occlusions of one marker for 0.5-2 s at random (seeded) until
 5 % of the samples are missing.  Each size runs in a fresh subprocess so that its peak RSS (ru_maxrss) is its own.
@@ -119,9 +124,62 @@ def one_iteration() -> None:
           f"ratio {t_dense / t_fast:.0f}x")
 
 
+def uncertainty() -> None:
+    """Actual / predicted error of DynaMMo's ``std`` on gaps longer than 1 s (see the module docstring)."""
+    import warnings
+
+    import numpy as np
+
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    import bench_authors
+    import bench_bolero
+    from mocapfill.io import read
+    from mocapfill.methods.dynammo import fill_dynammo
+
+    cases = []
+    occl = bench_authors.DATA / "occlusions.json"
+    if occl.is_file():
+        data = read(bench_authors.DATA / "132_32.csv", rate=120.0)
+        labels = list(data.labels)
+        for t in json.loads(occl.read_text())["trials"]:
+            if t["clip"] == "132_32":
+                hidden = np.zeros(data.positions.shape[:2], dtype=bool)
+                hidden[t["start"]:t["start"] + t["length"], [labels.index(m) for m in t["markers"]]] = True
+                cases.append((f"132_32 {t['protocol']} {t['trial']}", data, hidden))
+    for name in ("85_02", "tennis"):
+        data = read(bench_bolero.FILES[name])
+        for protocol in ("marker", "limb"):
+            for trial in range(5):
+                _, hidden = bench_bolero.make_trial(data.positions, list(data.labels), protocol, seed=1000 + trial)
+                cases.append((f"{name} {protocol} {trial}", data, hidden))
+    ratios = []
+    print(f"{'trial':18s} {'frames':>6s} {'actual':>9s} {'predicted':>9s} {'ratio':>6s}  (RMS per coordinate, "
+          f"the file's units)")
+    for name, data, hidden in cases:
+        n = int(hidden.any(axis=1).sum())
+        if n <= data.rate:
+            continue
+        occluded = data.positions.copy()
+        occluded[hidden] = np.nan
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = fill_dynammo(occluded, seed=0)
+        actual = float(np.sqrt(np.mean((res.positions - data.positions)[hidden] ** 2)))
+        predicted = float(np.sqrt(np.mean(res.std[hidden] ** 2)))
+        ratios.append(actual / predicted)
+        print(f"{name:18s} {n:6d} {actual:9.4g} {predicted:9.4g} {actual / predicted:6.2f}", flush=True)
+    r = np.array(ratios)
+    print(f"{len(r)} gaps longer than 1 s: median ratio {np.median(r):.2f}, 10th-90th percentile "
+          f"{np.percentile(r, 10):.2f}-{np.percentile(r, 90):.2f}, within 0.5-2 on {100 * np.mean((r >= 0.5) & (r <= 2)):.0f} %"
+          )
+
+
 def main() -> None:
     if len(sys.argv) > 2 and sys.argv[1] == "--child":
         child(int(sys.argv[2]))
+        return
+    if "--uncertainty" in sys.argv:
+        uncertainty()
         return
     import numpy as np
     import scipy

@@ -30,7 +30,7 @@ from typing import Iterator
 
 import numpy as np
 
-from .dynammo import _nearest_rotation
+from .body_frame import nearest_rotation
 
 #: Relative bone residual |r_b| / L_b under which a frame counts as satisfying its hard constraints.
 FEASIBLE_RTOL = 1e-9
@@ -442,7 +442,7 @@ def _rigid_onto(y: np.ndarray, target: np.ndarray) -> np.ndarray:
     """``y`` (n, k, 3) moved per frame by the rigid motion (Kabsch) that best fits it to ``target`` (n, k, 3)."""
     cy, ct = y.mean(axis=1, keepdims=True), target.mean(axis=1, keepdims=True)
     p = y - cy
-    rot = _nearest_rotation(np.matmul((target - ct).transpose(0, 2, 1), p))  # sum_i q_i p_i^T per frame
+    rot = nearest_rotation(np.matmul((target - ct).transpose(0, 2, 1), p))  # sum_i q_i p_i^T per frame
     return np.matmul(p, rot.transpose(0, 2, 1)) + ct
 
 

@@ -5,19 +5,25 @@ Algorithm (BoLeRO paper section 3.1 and Appendix A; the authors' code as describ
 1. Drop markers missing in every frame (they stay NaN).  Initialise the missing entries by per-coordinate linear
    interpolation, holding the nearest observed value before the first and after the last observation (whole-body
    blackouts are bridged the same way).
-2. Body frame (``body_frame=True``, with >= 3 markers): as in the authors' mocap experiments, each frame is moved
-   by a rigid transform into a body-fixed frame: translation = weighted centroid, rotation = weighted Kabsch fit to
-   a reference shape refined by two rounds of generalised Procrustes; observed markers have weight 1 and
-   interpolated ones 1e-6 (so they only matter in blackout frames); the missing entries are then interpolated
-   again, linearly in the body frame, which follows the body's turning.  The transform is fixed before EM and undone
-   at the end; being rigid it keeps the noise isotropic and inter-marker distances exact.  Without it an LDS must
-   explain global travel and turning linearly, which on real captures (CMU 85_02) makes it worse than linear
-   interpolation.  Then each coordinate column (marker x/y/z) is centred on its mean over observed frames and
-   everything is divided by ONE global scalar (the RMS of the centred observed values), so the isotropic noise
-   model stays isotropic; all results are returned in the data's units.
+2. Body frame (``frame``, :mod:`.body_frame`; with >= 3 markers): as in the authors' mocap experiments, each frame
+   is moved by a rigid transform into a body-fixed frame: "auto" (default) = a rotation about the vertical axis and
+   a translation, fitted to the pelvis and torso markers found from the data (a full rotation instead when they
+   tilt beyond 45 degrees: somersaults); occluded frame markers weigh (almost) nothing and fade out over a few
+   frames at gap ends.  The missing entries are then interpolated again, linearly in the body frame.  The
+   transform is fixed before EM and undone at the end; being rigid it keeps the noise isotropic and inter-marker
+   distances exact.  The frame used to be a full rotation fitted to every marker, which lets the arms and legs
+   turn it; on the BoLeRO authors' 40 shared trials the "auto" frame cut the median RMSE (one marker / two
+   markers) from 53.6 / 94.5 mm to 40.4 / 95.9 with the old start, and from 14.5 / 33.6 to 13.2 / 21.2 with the
+   wide start of step 3.  Then ONE mean per axis (over all markers and observed frames) is removed and everything
+   is divided by ONE global scalar (the RMS of the observed values), so the isotropic noise model stays isotropic;
+   all results are returned in the data's units.  Not centring each column: a column mean over the observed
+   frames fixes each marker's offset at its value outside its gap, while in the body frame the offsets are part of
+   the shared low-rank model (the authors do not centre); measured on the 40 trials with a wide start, per-column
+   centring gave 28.5 / 58.7 mm against 15.3 / 22.7 without.
 3. Initialise the parameters from the data, deterministically: ``G`` = the first H principal directions of the
-   interpolated data, ``F`` = the least-squares transition of the principal scores, isotropic ``Gamma``,
-   ``Lambda`` and ``sigma2`` from the residuals.  Only when H exceeds the data's rank are the extra columns of ``G``
+   interpolated data, ``F`` = the least-squares transition of the principal scores; ``Gamma``, ``Lambda`` and
+   ``sigma2`` wide (:data:`DEFAULT_INIT_NOISE` x the data's mean square, isotropic), which is what lets EM leave
+   the linear interpolation it starts from.  Only when H exceeds the data's rank are the extra columns of ``G``
    drawn from ``seed`` (small values).
 4. Repeat: E-step (Kalman filter + RTS smoother, :mod:`.lds`) on the completed data -> objective -> replace the
    missing entries by ``G E[z_t]`` (or by ``project(...)``, BoLeRO's hook, which sees only the frames with a
@@ -35,11 +41,11 @@ non-increasing (up to rounding).  ``project`` replaces the imputation by somethi
 voids that guarantee.  Convergence: ``|objective[k] - objective[k-1]| <= tol * max(1, |objective[k-1]|)`` measured
 on the internal (unit-RMS) scale, where the objective is O(1); else ``ConvergenceWarning`` at ``max_iter``.
 
-Uncertainty: ``std`` of a filled sample is ``sqrt(mean_xyz diag(G_k Cov[z_t | observed] G_k^T) + sigma2)``, the
-predictive standard deviation of the marker's coordinates under the final model, in the data's units, where the
-posterior covariance treats the missing entries as *missing* (one extra covariance-only pass,
-:func:`.lds.missing_data_variance`) so it grows towards the middle of a long gap.  (The EM passes themselves treat
-the imputation as data, which would give every frame the same covariance.)
+Uncertainty: ``std`` of a filled sample is ``sqrt(mean_xyz diag(G_k Cov[z_t | observed] G_k^T) + sigma2 + drift)``,
+the predictive standard deviation of the marker's coordinates, in the data's units, where the posterior covariance
+treats the missing entries as *missing* (one extra covariance-only pass, :func:`.lds.missing_data_variance`) and
+``drift`` is a Brownian bridge across the gap (:data:`DRIFT_RATE`, :func:`gap_drift_variance`): the model's own
+posterior hardly grows inside a gap, its error does.
 
 Speed: see :mod:`.lds` (isotropic noise + Woodbury, steady-state covariances, vectorised mean passes).
 """
@@ -58,15 +64,32 @@ from . import lds
 from .base import FillResult, ProgressFn, check_positions, finish
 from .interp import interpolate_columns
 
-#: Defaults chosen by measurement.  H = 16 as in the authors' experiments.  On 8 one-marker occlusions of
-#: 0.5-2 s (CMU 85_02 and the tennis serve), tol = 1e-4 stopped after 65-85 iterations (one trial 186) with RMSEs
-#: within about 1 % of tol = 1e-5 (250-470 iterations) and tol = 1e-6 (800-1000), at a quarter of the time; more
-#: iterations do not reliably help (one trial went from 155 mm at 10 iterations to 230 mm at 400, another from
-#: 291 to 172 mm).  The cap of 200 bounds the time on short clips that keep creeping (a 1,000-frame clip did not
-#: meet 1e-4 in 200 iterations).
+#: Defaults chosen by measurement.  H = 16 and at most 200 iterations as in the authors' experiments (on the 40
+#: shared trials H = 12 / 24 gave 19.7 / 13.9 mm one marker and 32.2 / 33.8 two markers against 13.8 / 22.3 with 16).
+#: tol = 1e-5 (the authors' value; our objective is per entry on the unit-RMS scale): with the wide start of
+#: DEFAULT_INIT_NOISE, EM keeps improving for a long time, and tol = 1e-4 stopped it after ~60 iterations at 14.4 /
+#: 31.2 mm against 13.8 / 22.3 (1e-5, which nearly always runs the 200; 400 iterations: 13.5 / 21.9).
 DEFAULT_HIDDEN = 16
 DEFAULT_MAX_ITER = 200
-DEFAULT_TOL = 1e-4
+DEFAULT_TOL = 1e-5
+
+#: Start EM with wide noise: Gamma = Lambda = sigma2 I = DEFAULT_INIT_NOISE x the data's mean square (internal
+#: scale), the PCA directions and transition kept.  The first E-step's posterior covariances then dominate the
+#: M-step's second moments, so the first M-step shrinks G and F strongly and EM does not settle at the fixed point
+#: its start is tuned to: the PCA of the linearly interpolated data, whose imputation stays near the straight line
+#: across each gap.  (The authors start from random F, G and identity noise in metres, a few times the data's mean
+#: square.)  Measured on the 40 shared trials of the BoLeRO authors (``benchmarks/bench_authors.py``), median RMSE
+#: one marker / two markers: 14.7 / 72.7 mm with the PCA start's own noise estimates, 12.2 / 38.5 with 3, 13.7 /
+#: 21.8 with 30, 14.4 / 20.0 with 100, 14.9 / 22.5 with 1000 (no centring, pelvis frame, tol 1e-5).
+DEFAULT_INIT_NOISE = 100.0
+
+#: ``std`` adds to the model's posterior variance a Brownian bridge across each gap with this rate x sigma2 per
+#: frame (:func:`gap_drift_variance`): what the LDS does not know it does not know.  Its posterior variance hardly
+#: grows inside a gap (the other markers pin the state), while the error of the fill does, because the gap's poses are
+#: not the ones the model was fitted to.  Measured on 34 gaps longer than 1 s (14 of the authors' trials on 132_32,
+#: 10 on CMU 85_02, 10 on the tennis serve), the median ratio of actual to predicted RMS error per coordinate went from
+#: 2.95 (posterior alone) to 1.0 with 0.16; ``benchmarks/bench_dynammo.py --uncertainty`` measures it.
+DRIFT_RATE = 0.16
 
 #: With a ``project`` hook, the objective-change stop test fires from iteration ``project_start + 2`` on, so that it
 #: compares two completed data sets the hook has shaped: the objective jumps when the hook starts, and the old test
@@ -142,39 +165,62 @@ class _ProjectHook:
         self.X[self.idx] = (d - self.centre) / self.scale
 
 
-def fit_body_frame(positions: np.ndarray, weights: np.ndarray, *, rounds: int = 2) -> tuple[np.ndarray, np.ndarray]:
-    """Per-frame rigid transforms into a body-fixed frame (weighted centroid + Kabsch rotation, Procrustes reference).
+def body_frame_transform(Y: np.ndarray, observed: np.ndarray, frame: str, markers=None
+                         ) -> tuple[np.ndarray | None, np.ndarray | None, dict]:
+    """The per-frame rigid transform DynaMMo models the data in (see :mod:`.body_frame`).
 
-    Parameters
-    ----------
-    positions : (T, M, 3) finite (interpolated) positions.
-    weights : (T, M) non-negative weights, each frame with a positive sum.
-
-    Returns
-    -------
-    R : (T, 3, 3) rotations and c : (T, 3) translations with ``positions[t, k] ~= R[t] @ local[k] + c[t]``;
-    the local coordinates of a frame are ``(positions[t] - c[t]) @ R[t]``.
+    Y : (T, M, 3) interpolated (finite) positions; observed : (T, M) bool; ``frame`` one of
+    :data:`.body_frame.FRAMES`; ``markers``: indices into M of the frame markers (None: found from the data).
+    Returns ``(R, c, info)``: R (T, 3, 3), c (T, 3) with ``world = R @ local + c``; (None, None, info) for "none"
+    or fewer than 3 markers.
     """
-    T = positions.shape[0]
-    w = weights / weights.sum(axis=1, keepdims=True)
-    c = np.matmul(w[:, None, :], positions)[:, 0, :]
-    Y = positions - c[:, None, :]
-    wY = np.ascontiguousarray((Y * w[:, :, None]).transpose(0, 2, 1)).reshape(T * 3, -1)  # rows (t, axis)
-    ref = Y[int(np.argmax(weights.sum(axis=1)))]  # the best-observed frame starts the reference shape
-    for _ in range(rounds):
-        cross = (wY @ ref).reshape(T, 3, 3)  # sum_k w_k Y_k ref_k^T
-        R = _nearest_rotation(cross)
-        ref = np.matmul(Y, R).mean(axis=0)
-    return R, c
+    from . import body_frame as bf
+
+    T, M, _ = Y.shape
+    if frame not in bf.FRAMES:
+        raise MethodError(f"frame must be one of {', '.join(bf.FRAMES)}, got {frame!r}")
+    if frame == "none" or M < 3:
+        return None, None, {"frame": "none"}
+    Yn = np.where(observed[:, :, None], Y, np.nan)
+    axis = bf.vertical_axis(Yn)
+    if markers is None:
+        idx = bf.frame_markers(Yn, axis=axis)
+    else:
+        idx = np.unique(np.asarray(markers, dtype=np.intp).reshape(-1))
+        if idx.size < 2 or idx.min() < 0 or idx.max() >= M:
+            raise MethodError(f"frame_markers must be at least 2 indices of modelled markers (0..{M - 1})")
+    w = bf.fade_weights(observed[:, idx])
+    kind = frame
+    if frame == "auto":
+        kind = "yaw"
+        R, c = bf.fit_frames(Y[:, idx], w, axis=None)
+        if bf.tilt_percentile(R, axis) > bf.UPRIGHT_TILT_DEG:
+            kind = "full"
+    if kind == "yaw" or frame != "auto":
+        R, c = bf.fit_frames(Y[:, idx], w, axis=axis if kind == "yaw" else None)
+    return R, c, {"frame": kind, "frame_markers": [int(k) for k in idx], "vertical_axis": axis}
 
 
-def _nearest_rotation(A: np.ndarray) -> np.ndarray:
-    """The proper rotation R maximising trace(R^T A[t]) per frame (Kabsch via SVD), A (T, 3, 3) -> R (T, 3, 3)."""
-    U, _, Vt = np.linalg.svd(A)
-    s = np.sign(np.linalg.det(U @ Vt))
-    s[s == 0] = 1.0
-    U[:, :, 2] *= s[:, None]  # no reflections
-    return U @ Vt
+def gap_drift_variance(missing: np.ndarray, rate: float) -> np.ndarray:
+    """(T, M) variance of a Brownian bridge across each gap, ``rate * d_a * d_b / (L + 1)`` (0 where observed).
+
+    missing : (T, M) bool.  For a gap of length L, d_a and d_b are the distances (frames) of a sample to the observed
+    frames before and after it; a gap touching the clip's edge grows as a random walk, ``rate * d``, from its one
+    observed end; a marker missing throughout gets 0 (it is not filled).
+    """
+    T, M = missing.shape
+    out = np.zeros((T, M))
+    for j in range(M):
+        for a, length in runs(missing[:, j]):
+            b = a + length
+            t = np.arange(length, dtype=np.float64)
+            if a > 0 and b < T:
+                out[a:b, j] = rate * (t + 1.0) * (length - t) / (length + 1.0)
+            elif a > 0:
+                out[a:b, j] = rate * (t + 1.0)
+            elif b < T:
+                out[a:b, j] = rate * (length - t)
+    return out
 
 
 def bridge_residuals(X: np.ndarray, Ez: np.ndarray, G: np.ndarray, missing: np.ndarray) -> None:
@@ -214,9 +260,12 @@ def choose_hidden(X: np.ndarray, energy: float) -> int:
     return int(min(np.searchsorted(np.cumsum(sv2) / sv2.sum(), energy - 1e-12) + 1, len(sv2)))
 
 
-def initial_params(X: np.ndarray, hidden: int, rng: np.random.Generator, *, var_floor: float = 1e-6
-                   ) -> lds.LDSParams:
+def initial_params(X: np.ndarray, hidden: int, rng: np.random.Generator, *, var_floor: float = 1e-6,
+                   noise: float | None = None) -> lds.LDSParams:
     """Deterministic start for EM from the completed, scaled data ``X`` (T, m) (PCA + least squares).
+
+    ``noise``: when given, Gamma, Lambda and sigma2 all start at ``noise`` x mean(X^2) (see
+    :data:`DEFAULT_INIT_NOISE`) instead of the residuals' variances.
 
     Returns LDSParams with G (m, hidden), isotropic Gamma and Lambda, and sigma2 floored at ``var_floor``.
     """
@@ -245,6 +294,8 @@ def initial_params(X: np.ndarray, hidden: int, rng: np.random.Generator, *, var_
         F = lds._chol_solve(S, Z0.T @ Z1).T
         lam = max(float(np.mean((Z1 - Z0 @ F.T) ** 2)), var_floor)
     eye = np.eye(H)
+    if noise is not None:  # a wide start: see DEFAULT_INIT_NOISE
+        lam = sigma2 = float(noise) * float(np.mean(X ** 2))
     return lds.LDSParams(F, G, Zf[0].copy(), lam * eye, lam * eye, sigma2)
 
 
@@ -263,6 +314,9 @@ def run_dynammo(
     uncertainty: bool = True,
     body_frame: bool = True,
     bridge: bool = True,
+    frame: str = "auto",
+    frame_markers=None,
+    init_noise: float = DEFAULT_INIT_NOISE,
 ) -> FillResult:
     """The DynaMMo EM engine (reused by BoLeRO through ``project``).
 
@@ -307,11 +361,12 @@ def run_dynammo(
     with single_blas_thread():
         return _run_dynammo(positions, hidden=hidden, max_iter=max_iter, tol=tol, seed=seed, progress=progress,
                             project=project, project_start=project_start, energy=energy, isotropic=isotropic,
-                            uncertainty=uncertainty, body_frame=body_frame, bridge=bridge)
+                            uncertainty=uncertainty, body_frame=body_frame, bridge=bridge, frame=frame,
+                            frame_markers=frame_markers, init_noise=init_noise)
 
 
 def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, project_start, energy, isotropic,
-                 uncertainty, body_frame, bridge) -> FillResult:
+                 uncertainty, body_frame, bridge, frame, frame_markers, init_noise) -> FillResult:
     """The body of :func:`run_dynammo` (called with OpenBLAS limited to one thread)."""
     positions = check_positions(positions)
     if max_iter < 1:
@@ -335,15 +390,24 @@ def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, p
     miss_cols = np.repeat(miss_k, 3, axis=1)
     Y = interpolate_columns(positions[:, keep, :].reshape(T, m), miss_cols, empty=0.0)
     rot = rot_t = shift = None
-    if body_frame and Mk >= 3:
-        rot, shift = fit_body_frame(Y.reshape(T, Mk, 3), np.where(miss_k, 1e-6, 1.0))
+    if frame_markers is not None:  # input marker indices -> modelled ones (markers missing throughout dropped)
+        fm = np.asarray(frame_markers, dtype=np.intp).reshape(-1)
+        if fm.size and (fm.min() < 0 or fm.max() >= M):
+            raise MethodError(f"frame_markers must be marker indices in 0..{M - 1}, got {list(fm)}")
+        frame_markers = (np.cumsum(keep) - 1)[fm[keep[fm]]]
+    rot, shift, frame_info = body_frame_transform(Y.reshape(T, Mk, 3), ~miss_k, frame if body_frame else "none",
+                                                  frame_markers)
+    info.update(frame_info)
+    if rot is not None:
         rot_t = np.ascontiguousarray(rot.transpose(0, 2, 1))  # batched matmul is slow on strided batches
         Y = np.matmul(Y.reshape(T, Mk, 3) - shift[:, None, :], rot).reshape(T, m)
         Y = interpolate_columns(Y, miss_cols, empty=0.0)  # interpolating in the body frame follows the body's turning
-    # Mean and RMS over observed entries only, without (T, m) temporaries: totals minus the missing entries.
+    # Mean per axis and RMS over observed entries only, without (T, m) temporaries: totals minus the missing
+    # entries.  One mean per axis, not per column: see the module docstring.
     mi, mj = np.nonzero(miss_cols)
     n_obs = T - np.bincount(mj, minlength=m)
-    centre = (Y.sum(axis=0) - np.bincount(mj, weights=Y[mi, mj], minlength=m)) / n_obs
+    col_sum = Y.sum(axis=0) - np.bincount(mj, weights=Y[mi, mj], minlength=m)
+    centre = np.tile(col_sum.reshape(-1, 3).sum(axis=0) / n_obs.reshape(-1, 3).sum(axis=0), Mk)
     X = Y
     X -= centre
     ss = float(np.einsum("ij,ij->", X, X)) - float(np.sum(X[mi, mj] ** 2))
@@ -361,7 +425,7 @@ def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, p
         return out
 
     H = choose_hidden(X, energy) if energy is not None else int(hidden)
-    params = initial_params(X, H, rng)
+    params = initial_params(X, H, rng, noise=init_noise)
     log_scale = float(np.log(scale))
     # The imputation touches only the missing entries: per marker, the frames where it is missing.  |x_t|^2 and
     # sum |x|^2 are kept as "observed part (constant) + missing part (updated)".
@@ -420,7 +484,7 @@ def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, p
     estimate[:, keep, :] = to_data(X)
     std = None
     if uncertainty:
-        var = lds.missing_data_variance(params, ~miss_k)
+        var = lds.missing_data_variance(params, ~miss_k) + gap_drift_variance(miss_k, DRIFT_RATE * params.sigma2)
         std = np.full((T, M), np.nan)
         std[:, keep] = np.sqrt(var + params.sigma2) * scale
     info.update(hidden=H, sigma2=float(params.sigma2 * scale ** 2), scale=scale,

@@ -1,0 +1,51 @@
+"""The body frame DynaMMo models the data in: vertical axis, frame markers, and the fit itself."""
+
+from __future__ import annotations
+
+import numpy as np
+
+import mocapfill
+from mocapfill.methods import body_frame as bf
+
+
+def short(labels, idx):
+    return sorted(labels[k].split(":")[-1] for k in idx)
+
+
+def test_finds_the_pelvis_and_the_vertical_on_cmu_and_on_a_y_up_capture(sample_data):
+    cmu = mocapfill.read(sample_data / "85_02.c3d")
+    assert bf.vertical_axis(cmu.positions) == 2
+    assert short(cmu.labels, bf.frame_markers(cmu.positions, torso=0)) == ["LBWT", "LFWT", "RBWT", "RFWT"]
+    pelvis_and_torso = set(short(cmu.labels, bf.frame_markers(cmu.positions)))
+    assert {"LBWT", "LFWT", "RBWT", "RFWT"} < pelvis_and_torso <= {"LBWT", "LFWT", "RBWT", "RFWT", "C7", "T10", "CLAV",
+                                                                   "STRN", "RBAC"}
+    tennis = mocapfill.read(sample_data / "kinematics_tennis_serve.c3d")
+    y_up = tennis.positions[:, :, [0, 2, 1]]  # the same capture with Y up
+    assert bf.vertical_axis(y_up) == 1
+    assert short(tennis.labels, bf.frame_markers(y_up, torso=0)) == ["LASI", "LPSI", "RASI", "RPSI"]
+    assert {"STRN", "T10"} <= set(short(tennis.labels, bf.frame_markers(y_up)))
+
+
+def test_yaw_fit_recovers_a_known_motion_and_ignores_a_dropped_marker():
+    rng = np.random.default_rng(0)
+    T, K = 50, 4
+    shape = rng.normal(scale=100.0, size=(K, 3))
+    angle = np.linspace(0, 3.0, T)
+    R = bf._rotation_about(2, angle)
+    c = np.cumsum(rng.normal(scale=10.0, size=(T, 3)), axis=0)
+    X = np.einsum("tij,kj->tki", R, shape) + c[:, None, :]
+    w = np.ones((T, K))
+    w[20:30, 1] = bf.FLOOR_WEIGHT  # one marker "missing": the frame must not move
+    R_fit, c_fit = bf.fit_frames(X, w, axis=2)
+    local = np.einsum("tki,tij->tkj", X - c_fit[:, None, :], R_fit)
+    assert np.allclose(local, local[0], atol=1e-8)  # the shape stands still in the body frame
+    full, _ = bf.fit_frames(X, w, axis=None)
+    assert bf.tilt_percentile(full, 2) < 1e-3  # degrees (arccos near 1)
+
+
+def test_fade_weights_fall_towards_gaps():
+    observed = np.ones((12, 2), dtype=bool)
+    observed[5:7, 0] = False
+    w = bf.fade_weights(observed, fade=2)
+    assert np.allclose(w[:, 1], 1.0)
+    assert np.allclose(w[2:10, 0], [1.0, 2 / 3, 1 / 3, bf.FLOOR_WEIGHT, bf.FLOOR_WEIGHT, 1 / 3, 2 / 3, 1.0])
