@@ -75,7 +75,7 @@ from .base import FillResult, finish
 from ..blas import single_blas_thread
 from ..bones import resolve_bones
 from .bone_refinement import refine_bones
-from .plausibility import EXTENT, body_centre, implausible, observed_speed
+from .plausibility import body_centre, implausible, observed_speed
 from .local_pca import DEFAULT_ALIGN_MM, DEFAULT_SCALES_MM, reconstruct_local
 from .windows import DEFAULT_WINDOW, fill_in_windows
 from ..units import length_factor
@@ -227,11 +227,12 @@ def calm_down(positions: np.ndarray, estimate: np.ndarray, std: np.ndarray, gap:
     positions / estimate (n_frames, n_markers, 3); std / gap (n_frames, n_markers); speed (n_markers,) the largest
     observed steps; limit (n_frames - 1, n_markers) the step reference (:func:`step_reference`: a filled step may
     reach ``STEP_BOUND`` times the larger of the marker's largest observed step and the body's largest step then;
-    the blend above already holds almost every step within that).  A straight line stays between the observations
-    it joins; where it would leave the body's extent (a position held beyond the clip's edge while the subject
-    moves on) the line runs in the frame of the body's median centre instead, keeping the marker's offset from it.
+    the blend above already holds almost every step within that).  The line runs in the frame of the body's median
+    centre, keeping the marker's offset from it, so a position held beyond the clip's edge moves on with the subject.
     Its uncertainty grows like a Brownian bridge whose step is the marker's largest observed one (the data cannot
-    support more).  Returns estimate, std and the (n_frames, n_markers) mask of replaced samples.
+    support more).  The line always runs in the body's frame: a world-fixed line across a jump or a flip missed
+    by up to 2 m on 85_02 at 30 % missing (pooled dense RMSE at 30 %: 103.8 -> 85.6 mm, other densities unchanged).
+    Returns estimate, std and the (n_frames, n_markers) mask of replaced samples.
     """
     from ..gaps import runs
     from .pca import _linear_fallback
@@ -241,7 +242,7 @@ def calm_down(positions: np.ndarray, estimate: np.ndarray, std: np.ndarray, gap:
     if not bad.any():
         return estimate, std, calm
     missing = np.isnan(positions).any(axis=2)
-    centre, radius = body_centre(positions, missing)
+    centre, _ = body_centre(positions, missing)
     # the moving line follows the median of the whole filled body: the median of the observed markers jumps
     # whenever one of them vanishes
     with np.errstate(all="ignore"):
@@ -249,15 +250,12 @@ def calm_down(positions: np.ndarray, estimate: np.ndarray, std: np.ndarray, gap:
                           np.nanmedian(estimate, axis=1), centre)
     estimate, std = estimate.copy(), std.copy()
     for m in np.flatnonzero(bad.any(axis=0)):
-        # a straight line; where that leaves the body (a held position stays behind a subject running out of the
-        # volume) a line in the frame of the body's centre, which keeps the marker's offset from it
-        line = _linear_fallback(positions[:, m], missing[:, m])
+        # a straight line in the frame of the body's centre, keeping the marker's offset from it
         moving = follow + _linear_fallback(positions[:, m] - follow, missing[:, m])
         for start, length in runs(gap[:, m]):
             if bad[start:start + length, m].any():
                 sl = slice(start, start + length)
-                far = np.linalg.norm(line[sl] - centre[sl], axis=1) > EXTENT * radius
-                estimate[sl, m] = moving[sl] if far.any() else line[sl]
+                estimate[sl, m] = moving[sl]
                 d = np.arange(1, length + 1, dtype=float)
                 std[sl, m] = speed[m] * np.sqrt(d * (length + 1 - d) / (length + 1)) / np.sqrt(3.0)
                 calm[sl, m] = True
