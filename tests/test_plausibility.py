@@ -15,8 +15,9 @@ import pytest
 
 import mocapfill
 from mocapfill.evaluation.occlusions import make_occlusions
-from mocapfill.methods.auto import MIN_SPEED_MM, fill_auto
-from mocapfill.methods.plausibility import body_centre, implausible, observed_speed, plausibility
+from mocapfill.methods.auto import MIN_SPEED_MM, fill_auto, mix_by_uncertainty
+from mocapfill.methods.plausibility import (body_centre, implausible, observed_speed, plausibility,
+                                            project_plausible)
 from mocapfill.units import length_factor
 
 GAPPY = [("sample_data", "kinematics_tennis_serve_nan.c3d"), ("sample_data", "markers_analogs.c3d"),
@@ -66,3 +67,59 @@ def test_dense_gaps_learn_from_incomplete_frames(sample_data):
     err = np.linalg.norm(res.positions[hidden] - data.positions[hidden], axis=1)
     assert np.median(err) < 15.0 and np.sqrt(np.mean(err ** 2)) < 45.0
     assert all("method" in g and "reason" in g for g in res.info["gap_methods"])
+
+
+def _circling(n_markers: int = 9, n_frames: int = 300) -> np.ndarray:
+    """Markers on a line circling a point: (n_frames, n_markers, 3), 5 mm per frame."""
+    t = np.arange(n_frames)[:, None]
+    k = np.arange(n_markers)[None, :] - n_markers // 2
+    return np.stack([np.sin(t / 20) * 100 + k * 20, np.cos(t / 20) * 100 + 0 * k, 0.0 * t + k], axis=2)
+
+
+def test_projection_keeps_the_bounds_and_moves_little():
+    pos = _circling()
+    gappy = pos.copy()
+    gappy[100:160, 4] = np.nan
+    missing = np.isnan(gappy).any(axis=2)
+    speed = observed_speed(gappy, missing, floor=0.0)
+    spiky = pos.copy()
+    spiky[130, 4] += 100.0  # one filled sample 100 mm off: a 20x step
+    assert plausibility(spiky, gappy)["speed"] > 10
+    out, moved, forced = project_plausible(spiky, gappy, speed)
+    ratios = plausibility(out, gappy)
+    assert ratios["speed"] <= 1.5 and ratios["extent"] <= 1.1
+    assert moved[100:160, 4].all() and not moved[:, :4].any() and not forced.any()
+    assert np.array_equal(out[~missing], spiky[~missing])  # observations untouched
+    assert np.abs(out[100:160, 4] - pos[100:160, 4]).max() < 30.0  # the spike spread, not a line through the gap
+    # a plausible fill is returned unchanged
+    same, moved, _ = project_plausible(pos, gappy, speed)
+    assert np.array_equal(same, pos) and not moved.any()
+
+
+def test_projection_reports_runs_the_observations_force():
+    pos = _circling()
+    gappy = pos.copy()
+    gappy[100:103, 4] = np.nan
+    gappy[103:, 4] += 200.0  # the marker reappears 200 mm away: no path of 4 steps of 7.5 mm gets there
+    missing = np.isnan(gappy).any(axis=2)
+    speed = observed_speed(gappy, missing, floor=0.0)
+    est = gappy.copy()
+    est[100:103, 4] = pos[100:103, 4]
+    out, _, forced = project_plausible(est, gappy, speed)
+    assert forced[100:103, 4].all() and not forced[:, :4].any()
+    # the calmest path there is: no step longer than the straight line's (a quarter of the way each)
+    steps = np.linalg.norm(np.diff(out[99:104, 4], axis=0), axis=1)
+    assert steps.max() <= np.linalg.norm(gappy[103, 4] - gappy[99, 4]) / 4 * (1 + 1e-9)
+
+
+def test_mix_by_uncertainty_weights_each_estimate_by_its_inverse_variance():
+    positions = np.full((4, 1, 3), np.nan)
+    positions[0] = 0.0
+    mine = np.zeros((4, 1, 3))
+    other = np.ones((4, 1, 3))
+    std = np.array([[0.0], [1.0], [np.nan], [2.0]])
+    other_std = np.array([[0.0], [1.0], [1.0], [np.nan]])
+    out, sd, mixed = mix_by_uncertainty(positions, mine, std, other, other_std)
+    np.testing.assert_allclose(out[1:, 0, 0], [0.5, 1.0, 0.0])  # equal weights; only the other's; only mine
+    np.testing.assert_allclose(sd[1:, 0], [1 / np.sqrt(2), 1.0, 2.0])
+    assert mixed.tolist() == [[False], [True], [True], [False]] and out[0, 0, 0] == 0.0

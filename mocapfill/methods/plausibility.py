@@ -79,14 +79,15 @@ def implausible(estimate: np.ndarray, positions: np.ndarray, speed: np.ndarray, 
     return _implausible(estimate, positions, factor * speed)
 
 
-def _implausible(estimate: np.ndarray, positions: np.ndarray, speed: np.ndarray) -> np.ndarray:
+def _implausible(estimate: np.ndarray, positions: np.ndarray, speed: np.ndarray, extent: float = EXTENT
+                 ) -> np.ndarray:
     """:func:`implausible` with ``speed`` broadcastable to (n_frames - 1, n_markers)."""
     missing = np.isnan(positions).any(axis=2)
     filled = missing & np.isfinite(estimate).all(axis=2)
     centre, radius = body_centre(positions, missing)
     out = np.zeros_like(filled)
     if np.isfinite(radius):
-        far = np.linalg.norm(estimate - centre[:, None, :], axis=2) > EXTENT * radius
+        far = np.linalg.norm(estimate - centre[:, None, :], axis=2) > extent * radius
         out |= far & filled
     step = np.nan_to_num(np.linalg.norm(np.diff(estimate, axis=0), axis=2), nan=0.0)
     fast = step > speed
@@ -113,3 +114,203 @@ def plausibility(estimate: np.ndarray, positions: np.ndarray, *, floor: float = 
     step = np.linalg.norm(np.diff(estimate, axis=0), axis=2) / speed[None, :]
     touch = (filled[1:] | filled[:-1]) & np.isfinite(step)
     return {"extent": extent, "speed": float(step[touch].max()) if touch.any() else 0.0}
+
+
+def project_plausible(estimate: np.ndarray, positions: np.ndarray, speed: np.ndarray, *, factor: float = SPEED,
+                      extent: float = EXTENT, iterations: int = 400) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Move every filled run that breaks the extent or speed bound to the nearest path that keeps both.
+
+    Model: for a run x_1..x_L of one marker's filled samples, between observed (or held) x_0 and x_{L+1} where the
+    clip has them, minimise sum_t |x_t - y_t|^2 (y the fill) subject to |x_{t+1} - x_t| <= v (every step touching
+    the run; v = ``factor`` x the marker's ``speed``) and |x_t - c_t| <= r (c_t the body's centre, r = ``extent`` x
+    the farthest observed distance from it, :func:`body_centre`).  Both sets are convex: ADMM splits them into a
+    banded linear solve and two projections onto balls.  A run the solver leaves outside the bounds (slow
+    convergence) is moved towards a straight line through its ends by the least fraction that puts it inside; a run
+    where even that line breaks a bound (its observed ends are farther apart than v allows) becomes the line, which
+    has the smallest largest step there is, and is reported as ``forced``.
+
+    estimate / positions (n_frames, n_markers, 3), NaN = missing in ``positions``; speed (n_markers,) the largest
+    observed steps (:func:`observed_speed`), or (n_frames - 1, n_markers) a reference per step.  Returns the
+    corrected estimate, the (n_frames, n_markers) mask of moved samples and the mask of runs forced by their
+    observations.
+    """
+    from ..gaps import runs
+
+    missing = np.isnan(positions).any(axis=2)
+    filled = missing & np.isfinite(estimate).all(axis=2)
+    n = len(estimate)
+    bound = factor * np.broadcast_to(np.asarray(speed, dtype=float).reshape(-1, estimate.shape[1]),
+                                     (max(n - 1, 0), estimate.shape[1]))
+    bad = _implausible(estimate, positions, bound, extent)
+    out = estimate.copy()
+    moved = np.zeros_like(filled)
+    forced = np.zeros_like(filled)
+    if not bad.any():
+        return out, moved, forced
+    centre, radius = body_centre(positions, missing)
+    reach = extent * radius if np.isfinite(radius) else np.inf
+    with np.errstate(all="ignore"):  # the filled body's median: calmer than the observed markers' (no jumps where
+        follow = np.nanmedian(np.where(np.isfinite(estimate), estimate, np.nan), axis=1)  # one of them vanishes)
+    follow = np.where(np.isfinite(follow), follow, centre)
+    for m in np.flatnonzero(bad.any(axis=0)):
+        for start, length in runs(filled[:, m]):
+            sl = slice(start, start + length)
+            if not bad[sl, m].any():
+                continue
+            left = estimate[start - 1, m] if start > 0 and np.isfinite(estimate[start - 1, m]).all() else None
+            right = (estimate[start + length, m] if start + length < n and np.isfinite(estimate[start + length, m]).all()
+                     else None)
+            v = bound[start - 1 if left is not None else start:start + length - (0 if right is not None else 1), m]
+            path, ok = _plausible_run(estimate[sl, m], left, right, v, centre[sl], reach, iterations,
+                                      follow[start - 1 if left is not None else start:
+                                             start + length + (1 if right is not None else 0)])
+            out[sl, m] = path
+            moved[sl, m] = True
+            forced[sl, m] = not ok
+    return out, moved, forced
+
+
+def _steps(path: np.ndarray, left, right) -> np.ndarray:
+    """Step lengths (k,) of a run (L, 3) including the steps from ``left`` and to ``right`` where given."""
+    parts = ([left[None]] if left is not None else []) + [path] + ([right[None]] if right is not None else [])
+    return np.linalg.norm(np.diff(np.concatenate(parts), axis=0), axis=1)
+
+
+def _inside(path, left, right, v, centre, reach) -> bool:
+    return bool((_steps(path, left, right) <= v * (1 + 1e-9)).all()
+                and (np.linalg.norm(path - centre, axis=1) <= reach * (1 + 1e-9)).all())
+
+
+def _line(length: int, left, right, fill: np.ndarray) -> np.ndarray:
+    """A straight line (length, 3) between the run's ends; the end held where only one exists."""
+    if left is not None and right is not None:
+        w = np.arange(1, length + 1)[:, None] / (length + 1)
+        return (1 - w) * left + w * right
+    end = left if left is not None else right
+    return np.repeat((end if end is not None else fill.mean(axis=0))[None], length, axis=0)
+
+
+def _plausible_run(fill, left, right, v, centre, reach, iterations, follow) -> tuple[np.ndarray, bool]:
+    """One run of :func:`project_plausible`: fill / centre (L, 3), ends (3,) or None, v (k,) the step bounds,
+    follow (L + ends, 3) the filled body's median over the run and its ends.  Returns the path and whether it keeps
+    both bounds."""
+    path = _nearest_path(fill, left, right, 0.97 * v, centre, 0.97 * reach, iterations)
+    if _inside(path, left, right, v, centre, reach):
+        return path, True
+    # straight lines through the ends: in the world, and following the body (keeping the marker's offset from it)
+    lo = 1 if left is not None else 0
+    inner = follow[lo:lo + len(fill)]
+    offset = _line(len(fill), None if left is None else left - follow[0], None if right is None else
+                   right - follow[-1], fill - inner)
+    lines = [_line(len(fill), left, right, fill), inner + offset]
+    best = None
+    for line in lines:
+        mixed = _towards(path, line, lambda p: _inside(p, left, right, v, centre, reach))
+        if mixed is not None and (best is None or mixed[1] < best[1]):
+            best = mixed
+    if best is not None:
+        return best[0], True
+    # the bounds cannot both hold (the observed ends are too far apart, or the centre jumps where markers vanish):
+    # the calmest candidate, by its worst ratio to either bound
+    speed_only = _nearest_path(fill, left, right, 0.97 * v, centre, np.inf, iterations)
+
+    def worst(p):
+        return max(float(np.max(_steps(p, left, right) / v)),
+                   float(np.max(np.linalg.norm(p - centre, axis=1) / reach)) if np.isfinite(reach) else 0.0)
+    return min(lines + [speed_only], key=worst), False
+
+
+def _towards(path, line, feasible) -> tuple[np.ndarray, float] | None:
+    """``path`` moved towards ``line`` by the least fraction (bisection) that is ``feasible``, with the fraction;
+    None when even the line is not."""
+    if feasible(path):
+        return path, 0.0
+    if not feasible(line):
+        return None
+    lo, hi = 0.0, 1.0  # both bounds are convex: every fraction above a feasible one is feasible too
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        if feasible((1 - mid) * path + mid * line):
+            hi = mid
+        else:
+            lo = mid
+    return (1 - hi) * path + hi * line, hi
+
+
+def _nearest_path(fill: np.ndarray, left, right, v: float, centre: np.ndarray, reach: float,
+                  iterations: int) -> np.ndarray:
+    """ADMM for :func:`project_plausible`'s problem on one run: fill / centre (L, 3); left / right (3,) or None.
+
+    Splitting: s = D x + b (the steps, b carrying the fixed ends) and w = x, with scaled duals u, q and penalty rho;
+    the x-update solves ((1 + rho) I + rho D^T D) x = y + rho D^T (s - u - b) + rho (w - q), a banded system
+    factored once.
+    """
+    from scipy.linalg import cho_solve_banded, cholesky_banded
+
+    length = len(fill)
+    rows = []  # (index of +x, index of -x) per step; -1: a fixed end
+    if left is not None:
+        rows.append((0, -1))
+    rows += [(i, i - 1) for i in range(1, length)]
+    if right is not None:
+        rows.append((-1, length - 1))
+    k = len(rows)
+    if k == 0:
+        return fill.copy()
+    plus = np.array([r[0] for r in rows])
+    minus = np.array([r[1] for r in rows])
+    b = np.zeros((k, 3))
+    if left is not None:
+        b[0] = -left
+    if right is not None:
+        b[-1] = right
+
+    def apply_d(x):
+        out = b.copy()
+        out[plus >= 0] += x[plus[plus >= 0]]
+        out[minus >= 0] -= x[minus[minus >= 0]]
+        return out
+
+    def apply_dt(s):
+        out = np.zeros((length, 3))
+        np.add.at(out, plus[plus >= 0], s[plus >= 0])
+        np.subtract.at(out, minus[minus >= 0], s[minus >= 0])
+        return out
+
+    scale = max(float(np.max(v)), 1e-12)
+    rho = 1.0
+    degree = np.zeros(length)
+    np.add.at(degree, plus[plus >= 0], 1.0)
+    np.add.at(degree, minus[minus >= 0], 1.0)
+    bands = np.zeros((2, length))  # upper form: bands[1] the diagonal, bands[0, 1:] the superdiagonal
+    bands[1] = 1.0 + rho + rho * degree
+    bands[0, 1:] = -rho
+    factor = cholesky_banded(bands)
+    x = fill.copy()
+    s = _clip_norm(apply_d(x), v)
+    w = _clip_ball(x, centre, reach)
+    u = np.zeros_like(s)
+    q = np.zeros_like(x)
+    for _ in range(iterations):
+        x = cho_solve_banded((factor, False), fill + rho * apply_dt(s - u - b) + rho * (w - q))
+        dx = apply_d(x)
+        s = _clip_norm(dx + u, v)
+        w = _clip_ball(x + q, centre, reach)
+        u += dx - s
+        q += x - w
+        if np.abs(dx - s).max() < 1e-4 * scale and np.abs(x - w).max() < 1e-4 * scale:
+            break
+    return x
+
+
+def _clip_norm(vectors: np.ndarray, bound) -> np.ndarray:
+    """Rows of ``vectors`` (k, 3) shortened to length ``bound`` (scalar or (k,)) where longer."""
+    norm = np.linalg.norm(vectors, axis=1, keepdims=True)
+    return vectors * np.minimum(1.0, np.reshape(bound, (-1, 1)) / np.maximum(norm, 1e-300))
+
+
+def _clip_ball(points: np.ndarray, centre: np.ndarray, reach: float) -> np.ndarray:
+    """Points (L, 3) moved onto the ball of radius ``reach`` around ``centre`` (L, 3) where outside it."""
+    if not np.isfinite(reach):
+        return points
+    return centre + _clip_norm(points - centre, reach)
