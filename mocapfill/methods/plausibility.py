@@ -117,7 +117,7 @@ def plausibility(estimate: np.ndarray, positions: np.ndarray, *, floor: float = 
 
 
 def project_plausible(estimate: np.ndarray, positions: np.ndarray, speed: np.ndarray, *, factor: float = SPEED,
-                      extent: float = EXTENT, iterations: int = 400) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                      extent: float = EXTENT, iterations: int = 3000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Move every filled run that breaks the extent or speed bound to the nearest path that keeps both.
 
     Model: for a run x_1..x_L of one marker's filled samples, between observed (or held) x_0 and x_{L+1} where the
@@ -291,7 +291,7 @@ def _nearest_path(fill: np.ndarray, left, right, v: float, centre: np.ndarray, r
     w = _clip_ball(x, centre, reach)
     u = np.zeros_like(s)
     q = np.zeros_like(x)
-    for _ in range(iterations):
+    for it in range(iterations):
         x = cho_solve_banded((factor, False), fill + rho * apply_dt(s - u - b) + rho * (w - q))
         dx = apply_d(x)
         s = _clip_norm(dx + u, v)
@@ -300,6 +300,8 @@ def _nearest_path(fill: np.ndarray, left, right, v: float, centre: np.ndarray, r
         q += x - w
         if np.abs(dx - s).max() < 1e-4 * scale and np.abs(x - w).max() < 1e-4 * scale:
             break
+        if it % 25 == 24 and _inside(x, left, right, v / 0.97, centre, reach / 0.97):
+            break  # inside the true bounds (the targets carry a 3 % margin): near enough
     return x
 
 
