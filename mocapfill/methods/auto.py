@@ -226,8 +226,9 @@ def _fill_auto(positions: np.ndarray, *, units: str, labels, rate, bones, knn: i
         why["jump"] |= jump
     mixed = np.zeros_like(gap)
     if guide_name == "bolero-sc":
-        # short untrusted runs keep their spline (measured on whole-body blackouts of <= 0.5 s)
-        spline_only = splined & (alpha == 0)
+        # short stretches without a PCA estimate (whole-body blackouts of <= 0.5 s) keep their spline, as measured;
+        # a splined run between doubtful PCA estimates does not (85_02, 30 % missing: a toe 771 mm off)
+        spline_only = splined & (alpha == 0) & (local_info["anchors"] == 0)
         estimate, std, mixed = mix_by_uncertainty(positions, estimate, std, guide,
                                                   np.where(spline_only, np.nan, guide_std))
     calm = np.zeros_like(gap)
