@@ -55,7 +55,9 @@ class BatchRow:
     (``error`` says why, on one line).  ``frames`` ... ``filled_samples`` are None where the file could not be read.
     ``report`` is the per-file report's path ("" without one), ``warnings`` the reader's notes and the fill's
     warnings, ``worker`` the ``host:pid`` that ran the task and ``peak_rss_mb`` that process's peak resident memory
-    so far (None where unknown), ``input_sha256`` the hash of the content the task read.
+    so far (None where unknown), ``input_sha256`` the hash of the content the task read.  How the task used its
+    thread (None where unknown; what ``bench_batch.py`` compares across runners): ``started`` (wall clock, seconds
+    since the epoch), ``cpu_seconds`` (user + kernel), ``kernel_seconds`` and ``page_faults`` (minor).
     """
 
     input: str
@@ -73,6 +75,10 @@ class BatchRow:
     worker: str = ""
     peak_rss_mb: float | None = None
     input_sha256: str = ""
+    started: float | None = None
+    cpu_seconds: float | None = None
+    kernel_seconds: float | None = None
+    page_faults: int | None = None
 
     def table_row(self) -> dict[str, Any]:
         """The row as the results table holds it (:data:`COLUMNS` only)."""
@@ -238,17 +244,44 @@ def _process_facts() -> tuple[str, float | None]:
     return worker, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def _thread_usage() -> tuple[float, float, int] | None:
+    """(user + kernel seconds, kernel seconds, minor page faults) of the calling thread so far, None if unknown."""
+    try:
+        import resource
+
+        usage = resource.getrusage(resource.RUSAGE_THREAD)
+    except (ImportError, AttributeError, OSError):  # pragma: no cover - not on Linux
+        return None
+    return usage.ru_utime + usage.ru_stime, usage.ru_stime, usage.ru_minflt
+
+
 def run_task(task: FileTask) -> BatchRow:
     """Fill one file: read it, fill it, write the output (atomically) and the report.  Never raises an Exception.
 
     The row's ``seconds`` is the wall time of the whole task (read to report); a failure becomes
-    ``status="failed"`` with a one-line ``error``.
+    ``status="failed"`` with a one-line ``error``.  Runs under :func:`mocapfill.malloc.roomy_malloc` (a Dask
+    worker's fixed malloc thresholds cost a fill a fifth of its time in page faults).
     """
+    from .malloc import roomy_malloc
+
+    row = BatchRow(task.input, task.output, method=task.settings.method, started=time.time())
+    before = _thread_usage()
+    with roomy_malloc():
+        _fill_file(task, row)
+    after = _thread_usage()
+    if before is not None and after is not None:
+        row.cpu_seconds, row.kernel_seconds = after[0] - before[0], after[1] - before[1]
+        row.page_faults = after[2] - before[2]
+    row.worker, row.peak_rss_mb = _process_facts()
+    return row
+
+
+def _fill_file(task: FileTask, row: BatchRow) -> None:
+    """The body of :func:`run_task`: fills in ``row`` (status, counts, error, warnings, seconds)."""
     from .io import read, write
     from .pipeline import fill_capture, write_fill_report
 
     started = time.perf_counter()
-    row = BatchRow(task.input, task.output, method=task.settings.method)
     notes: list[str] = []
     try:
         with warnings.catch_warnings(record=True) as caught:
@@ -284,8 +317,6 @@ def run_task(task: FileTask) -> BatchRow:
         row.error = _one_line(f"{task.input}: {type(exc).__name__}: {exc}")
     row.warnings = tuple(dict.fromkeys(notes))
     row.seconds = time.perf_counter() - started
-    row.worker, row.peak_rss_mb = _process_facts()
-    return row
 
 
 def _remove_temporaries(task: FileTask) -> None:
