@@ -9,7 +9,8 @@ files: 3.7 M page faults instead of 0.1 M and 4 s of kernel time on 20 s of fill
 :func:`roomy_malloc` raises the two thresholds to what glibc's dynamic rule reaches on its own (mmap 32 MiB, trim
 64 MiB) for the duration of a task, then puts the process's own settings back and trims (:c:func:`malloc_trim`), so
 the worker still hands the memory back between tasks.  It does nothing where malloc runs with glibc's defaults or
-where there is no glibc.
+where there is no glibc, or when ``MOCAPFILL_KEEP_MALLOC=1`` (keep the cluster's thresholds; ``bench_batch.py
+--without-malloc-fix`` measures the difference).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import platform
 import threading
 from typing import Iterator
 
-__all__ = ["roomy_malloc", "fixed_thresholds"]
+__all__ = ["roomy_malloc", "fixed_thresholds", "KEEP_ENV"]
 
 # mallopt parameters (malloc.h).
 _M_TRIM_THRESHOLD = -1
@@ -31,6 +32,8 @@ _DEFAULT = 128 * 1024
 _ROOMY_MMAP = 32 * 1024 * 1024
 _ROOMY_TRIM = 2 * _ROOMY_MMAP
 _ENV = ("MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_THRESHOLD_")
+#: Set to 1 to keep the process's own malloc thresholds.
+KEEP_ENV = "MOCAPFILL_KEEP_MALLOC"
 
 _lock = threading.Lock()
 _active = 0  # tasks inside roomy_malloc (a Dask worker may run several threads)
@@ -62,7 +65,7 @@ def roomy_malloc() -> Iterator[None]:
     them (the environment's values, glibc's defaults for the other) and return free memory to the OS."""
     global _active
     fixed = fixed_thresholds()
-    libc = _libc() if fixed else None
+    libc = _libc() if fixed and os.environ.get(KEEP_ENV, "") in ("", "0") else None
     if libc is None:
         yield
         return
