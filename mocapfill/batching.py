@@ -592,6 +592,8 @@ def _samples_hint(path: str) -> int:
     benchmark's 20 files, 4.6 s of 20 s, was the 15th largest, and ran last while the other worker idled).
     """
     try:
+        if not os.path.isfile(path):  # a FIFO or device would block here: its task reads it
+            return 0
         with open(path, "rb") as handle:
             head = handle.read(2 * 512)
         size = os.path.getsize(path)
