@@ -8,6 +8,7 @@ import multiprocessing
 import os
 import shutil
 import signal
+import sys
 
 import numpy as np
 import pytest
@@ -226,3 +227,44 @@ def test_fill_options_are_shared_with_fill(session, tmp_path):
     for flag in ("--method", "--hidden", "--max-iter", "--tol", "--seed", "--bones", "--reject-outliers",
                  "--delta", "--reference", "--smooth", "--smooth-window", "--smooth-order"):
         assert flag in help_batch and flag in help_fill
+
+
+def test_tasks_are_ordered_by_samples_read_from_the_headers(session, tmp_path):
+    from mocapfill.batching import _TEXT_BYTES_PER_SAMPLE, _samples_hint
+
+    for rel in ("serve.c3d", "sub/T.trc", "sub/deeper/racing.c3d"):
+        data = mocapfill.read(session / rel)
+        assert _samples_hint(str(session / rel)) == data.n_frames * data.n_markers, rel
+    csv_path = session / "vicon.csv"
+    assert _samples_hint(str(csv_path)) == csv_path.stat().st_size // _TEXT_BYTES_PER_SAMPLE
+    broken = session / "sub" / "broken.c3d"
+    assert _samples_hint(str(broken)) == broken.stat().st_size // _TEXT_BYTES_PER_SAMPLE
+    assert _samples_hint(str(tmp_path / "absent.c3d")) == 0
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc malloc thresholds and per-thread rusage")
+def test_rows_account_cpu_and_tasks_undo_a_fixed_malloc_threshold(session, tmp_path):
+    import subprocess
+
+    rows = mocapfill.batch(session, tmp_path / "o", method="linear")
+    for row in rows:
+        assert row.cpu_seconds is not None and 0 <= row.kernel_seconds <= row.cpu_seconds
+        assert row.page_faults >= 0 and row.started > 0
+    # A Dask nanny starts its workers with MALLOC_TRIM_THRESHOLD_=65536: every 1 MB temporary is then a fresh mmap
+    # whose pages fault in one by one.  Inside roomy_malloc they come from the heap again.
+    script = (
+        "import resource, numpy as np\n"
+        "from mocapfill.malloc import roomy_malloc\n"
+        "def faults(fix):\n"
+        "    import contextlib\n"
+        "    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt\n"
+        "    with (roomy_malloc() if fix else contextlib.nullcontext()):\n"
+        "        for _ in range(200):\n"
+        "            np.ones(1 << 17).sum()\n"
+        "    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before\n"
+        "print(faults(False), faults(True))\n")
+    env = {**os.environ, "MALLOC_TRIM_THRESHOLD_": "65536", "PYTHONPATH": os.pathsep.join(sys.path)}
+    env.pop("MOCAPFILL_KEEP_MALLOC", None)
+    fixed, roomy = map(int, subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True,
+                                           check=True).stdout.split())
+    assert fixed > 200 * 100 and roomy < fixed / 10, (fixed, roomy)
