@@ -194,6 +194,11 @@ def _plausible_run(fill, left, right, v, centre, reach, iterations, follow) -> t
     """One run of :func:`project_plausible`: fill / centre (L, 3), ends (3,) or None, v (k,) the step bounds,
     follow (L + ends, 3) the filled body's median over the run and its ends.  Returns the path and whether it keeps
     both bounds."""
+    world = _line(len(fill), left, right, fill)
+    if left is not None and right is not None and np.linalg.norm(right - left) > np.sum(v) * (1 + 1e-9):
+        # the ends are farther apart than all the allowed steps together reach: no path keeps the bound; the
+        # straight line has the smallest largest step there is
+        return world, False
     path = _nearest_path(fill, left, right, 0.97 * v, centre, 0.97 * reach, iterations)
     if _inside(path, left, right, v, centre, reach):
         return path, True
@@ -202,7 +207,7 @@ def _plausible_run(fill, left, right, v, centre, reach, iterations, follow) -> t
     inner = follow[lo:lo + len(fill)]
     offset = _line(len(fill), None if left is None else left - follow[0], None if right is None else
                    right - follow[-1], fill - inner)
-    lines = [_line(len(fill), left, right, fill), inner + offset]
+    lines = [world, inner + offset]
     best = None
     for line in lines:
         mixed = _towards(path, line, lambda p: _inside(p, left, right, v, centre, reach))
@@ -237,71 +242,65 @@ def _towards(path, line, feasible) -> tuple[np.ndarray, float] | None:
     return (1 - hi) * path + hi * line, hi
 
 
-def _nearest_path(fill: np.ndarray, left, right, v: float, centre: np.ndarray, reach: float,
+def _nearest_path(fill: np.ndarray, left, right, v, centre: np.ndarray, reach: float,
                   iterations: int) -> np.ndarray:
-    """ADMM for :func:`project_plausible`'s problem on one run: fill / centre (L, 3); left / right (3,) or None.
+    """ADMM for :func:`project_plausible`'s problem on one run: fill / centre (L, 3); left / right (3,) or None;
+    v (k,) the bounds of the steps that exist (from ``left``, between the run's samples, to ``right``).
 
     Splitting: s = D x + b (the steps, b carrying the fixed ends) and w = x, with scaled duals u, q and penalty rho;
     the x-update solves ((1 + rho) I + rho D^T D) x = y + rho D^T (s - u - b) + rho (w - q), a banded system
-    factored once.
+    factored once.  The steps are kept as an (L + 1, 3) array, step j from sample j - 1 to j, with the absent end
+    steps held at zero, so D and D^T are two slices.
     """
     from scipy.linalg import cho_solve_banded, cholesky_banded
 
     length = len(fill)
-    rows = []  # (index of +x, index of -x) per step; -1: a fixed end
-    if left is not None:
-        rows.append((0, -1))
-    rows += [(i, i - 1) for i in range(1, length)]
-    if right is not None:
-        rows.append((-1, length - 1))
-    k = len(rows)
-    if k == 0:
-        return fill.copy()
-    plus = np.array([r[0] for r in rows])
-    minus = np.array([r[1] for r in rows])
-    b = np.zeros((k, 3))
-    if left is not None:
-        b[0] = -left
-    if right is not None:
-        b[-1] = right
+    has = np.ones(length + 1, dtype=bool)
+    has[0], has[-1] = left is not None, right is not None
+    bound = np.zeros(length + 1)
+    bound[has] = v
+    zero = np.zeros(3)
 
-    def apply_d(x):
-        out = b.copy()
-        out[plus >= 0] += x[plus[plus >= 0]]
-        out[minus >= 0] -= x[minus[minus >= 0]]
+    def apply_d(x):  # (L + 1, 3) steps; absent end steps 0
+        out = np.empty((length + 1, 3))
+        out[1:-1] = x[1:] - x[:-1]
+        out[0] = x[0] - left if left is not None else zero
+        out[-1] = right - x[-1] if right is not None else zero
         return out
 
-    def apply_dt(s):
-        out = np.zeros((length, 3))
-        np.add.at(out, plus[plus >= 0], s[plus >= 0])
-        np.subtract.at(out, minus[minus >= 0], s[minus >= 0])
-        return out
+    def apply_dt(steps):  # D^T: into a sample minus out of it
+        return steps[:-1] - steps[1:]
 
     scale = max(float(np.max(v)), 1e-12)
     rho = 1.0
-    degree = np.zeros(length)
-    np.add.at(degree, plus[plus >= 0], 1.0)
-    np.add.at(degree, minus[minus >= 0], 1.0)
+    degree = has[:-1].astype(float) + has[1:]
     bands = np.zeros((2, length))  # upper form: bands[1] the diagonal, bands[0, 1:] the superdiagonal
     bands[1] = 1.0 + rho + rho * degree
     bands[0, 1:] = -rho
     factor = cholesky_banded(bands)
     x = fill.copy()
-    s = _clip_norm(apply_d(x), v)
+    s = _clip_norm(apply_d(x), bound)
     w = _clip_ball(x, centre, reach)
     u = np.zeros_like(s)
     q = np.zeros_like(x)
+    # D^T b: the fixed ends pull the first and last samples towards them
+    ends = np.zeros_like(x)
+    if left is not None:
+        ends[0] += left
+    if right is not None:
+        ends[-1] += right
     for it in range(iterations):
-        x = cho_solve_banded((factor, False), fill + rho * apply_dt(s - u - b) + rho * (w - q))
+        x = cho_solve_banded((factor, False), fill + rho * (apply_dt(s - u) + ends) + rho * (w - q))
         dx = apply_d(x)
-        s = _clip_norm(dx + u, v)
+        s = _clip_norm(dx + u, bound)
         w = _clip_ball(x + q, centre, reach)
         u += dx - s
         q += x - w
-        if np.abs(dx - s).max() < 1e-4 * scale and np.abs(x - w).max() < 1e-4 * scale:
-            break
-        if it % 25 == 24 and _inside(x, left, right, v / 0.97, centre, reach / 0.97):
-            break  # inside the true bounds (the targets carry a 3 % margin): near enough
+        if it % 25 == 24:
+            if _inside(x, left, right, v / 0.97, centre, reach / 0.97):
+                break  # inside the true bounds (the targets carry a 3 % margin): near enough
+            if np.abs(dx - s).max() < 1e-4 * scale and np.abs(x - w).max() < 1e-4 * scale:
+                break
     return x
 
 
