@@ -49,3 +49,22 @@ def test_fade_weights_fall_towards_gaps():
     w = bf.fade_weights(observed, fade=2)
     assert np.allclose(w[:, 1], 1.0)
     assert np.allclose(w[2:10, 0], [1.0, 2 / 3, 1 / 3, bf.FLOOR_WEIGHT, bf.FLOOR_WEIGHT, 1 / 3, 2 / 3, 1.0])
+
+
+def test_a_rigid_hand_far_from_the_centre_does_not_carry_the_frame():
+    """A hand can be as rigid as the pelvis (CMU 127_07: 4.2 against 5.4 mm); the frame must still be the pelvis."""
+    rng = np.random.default_rng(1)
+    T = 300
+    t = np.linspace(0.0, 6.0, T)
+    pelvis = np.array([[120.0, 80, 0], [-120, 80, 0], [120, -80, 0], [-120, -80, 0]])
+    hand = np.array([[0.0, 0, 0], [60, 0, 0], [0, 60, 0], [50, 50, 40]])
+    root = np.stack([200 * np.sin(t), 100 * t, 950 + 20 * np.sin(3 * t)], axis=1)  # (T, 3)
+    yaw = bf._rotation_about(2, 0.3 * t)
+    swing = np.stack([400 + 150 * np.sin(2 * t), 300 * np.cos(2 * t), 200 * np.sin(t)], axis=1)  # the arm moves
+    P = np.concatenate([
+        np.einsum("tij,kj->tki", yaw, pelvis) + rng.normal(scale=4.0, size=(T, 4, 3)),  # a slightly loose pelvis
+        np.einsum("tij,kj->tki", yaw, hand + swing[:, None, :].mean(axis=0)) + swing[:, None, :]
+        + rng.normal(scale=1.0, size=(T, 4, 3)),  # a stiff hand, far out
+        np.einsum("tij,kj->tki", yaw, rng.normal(scale=300.0, size=(4, 3))) + rng.normal(scale=40.0, size=(T, 4, 3)),
+    ], axis=1) + root[:, None, :]
+    assert list(bf.frame_markers(P, axis=2, torso=0)) == [0, 1, 2, 3]
