@@ -222,7 +222,13 @@ def _plausible_run(fill, left, right, v, centre, reach, iterations, follow) -> t
     def worst(p):
         return max(float(np.max(_steps(p, left, right) / v)),
                    float(np.max(np.linalg.norm(p - centre, axis=1) / reach)) if np.isfinite(reach) else 0.0)
-    return min(lines + [speed_only], key=worst), False
+    calmest = min(lines + [speed_only], key=worst)
+    # ADMM may not have converged from the fill (a long run far outside: a sprint out of the volume): once
+    # more from the calmest candidate, which is usually near a feasible path when there is one
+    again = _nearest_path(calmest, left, right, 0.97 * v, centre, 0.97 * reach, iterations)
+    if _inside(again, left, right, v, centre, reach):
+        return again, True
+    return calmest, False
 
 
 def _towards(path, line, feasible) -> tuple[np.ndarray, float] | None:
