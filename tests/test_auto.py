@@ -203,3 +203,25 @@ def test_walk_out_of_the_volume_real_capture(shared_data):
     assert _worst_step_ratio(res.positions[:, [toe]], pos[:, [toe]])[0] <= 1.5
     rec = next(r for r in res.info["gap_methods"] if r["marker"] == "LTOE" and r["start"] == 232 - 150)
     assert "+fallback" in rec["method"]
+
+
+def test_the_dynamics_guide_runs_on_gappy_captures_only(sample_data):
+    """Short gaps everywhere (Holden's random protocol) run the guide; one marker's long gap does not."""
+    from mocapfill.methods.auto import dynamics_guide
+
+    data = mocapfill.read(sample_data / "85_02.c3d")
+    positions = data.positions[:240].copy()
+    trust = np.ones(positions.shape[:2])
+    one = positions.copy()
+    one[50:150, 3] = np.nan  # 100 frames of one marker: >= 50 % of the frames stay complete
+    gap = np.isnan(one).any(axis=2)
+    assert dynamics_guide(one, trust, gap, 60)[2] == "none"
+    rng = np.random.default_rng(0)
+    gappy = positions.copy()
+    for m in range(gappy.shape[1]):
+        for start in rng.choice(np.arange(0, 230, 12), size=2, replace=False):  # 2 x 12 frames per marker: 10 %
+            gappy[start:start + 12, m] = np.nan
+    gap = np.isnan(gappy).any(axis=2)
+    assert gap.mean() > 0.07 and (~gap.any(axis=1)).mean() < 0.10
+    guide, _, name = dynamics_guide(gappy, np.ones(gap.shape), gap, 60)
+    assert name == "dynammo" and np.isfinite(guide[gap]).all()

@@ -21,8 +21,9 @@ see ``benchmarks/bench_default.py`` and the README's figures):
    mostly) is filled by a cubic spline through the marker's own observations when it is at most 0.5 s long
    (blackout protocol, 10 trials: median RMSE 8 mm on the CMU clip and 4 mm on the tennis serve, against 39 and
    25 mm for straight lines).  Beyond that, when some untrusted stretch (step 4) is longer than 0.5 s (a messy
-   capture: on the dense protocol at 20-30 % missing; rarely at 5-10 %, never on one-marker or limb gaps), a
-   dynamics guide is fitted (:func:`dynamics_guide`): BoLeRO-SC (:mod:`.bolero`, DynaMMo with the bones as soft
+   capture: on the dense protocol at 20-30 % missing; rarely at 5-10 %, never on one-marker or limb gaps), or when
+   short gaps are everywhere (fewer than 10 % of the frames complete and more than 7 % of the samples missing:
+   Holden's random protocol, :data:`GUIDE_COMPLETE`), a dynamics guide is fitted (:func:`dynamics_guide`): BoLeRO-SC (:mod:`.bolero`, DynaMMo with the bones as soft
    constraints, which learns from every frame, complete or not), or DynaMMo alone where no bones are known.  The
    fallback follows the guide, shifted linearly to meet the known samples at the stretch's ends (a straight line
    there missed a tennis player's hand by a metre); otherwise linear interpolation; edges hold the nearest
