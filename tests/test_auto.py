@@ -215,7 +215,7 @@ def test_the_dynamics_guide_runs_on_gappy_captures_only(sample_data):
     one = positions.copy()
     one[50:150, 3] = np.nan  # 100 frames of one marker: >= 50 % of the frames stay complete
     gap = np.isnan(one).any(axis=2)
-    assert dynamics_guide(one, trust, gap, 60)[2] == "none"
+    assert dynamics_guide(one, trust, gap, 50)[2] == "none"
     rng = np.random.default_rng(0)
     gappy = positions.copy()
     for m in range(gappy.shape[1]):
@@ -223,5 +223,6 @@ def test_the_dynamics_guide_runs_on_gappy_captures_only(sample_data):
             gappy[start:start + 12, m] = np.nan
     gap = np.isnan(gappy).any(axis=2)
     assert gap.mean() > 0.07 and (~gap.any(axis=1)).mean() < 0.10
-    guide, _, name = dynamics_guide(gappy, np.ones(gap.shape), gap, 60)
+    guide, _, name = dynamics_guide(gappy, np.ones(gap.shape), gap, 50)  # 240 frames > 4 x 50
+    assert dynamics_guide(gappy[:200], np.ones((200, gap.shape[1])), gap[:200], 50)[2] == "none"  # too short
     assert name == "dynammo" and np.isfinite(guide[gap]).all()

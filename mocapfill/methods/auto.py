@@ -128,6 +128,10 @@ JUMP_PASSES = 6
 #: 52 -> 70 s).  One-marker and limb gaps leave >= 50 % of the frames complete.
 GUIDE_COMPLETE = 0.10
 GUIDE_MISSING = 0.07
+#: ... and only in captures longer than this many spline lengths (4 x 0.5 s = 2 s): on CMU 127_07 (1.2 s) the guide
+#: is learned from too little (BoLeRO-SC alone: median 76.9 mm on the random protocol with a perfect detector), and
+#: mixing it in took the default from 12.5 to 23.4 mm there.
+GUIDE_MIN_SPLINES = 4
 
 GUIDE_NAMES = {"dynammo": "DynaMMo", "bolero-sc": "BoLeRO-SC"}
 
@@ -360,7 +364,8 @@ def dynamics_guide(positions: np.ndarray, trust: np.ndarray, gap: np.ndarray, lo
     complete = float((~gap.any(axis=1)).mean()) if len(gap) else 1.0  # frames where every seen marker is observed
     seen = gap.shape[0] * int((~np.isnan(positions).any(axis=2)).any(axis=0).sum())  # samples of seen markers
     untrusted = gap & (trust < 1.0)
-    if (complete >= GUIDE_COMPLETE or gap.sum() <= GUIDE_MISSING * seen) and \
+    gappy = complete < GUIDE_COMPLETE and gap.sum() > GUIDE_MISSING * seen and len(gap) > GUIDE_MIN_SPLINES * longest
+    if not gappy and \
             not any(length > longest for m in np.flatnonzero(untrusted.any(axis=0))
                     for _, length in runs(untrusted[:, m])):
         return None, None, "none"
