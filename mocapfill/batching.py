@@ -590,7 +590,8 @@ _TEXT_BYTES_PER_SAMPLE = 25
 
 def _samples_hint(path: str) -> int:
     """Frames x markers of a capture from its header alone (C3D header block, TRC header lines), else its size over
-    :data:`_TEXT_BYTES_PER_SAMPLE`; 0 when unreadable.  Only orders the tasks: a wrong hint never changes an output.
+    :data:`_TEXT_BYTES_PER_SAMPLE`; 0 when unreadable.  :func:`_longest_first`'s samples for text files, and its
+    fallback when the scan cannot tell.  Only orders the tasks: a wrong hint never changes an output.
 
     Bytes alone order badly: analog channels fill a C3D without adding fill work (measured: the costliest of the
     benchmark's 20 files, 4.6 s of 20 s, was the 15th largest, and ran last while the other worker idled).
@@ -660,8 +661,7 @@ def _scan_missing(path: str) -> tuple[float, int] | None:
     :data:`_SCAN_BYTES`); None when it cannot tell (not a regular file, unreadable, corrupt, no data).  Never raises.
 
     C3D: the point words of evenly spaced frames, missing as :mod:`mocapfill.io.c3d` reads them (negative residual,
-    non-finite or all-zero coordinates), through a memory map so that only the header, the parameters and those
-    frames are read.  Text (TRC, CSV, TSV): the share of fields that are empty or a NaN token (or zero, in a TSV) in
+    non-finite or all-zero coordinates); only the header, the parameters and those frames' point words are read.  Text (TRC, CSV, TSV): the share of fields that are empty or a NaN token (or zero, in a TSV) in
     chunks spread over the file, and :func:`_samples_hint`'s samples.
     """
     try:
@@ -673,23 +673,33 @@ def _scan_missing(path: str) -> tuple[float, int] | None:
             if size == 0:
                 return None
             if len(head) == 2 and head[1] == 0x50:
-                with mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ) as raw:
-                    return _c3d_missing(raw, path)
+                return _c3d_missing(handle, path)
             fraction = _text_missing_fraction(handle, size, path.lower().endswith(".tsv"))
         return None if fraction is None else (fraction, _samples_hint(path))
     except Exception:  # noqa: BLE001 - only a hint: whatever went wrong, the file's own task reports it
         return None
 
 
-def _c3d_missing(raw: mmap.mmap, path: str) -> tuple[float, int] | None:
+def _c3d_missing(handle, path: str) -> tuple[float, int] | None:
     from .io.c3d import _decode_points
     from .io.c3dfile import parse
 
-    f = parse(raw, path)  # header and parameters; the data section stays unread
+    # parse reads the header and the parameters through the map (and the data section only when nothing else gives
+    # the frame count); the sampled frames' point words are then read one by one, not through the map, whose
+    # fault-around would bring in most of a big file.
+    with mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ) as raw:
+        if hasattr(raw, "madvise"):
+            raw.madvise(mmap.MADV_RANDOM)
+        f = parse(raw, path)
     if f.n_frames == 0 or f.n_points == 0:
         return None
-    step = -(-f.n_frames // _SCAN_FRAMES)
-    positions, _ = _decode_points(f, f.point_block()[::step].copy())
+    row = 4 * f.n_points * f.word_size
+    words = bytearray()
+    for frame in range(0, f.n_frames, -(-f.n_frames // _SCAN_FRAMES)):
+        handle.seek(f.data_offset + frame * f.frame_bytes)
+        words += handle.read(row)
+    sampled = dataclasses.replace(f, raw=bytes(words), n_frames=len(words) // row, data_offset=0, analog_words=0)
+    positions, _ = _decode_points(sampled, sampled.point_block())
     return float(np.isnan(positions[:, :, 0]).mean()), f.n_frames * f.n_points
 
 
