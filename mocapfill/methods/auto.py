@@ -347,7 +347,7 @@ def step_reference(positions: np.ndarray, missing: np.ndarray, speed: np.ndarray
 
 
 def dynamics_guide(positions: np.ndarray, trust: np.ndarray, gap: np.ndarray, longest: int, *, boneset=None,
-                   units: str = "mm", labels=None) -> tuple[np.ndarray | None, str]:
+                   units: str = "mm", labels=None) -> tuple[np.ndarray | None, np.ndarray | None, str]:
     """The dynamics guide: (fill (n_frames, n_markers, 3), its std (n_frames, n_markers) or None, name), or
     (None, None, "none") when no untrusted stretch is longer than ``longest`` and the capture is not gappy
     everywhere (:data:`GUIDE_COMPLETE`, :data:`GUIDE_MISSING`).

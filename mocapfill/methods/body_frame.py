@@ -108,10 +108,11 @@ def frame_markers(positions: np.ndarray, *, axis: int | None = None, n: int = FR
     size = np.zeros((M, M))  # mean distances: a group's spread counts relative to its size (the frame's lever arm)
     size[i, j] = size[j, i] = np.where(stats.count >= 2, stats.mean, 0.0)
     scored = []
+    upper = np.triu_indices(n, 1)
     for group in combinations(central, n):
         g = np.array(group)
-        upper = np.triu_indices(n, 1)
-        score = float(spread[np.ix_(g, g)][upper].max()) / max(float(size[np.ix_(g, g)][upper].mean()), 1e-300)
+        pairs = np.ix_(g, g)
+        score = float(spread[pairs][upper].max()) / max(float(size[pairs][upper].mean()), 1e-300)
         if np.isfinite(score):
             scored.append((score, g))
     if not scored:  # no group observed together: the most central markers

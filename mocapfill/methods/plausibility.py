@@ -126,8 +126,9 @@ def project_plausible(estimate: np.ndarray, positions: np.ndarray, speed: np.nda
     the farthest observed distance from it, :func:`body_centre`).  Both sets are convex: ADMM splits them into a
     banded linear solve and two projections onto balls.  A run the solver leaves outside the bounds (slow
     convergence) is moved towards a straight line through its ends by the least fraction that puts it inside; a run
-    where even that line breaks a bound (its observed ends are farther apart than v allows) becomes the line, which
-    has the smallest largest step there is, and is reported as ``forced``.
+    where even that line breaks a bound gets one more ADMM pass from the calmest candidate (the world line, the line
+    following the body, or the speed-only path); if that fails too (its observed ends are farther apart than v
+    allows), the calmest candidate stays and the run is reported as ``forced``.
 
     estimate / positions (n_frames, n_markers, 3), NaN = missing in ``positions``; speed (n_markers,) the largest
     observed steps (:func:`observed_speed`), or (n_frames - 1, n_markers) a reference per step.  Returns the
