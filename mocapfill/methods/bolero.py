@@ -62,7 +62,7 @@ HC_WARM_NEWTON_STEPS = 2
 
 
 def _run(positions, solver: Callable[..., tuple[np.ndarray, SolveStats]], *, variant: str, bones, units, labels,
-         hidden, max_iter, tol, seed, progress, project_start, extra_info) -> FillResult:
+         hidden, max_iter, tol, seed, progress, project_start, extra_info, uncertainty=True) -> FillResult:
     positions = check_positions(positions)
     if int(project_start) < 1:
         raise MethodError(f"project_start must be >= 1, got {project_start}")
@@ -95,7 +95,7 @@ def _run(positions, solver: Callable[..., tuple[np.ndarray, SolveStats]], *, var
     # The engine's own settings, as fill_dynammo runs it (gap-end bridge included: the bridged estimate goes
     # through the solver once more, so the output still meets its bones).
     result = run_dynammo(positions, hidden=hidden, max_iter=max_iter, tol=tol, seed=seed, progress=progress,
-                         project=use, project_start=int(project_start))
+                         project=use, project_start=int(project_start), uncertainty=uncertainty)
     info = dict(result.info)
     info.update(extra_info)
     info["variant"] = variant
@@ -192,6 +192,9 @@ def fill_bolero_hc(
         DynaMMo's options.
     project_start : int
         First EM iteration (1-based) whose imputation is constrained.
+    uncertainty : True, "model" or False
+        As :func:`~mocapfill.methods.dynammo.run_dynammo`: long gaps' std cross-validated (True), the model's own
+        posterior with its drift ("model"), or no std (False).
     solver_iter : int
         Iteration cap of each phase of the per-frame solver.
 
@@ -242,6 +245,7 @@ def fill_bolero_sc(
     bone_weighting: str = DEFAULT_BONE_WEIGHTING,
     project_start: int = PROJECT_START_SC,
     solver_iter: int = 30,
+    uncertainty: bool | str = True,
 ) -> FillResult:
     """Fill gaps with DynaMMo under soft bone-length constraints (BoLeRO-SC).
 
@@ -293,7 +297,7 @@ def fill_bolero_sc(
 
     return _run(positions, solver, variant="soft", bones=bones, units=units, labels=labels, hidden=hidden,
                 max_iter=max_iter, tol=tol, seed=seed, progress=progress, project_start=project_start,
-                extra_info={"penalty": penalty, "bone_weighting": bone_weighting})
+                extra_info={"penalty": penalty, "bone_weighting": bone_weighting}, uncertainty=uncertainty)
 
 
 __all__ = ["fill_bolero_hc", "fill_bolero_sc", "DEFAULT_PENALTY", "PROJECT_START_SC", "PROJECT_START_HC"]
