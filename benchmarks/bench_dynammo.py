@@ -218,7 +218,7 @@ def uncertainty() -> None:
               f"{actual / old:6.2f}", flush=True)
     titles = {"first": "the first three clips (132_32, 85_02, tennis)", "other": "five other clips"}
     for group, pairs in ratios.items():
-        for col, what in ((0, "std (cross-validated)"), (1, "model std")):
+        for col, what in ((0, "std (second opinion)"), (1, "model std")):
             r = np.array([p[col] for p in pairs])
             print(f"{titles[group]}, {what}: {len(r)} gaps longer than 1 s, median ratio {np.median(r):.2f}, "
                   f"10th-90th percentile {np.percentile(r, 10):.2f}-{np.percentile(r, 90):.2f}, "

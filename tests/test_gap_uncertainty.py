@@ -10,70 +10,44 @@ from mocapfill.methods import gap_uncertainty as gu
 from mocapfill.methods.dynammo import run_dynammo
 
 
-def brute_force_error(X, observed, hidden, frames):
-    """The same held-out error, each fold's ridge on its own centred data (the definition)."""
-    others = observed[frames].all(axis=0)
-    others[hidden] = False
-    rows = np.flatnonzero(observed[:, hidden].all(axis=1) & observed[:, others].all(axis=1))
-    n = len(rows)
-    block = min(len(frames), int(gu.BLOCK_SHARE * n))
-    co = (3 * np.flatnonzero(others)[:, None] + np.arange(3)).ravel()
-    cs = (3 * np.asarray(hidden)[:, None] + np.arange(3)).ravel()
-    A_all, B_all = X[np.ix_(rows, co)], X[np.ix_(rows, cs)]
-    sq = []
-    for start in np.linspace(0, n - block, gu.BLOCKS).astype(int):
-        test = np.zeros(n, bool)
-        test[start:start + block] = True
-        am, bm = A_all[~test].mean(axis=0), B_all[~test].mean(axis=0)
-        A, B = A_all[~test] - am, B_all[~test] - bm
-        gram = A.T @ A
-        gram += gu.RIDGE * np.trace(gram) / gram.shape[0] * np.eye(gram.shape[0])
-        W = np.linalg.solve(gram, A.T @ B)
-        sq.append(np.mean(((A_all[test] - am) @ W + bm - B_all[test]) ** 2))
-    return float(np.sqrt(np.mean(sq)))
-
-
-def test_held_out_error_is_the_ridge_on_each_folds_centred_data():
+def test_second_opinion_is_a_centred_ridge_from_the_markers_seen_throughout_the_gap():
     rng = np.random.default_rng(0)
     T, M = 300, 6
     X = rng.standard_normal((T, 3 * M)) + 5.0
     observed = np.ones((T, M), bool)
     observed[120:180, [1, 4]] = False
-    observed[10:20, 5] = False
+    observed[150:160, 5] = False  # not seen throughout the gap: not a feature
+    observed[10:20, 0] = False  # a training frame with a feature missing: not a row
     frames = np.arange(120, 180)
-    got = gu.held_out_error(X, observed, np.array([1, 4]), frames)
-    np.testing.assert_allclose(got, brute_force_error(X, observed, np.array([1, 4]), frames), rtol=1e-10)
+    got = gu.second_opinion(X, observed, np.array([1, 4]), frames)
+    rows = np.r_[0:10, 20:120, 180:T]
+    co = np.r_[0:3, 6:12]  # markers 0, 2, 3
+    cs = np.r_[3:6, 12:15]
+    A, B = X[np.ix_(rows, co)], X[np.ix_(rows, cs)]
+    am, bm = A.mean(axis=0), B.mean(axis=0)
+    gram = (A - am).T @ (A - am)
+    gram += gu.RIDGE * np.trace(gram) / gram.shape[0] * np.eye(len(co))
+    expected = (X[np.ix_(frames, co)] - am) @ np.linalg.solve(gram, (A - am).T @ (B - bm)) + bm
+    np.testing.assert_allclose(got, expected, rtol=1e-10)
+    observed[120:180] = False  # nothing seen throughout the gap: no opinion
+    assert gu.second_opinion(X, observed, np.array([1, 4]), frames) is None
 
 
-def test_a_marker_the_others_explain_gets_a_small_error_one_on_its_own_a_large_one():
-    rng = np.random.default_rng(1)
-    T = 400
-    base = np.cumsum(rng.standard_normal((T, 3)), axis=0)
-    X = np.hstack([base + rng.standard_normal(3), base + rng.standard_normal(3),
-                   2 * base + 0.01 * rng.standard_normal((T, 3)),  # explained by the first two
-                   np.cumsum(rng.standard_normal((T, 3)), axis=0)])  # moves on its own
-    observed = np.ones((T, 4), bool)
-    frames = np.arange(150, 230)
-    explained = gu.held_out_error(X, observed, np.array([2]), frames)
-    alone = gu.held_out_error(X, observed, np.array([3]), frames)
-    assert alone > 1.0 and explained < 0.1 * alone  # the ridge shrinks a little
-    # nothing seen throughout the gap: nothing to learn from
-    observed[150:230] = False
-    assert gu.held_out_error(X, observed, np.array([3]), frames) is None
-
-
-def test_gap_variance_spreads_the_error_over_the_gap_with_its_mean_kept():
+def test_gap_variance_is_the_disagreement_spread_over_the_gap_with_its_mean_kept():
     rng = np.random.default_rng(2)
     T, M = 500, 5
     X = np.cumsum(rng.standard_normal((T, 3 * M)), axis=0)
     observed = np.ones((T, M), bool)
-    observed[200:300, 3] = False  # long: cross-validated
+    observed[200:300, 3] = False  # long: a second opinion
     observed[50:55, 1] = False  # short: left to the model
+    X[200:300, 9:12] += 4.0  # a fill 4 off what the others say (plus the regression's own miss)
     var = gu.gap_variance(X, observed)
     assert np.isnan(var[observed]).all() and np.isnan(var[50:55, 1]).all()
-    err = gu.held_out_error(X, observed, np.array([3]), np.arange(200, 300))
-    np.testing.assert_allclose(var[200:300, 3].mean(), err ** 2)
+    opinion = gu.second_opinion(X, observed, np.array([3]), np.arange(200, 300))
+    np.testing.assert_allclose(var[200:300, 3].mean(), np.mean((opinion - X[200:300, 9:12]) ** 2))
     assert var[250, 3] > var[200, 3] and var[250, 3] > var[299, 3]
+    X[200:300, 9:12] = opinion  # a fill that agrees: nothing to doubt
+    assert np.nanmax(gu.gap_variance(X, observed)) < 1e-20
 
 
 def test_dynammo_std_follows_the_error_on_a_long_gap():

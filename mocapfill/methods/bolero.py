@@ -193,8 +193,8 @@ def fill_bolero_hc(
     project_start : int
         First EM iteration (1-based) whose imputation is constrained.
     uncertainty : True, "model" or False
-        As :func:`~mocapfill.methods.dynammo.run_dynammo`: long gaps' std cross-validated (True), the model's own
-        posterior with its drift ("model"), or no std (False).
+        As :func:`~mocapfill.methods.dynammo.run_dynammo`: long gaps' std from a second opinion (True), the
+        model's own posterior with its drift ("model"), or no std (False).
     solver_iter : int
         Iteration cap of each phase of the per-frame solver.
 

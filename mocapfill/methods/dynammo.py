@@ -45,11 +45,11 @@ on the internal (unit-RMS) scale, where the objective is O(1); else ``Convergenc
 Uncertainty: ``std`` of a filled sample is ``sqrt(mean_xyz diag(G_k Cov[z_t | observed] G_k^T) + sigma2 + drift)``,
 the predictive standard deviation of the marker's coordinates, in the data's units, where the posterior covariance
 treats the missing entries as *missing* (one extra covariance-only pass, :func:`.lds.missing_data_variance`).  In
-gaps of at least :data:`.gap_uncertainty.MIN_FRAMES` frames ``drift`` is the error measured on the capture itself
-(:mod:`.gap_uncertainty`: the gap's markers predicted from the markers seen throughout it, on held-out blocks as long
-as the gap, scaled by how fast the body moves in the gap): the model's posterior hardly grows inside a gap, its
-error does, and by how much depends on the capture, which the model cannot know.  In shorter gaps (and with
-``uncertainty="model"``) ``drift`` is a Brownian bridge across the gap (:data:`DRIFT_RATE`,
+gaps of at least :data:`.gap_uncertainty.MIN_FRAMES` frames ``drift`` is the squared disagreement between the fill
+and a second opinion (:mod:`.gap_uncertainty`: the gap's markers regressed on the markers seen throughout it, over
+every frame where both are seen): the model's posterior hardly grows inside a gap, its error does, and by how much
+depends on whether the gap's poses are ones the capture has shown, which the model cannot know.  In shorter gaps
+(and with ``uncertainty="model"``) ``drift`` is a Brownian bridge across the gap (:data:`DRIFT_RATE`,
 :func:`gap_drift_variance`).
 
 Speed: see :mod:`.lds` (isotropic noise + Woodbury, steady-state covariances, vectorised mean passes).
@@ -67,7 +67,7 @@ from ..gaps import runs
 from ..blas import single_blas_thread
 from . import lds
 from .base import FillResult, ProgressFn, check_positions, finish
-from .gap_uncertainty import gap_variance, marker_speed
+from .gap_uncertainty import gap_variance
 from .interp import interpolate_columns
 
 #: Defaults chosen by measurement.  H = 16 and at most 200 iterations as in the authors' experiments (on the 40
@@ -94,7 +94,7 @@ DEFAULT_INIT_NOISE = 100.0
 #: (:func:`gap_drift_variance`).  Fitted on 34 gaps longer than 1 s of three clips (14 of the authors' trials on
 #: 132_32, 10 on CMU 85_02, 10 on the tennis serve): median ratio of actual to predicted RMS error 2.95 with the
 #: posterior alone, 1.0 with 0.16.  On five clips it was not fitted to the median ratio was 3.8 and one gap 140, which
-#: is why long gaps now measure their error instead (``benchmarks/bench_dynammo.py --uncertainty``).
+#: is why long gaps now ask a second opinion instead (``benchmarks/bench_dynammo.py --uncertainty``).
 DRIFT_RATE = 0.16
 
 #: With a ``project`` hook, the objective-change stop test fires from iteration ``project_start + 2`` on, so that it
@@ -207,31 +207,26 @@ def body_frame_transform(Y: np.ndarray, observed: np.ndarray, frame: str, marker
     return R, c, {"frame": kind, "frame_markers": [int(k) for k in idx], "vertical_axis": axis}
 
 
-def _frame_refit(positions: np.ndarray, missing: np.ndarray, frame_info: dict, scale: float):
-    """``refit(hidden)`` for :func:`.gap_uncertainty.gap_variance`: the modelled markers' coordinates (T, 3 M) in
-    a body frame fitted as the engine's was but without the ``hidden`` markers, divided by ``scale``; None when
-    they are not frame markers (or too few would remain).  positions (T, M, 3) of the modelled markers; missing
-    (T, M)."""
+def _frame_refit(filled: np.ndarray, missing: np.ndarray, frame_info: dict, scale: float):
+    """``refit(hidden)`` for :func:`.gap_uncertainty.gap_variance`: the filled data (T, 3 M) in a body frame fitted
+    as the engine's was but without the ``hidden`` markers, divided by ``scale``; None when they are not frame
+    markers (or fewer than 2 would remain).  filled (T, M, 3): the modelled markers, data and fill, world frame;
+    missing (T, M)."""
     from . import body_frame as bf
 
     idx = frame_info.get("frame_markers") or []
     kind = frame_info.get("frame")
     if kind not in ("yaw", "full") or not idx:
         return None
-    world = []  # interpolated once, on first use
 
     def refit(hidden: np.ndarray) -> np.ndarray | None:
         rest = np.setdiff1d(idx, hidden)
         if len(rest) == len(idx) or len(rest) < 2:
             return None
-        T, M, _ = positions.shape
-        if not world:
-            world.append(interpolate_columns(positions.reshape(T, 3 * M), np.repeat(missing, 3, axis=1),
-                                             empty=0.0).reshape(T, M, 3))
-        Y = world[0]
-        R, c = bf.fit_frames(Y[:, rest], bf.fade_weights(~missing[:, rest]),
+        T, M, _ = filled.shape
+        R, c = bf.fit_frames(filled[:, rest], bf.fade_weights(~missing[:, rest]),
                              axis=frame_info["vertical_axis"] if kind == "yaw" else None)
-        return np.matmul(Y - c[:, None, :], R).reshape(T, 3 * M) / scale
+        return np.matmul(filled - c[:, None, :], R).reshape(T, 3 * M) / scale
 
     return refit
 
@@ -385,8 +380,8 @@ def run_dynammo(
         ``fill_dynammo`` and BoLeRO both run the engine with its defaults, so their settings cannot drift.
     uncertainty : True, "model" or False
         Compute ``std`` (one extra covariance pass); gaps of at least :data:`.gap_uncertainty.MIN_FRAMES` frames
-        get their error measured by cross-validation (:mod:`.gap_uncertainty`) unless ``"model"`` asks for the
-        model's posterior with its drift everywhere; False gives ``std=None``.
+        take their error from the disagreement with a second opinion (:mod:`.gap_uncertainty`) unless ``"model"``
+        asks for the model's posterior with its drift everywhere; False gives ``std=None``.
 
     Returns
     -------
@@ -523,10 +518,9 @@ def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, p
     if uncertainty:
         posterior = lds.missing_data_variance(params, ~miss_k)
         var = posterior + gap_drift_variance(miss_k, DRIFT_RATE * params.sigma2)
-        if uncertainty != "model":  # long gaps: the error measured by cross-validation, not the model's belief
-            held_out = gap_variance(X, ~miss_k, marker_speed(positions[:, keep]),
-                                    _frame_refit(positions[:, keep], miss_k, frame_info, scale))
-            var = np.where(np.isnan(held_out), var, posterior + held_out)
+        if uncertainty != "model":  # long gaps: the disagreement with a second opinion, not the model's belief
+            second = gap_variance(X, ~miss_k, _frame_refit(estimate[:, keep], miss_k, frame_info, scale))
+            var = np.where(np.isnan(second), var, posterior + second)
         std = np.full((T, M), np.nan)
         std[:, keep] = np.sqrt(var + params.sigma2) * scale
     info.update(hidden=H, sigma2=float(params.sigma2 * scale ** 2), scale=scale,
