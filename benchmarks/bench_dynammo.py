@@ -10,8 +10,8 @@ Prints the machine, then:
 the BoLeRO authors' trials on 132_32 (``../shared/data/bolero``, when present) and of 5 + 5 one-marker / limb trials
 (``bench_bolero.py``'s protocol) on CMU 85_02 and the tennis serve, the ratio of the actual RMS error per coordinate
 over the gap to the RMS of the predicted ``std`` there (1 = honest; the target is 0.5-2), and the same for the
-model's own std (``uncertainty="model"``); then the same on five captures the method was not designed on
-(:data:`OTHER_CLIPS`, when ``../shared/data`` is present).
+model's own std (``uncertainty="model"``) and for ``bolero-sc``; then the same on five captures the method was not
+designed on (:data:`OTHER_CLIPS`, when ``../shared/data`` is present).
 Data: the real CMU capture sample_data/85_02.c3d (810 frames, 41 markers, 120 Hz) tiled forward-backward-forward...
 to the length needed (no jumps at the seams), with occlusions of one marker for 0.5-2 s at random (seeded) until
 5 % of the samples are missing.  Each size runs in a fresh subprocess so that its peak RSS (ru_maxrss) is its own.
@@ -173,6 +173,7 @@ def uncertainty() -> None:
     import bench_authors
     import bench_bolero
     from mocapfill.io import read
+    from mocapfill.methods.bolero import fill_bolero_sc
     from mocapfill.methods.dynammo import run_dynammo
 
     cases = []
@@ -198,8 +199,9 @@ def uncertainty() -> None:
             if data.positions.shape[0] >= 3 * data.rate:
                 cases += [("other", *c) for c in other_clip_trials(name, data)]
     ratios = {}
-    print(f"{'trial':18s} {'frames':>6s} {'actual':>9s} {'predicted':>9s} {'ratio':>6s} {'model':>9s} {'ratio':>6s}  "
-          f"(RMS per coordinate, the file's units; model = the posterior with its Brownian drift)")
+    print(f"{'trial':18s} {'frames':>6s} {'actual':>9s} {'predicted':>9s} {'ratio':>6s} {'model':>9s} {'ratio':>6s} "
+          f"{'bolero-sc':>9s} {'predicted':>9s} {'ratio':>6s}  (RMS per coordinate, the file's units; model = "
+          f"DynaMMo's posterior with its Brownian drift)")
     for group, name, data, hidden in cases:
         n = int(hidden.any(axis=1).sum())
         if n <= data.rate:
@@ -210,16 +212,22 @@ def uncertainty() -> None:
             warnings.simplefilter("ignore")
             res = run_dynammo(occluded, seed=0)
             model = run_dynammo(occluded, seed=0, uncertainty="model")
-        actual = float(np.sqrt(np.mean((res.positions - data.positions)[hidden] ** 2)))
-        predicted = float(np.sqrt(np.mean(res.std[hidden] ** 2)))
-        old = float(np.sqrt(np.mean(model.std[hidden] ** 2)))
-        ratios.setdefault(group, []).append((actual / predicted, actual / old))
+            bolero = fill_bolero_sc(occluded, seed=0, units=data.units)
+
+        def rms(a):
+            return float(np.sqrt(np.mean(a ** 2)))
+
+        actual, predicted, old = rms((res.positions - data.positions)[hidden]), rms(res.std[hidden]), \
+            rms(model.std[hidden])
+        b_actual, b_predicted = rms((bolero.positions - data.positions)[hidden]), rms(bolero.std[hidden])
+        ratios.setdefault(group, []).append((actual / predicted, actual / old, b_actual / b_predicted))
         print(f"{name:18s} {n:6d} {actual:9.4g} {predicted:9.4g} {actual / predicted:6.2f} {old:9.4g} "
-              f"{actual / old:6.2f}", flush=True)
+              f"{actual / old:6.2f} {b_actual:9.4g} {b_predicted:9.4g} {b_actual / b_predicted:6.2f}", flush=True)
     titles = {"first": "the first three clips (132_32, 85_02, tennis)", "other": "five other clips"}
-    for group, pairs in ratios.items():
-        for col, what in ((0, "std (second opinion)"), (1, "model std")):
-            r = np.array([p[col] for p in pairs])
+    for group, triples in ratios.items():
+        for col, what in ((0, "dynammo std (second opinion)"), (1, "dynammo model std"),
+                          (2, "bolero-sc std (second opinion)")):
+            r = np.array([p[col] for p in triples])
             print(f"{titles[group]}, {what}: {len(r)} gaps longer than 1 s, median ratio {np.median(r):.2f}, "
                   f"10th-90th percentile {np.percentile(r, 10):.2f}-{np.percentile(r, 90):.2f}, "
                   f"within 0.5-2 on {100 * np.mean((r >= 0.5) & (r <= 2)):.0f} %")

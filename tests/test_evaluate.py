@@ -201,6 +201,11 @@ def test_metrics_on_a_known_error():
     assert (m["n_scored"], m["unfilled"]) == (10, 1)
     d = np.linalg.norm(estimate[10:19, 0] - estimate[10:19, 1], axis=1)
     assert m["bone_error"] == pytest.approx(np.mean(np.abs(d - lengths[0])))  # bone (2, 3) never hidden
+    assert np.isnan(m["error_ratio"])  # no std: no honesty to score
+    std = np.full((50, 4), np.nan)
+    std[hidden] = 2.0
+    m = score(estimate, truth, hidden, hidden, pairs, np.array(lengths), std)
+    assert m["error_ratio"] == pytest.approx(np.sqrt(np.mean(errs ** 2) / 3) / 2.0)  # per coordinate / std
 
 
 # ---------------------------------------------------------------- the runner
@@ -342,3 +347,12 @@ def test_percent_defaults_are_capped_on_long_takes():
     assert gap_range("marker", 810, 120.0) == (81, 405)  # a short clip: 10 % to 50 %
     assert gap_range("limb", 100_000, 100.0) == (100, 500)  # a long take: 1 s to 5 s
     assert gap_range("marker", 100_000, 100.0, gap_min="10%", gap_max="20%") == (10_000, 20_000)  # as asked
+
+
+def test_methods_with_a_std_get_their_honesty_scored(clip, stub):
+    result = evaluate(clip, [stub, "linear"], "marker", trials=2, seed=3)
+    summary = result.summary()
+    assert summary[stub]["error_ratio"]["median"] > 0  # the stub says std 1 everywhere
+    assert summary["linear"]["error_ratio"]["median"] is None
+    rows = result.to_csv().splitlines()
+    assert rows[0].endswith(",error,error_ratio") and rows[1].split(",")[-1] != "" and rows[2].endswith(",")

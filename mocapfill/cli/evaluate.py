@@ -87,7 +87,8 @@ def _show(result, quiet: bool) -> None:
     table = Table(title=f"errors over the hidden samples, in {units} (MSE in {units}\u00b2, Eq. 13)",
                   title_justify="left")
     table.add_column("method")
-    for head in ("RMSE mean", "RMSE median", "max error", "MSE", "bone error", "seconds"):
+    honesty = any(summary[m]["error_ratio"]["median"] is not None for m in result.methods)
+    for head in ("RMSE mean", "RMSE median", "max error", "MSE", "bone error", "seconds") + ("err/std",) * honesty:
         table.add_column(head, justify="right")
     any_problem = any(summary[m]["failures"] or summary[m]["unfilled"] or summary[m]["not_converged"]
                       for m in result.methods)
@@ -98,6 +99,8 @@ def _show(result, quiet: bool) -> None:
         row = summary[method]
         cells = [_fmt(row["rmse"]["mean"]), _fmt(row["rmse"]["median"]), _fmt(row["max_error"]["mean"]),
                  _fmt(row["mse"]["mean"]), _fmt(row["bone_error"]["mean"]), _fmt(row["seconds"]["mean"])]
+        if honesty:
+            cells.append(_fmt(row["error_ratio"]["median"]))
         problems = []
         if row["failures"]:
             problems.append(f"{row['failures']} failed")
@@ -187,8 +190,10 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
 
     Metrics per trial and method, over the hidden samples, in the file's units: RMSE and max error of the 3-D
     position, the BoLeRO paper's MSE (Eq. 13, per coordinate), the mean absolute bone-length error on the hidden
-    frames (bones estimated from the occluded input), and seconds.  The table on stderr gives the mean and median
-    per method and how often each method beats each other one.
+    frames (bones estimated from the occluded input), seconds, and for methods that say how sure they are, the RMS
+    error per coordinate over the RMS of their predicted std ("err/std": 1 = honest, 2 = twice as wrong as
+    they said).  The table on stderr gives the mean and median per method (err/std: the median) and how often
+    each method beats each other one.
     """
     from ..evaluation import evaluate as run_evaluation
     from ..methods import get_method

@@ -38,7 +38,7 @@ __all__ = [
 ]
 
 #: Metrics per trial and method, all "lower is better".
-METRICS = ("rmse", "max_error", "mse", "bone_error", "seconds")
+METRICS = ("rmse", "max_error", "mse", "bone_error", "seconds", "error_ratio")
 
 EVALUATION_SCHEMA = "mocapfill-evaluation/1"
 
@@ -174,7 +174,8 @@ class EvaluationResult:
         buf = io.StringIO()
         writer = csv.writer(buf, lineterminator="\n")
         writer.writerow(["trial", "method", "markers", "first_frame", "length", "n_scored", "rmse", "max_error",
-                         "mse", "bone_error", "seconds", "unfilled", "n_iter", "converged", "detected", "error"])
+                         "mse", "bone_error", "seconds", "unfilled", "n_iter", "converged", "detected", "error",
+                         "error_ratio"])
         n = len(self.methods)
         for t, trial in enumerate(self.trials):
             occ = trial.occlusions
@@ -188,7 +189,7 @@ class EvaluationResult:
                 row += ["" if not math.isfinite(v) else f"{v:.6g}"
                         for v in (s.rmse, s.max_error, s.mse, s.bone_error, s.seconds)]
                 row += [s.unfilled, s.n_iter, s.converged, "" if s.detected is None else f"{s.detected:.4g}",
-                        s.error or ""]
+                        s.error or "", "" if not math.isfinite(s.error_ratio) else f"{s.error_ratio:.4g}"]
                 writer.writerow(row)
         return buf.getvalue()
 

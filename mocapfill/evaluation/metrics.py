@@ -10,6 +10,8 @@ marker i); over the scored samples S:
 - ``bone_error`` mean over (bone, frame) of | ||x_hat_u - x_hat_v|| - L | for the bones (u, v) with a hidden end,
                 on the frames where an end is hidden; bones and L are estimated from the occluded input only
 - ``unfilled``  samples of S the method left missing (they do not enter the errors above)
+- ``error_ratio`` how honest the method's uncertainty is: the RMS error per coordinate over S divided by the RMS of
+                the method's ``std`` there (1 = honest, 2 = errors twice what it said); NaN for methods without one
 """
 
 from __future__ import annotations
@@ -25,11 +27,12 @@ def point_errors(estimate: np.ndarray, truth: np.ndarray, scored: np.ndarray) ->
 
 
 def score(estimate: np.ndarray, truth: np.ndarray, scored: np.ndarray, hidden: np.ndarray,
-          bone_pairs: np.ndarray, bone_lengths: np.ndarray) -> dict[str, float | int]:
+          bone_pairs: np.ndarray, bone_lengths: np.ndarray, std: np.ndarray | None = None) -> dict[str, float | int]:
     """The metrics of one fill (see the module docstring).
 
     estimate, truth : (n_frames, n_markers, 3); scored, hidden : (n_frames, n_markers) bool (scored = hidden plus
-    shifted samples); bone_pairs : (B, 2) int; bone_lengths : (B,).  Metrics without a sample are NaN.
+    shifted samples); bone_pairs : (B, 2) int; bone_lengths : (B,); std : (n_frames, n_markers) the method's
+    per-coordinate uncertainty, or None.  Metrics without a sample are NaN.
     """
     err = point_errors(estimate, truth, scored)
     ok = np.isfinite(err)
@@ -42,6 +45,12 @@ def score(estimate: np.ndarray, truth: np.ndarray, scored: np.ndarray, hidden: n
         "unfilled": int((~ok).sum()),
     }
     out["bone_error"] = bone_error(estimate, hidden, bone_pairs, bone_lengths)
+    out["error_ratio"] = float("nan")
+    if std is not None:
+        sd = std[scored]
+        both = ok & np.isfinite(sd)
+        if both.any() and np.mean(sd[both] ** 2) > 0:
+            out["error_ratio"] = float(np.sqrt(np.mean(err[both] ** 2) / 3.0 / np.mean(sd[both] ** 2)))
     return out
 
 

@@ -42,6 +42,7 @@ class TrialScore:
     detected: float | None = None  # fraction of shifted samples the outlier rejection removed (random protocol)
     error: str | None = None  # the MocapfillError message when the method failed on this trial
     warnings: list[str] = field(default_factory=list)
+    error_ratio: float = float("nan")  # RMS error per coordinate / RMS std (metrics.py); NaN without a std
 
 
 @dataclass(frozen=True)
@@ -101,10 +102,10 @@ def run_trial(truth: MarkerData, index: int, trial: Trial, method_seed: int, con
             out.append(TrialScore(index, method, *(float("nan"),) * 4, seconds, int(scored.sum()),
                                   int(scored.sum()), 0, False, detected, error, messages))
             continue
-        m = score(result.positions, positions, scored, hidden, pairs, lengths)
+        m = score(result.positions, positions, scored, hidden, pairs, lengths, result.std)
         out.append(TrialScore(index, method, m["rmse"], m["max_error"], m["mse"], m["bone_error"], seconds,
                               m["n_scored"], m["unfilled"], int(result.n_iter), bool(result.converged), detected,
-                              None, messages))
+                              None, messages, m["error_ratio"]))
     return out
 
 
