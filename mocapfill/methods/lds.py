@@ -39,7 +39,7 @@ import numpy as np
 from scipy import linalg as sla
 
 #: Relative change below which a covariance recursion counts as having reached its steady state.
-STEADY_RTOL = 1e-13
+STEADY_RTOL = 1e-10
 
 
 class LDSParams(NamedTuple):
@@ -117,7 +117,7 @@ class FilterResult(NamedTuple):
     n_head : int    frames before the steady state (len(V.head)); V_t = V.mid for t >= n_head
     nll : float     negative log-likelihood -log p(x_1..x_T) of the (completed) data
     J : PiecewiseCov   the smoother gains of :class:`CovRecursions` (data-independent, formed with the filter)
-    Q : PiecewiseCov   V_t - J_t P_t J_t^T, likewise
+    Q_inf : (H, H)     V - J P J^T in the steady state, likewise
     """
 
     mu: np.ndarray
@@ -127,7 +127,7 @@ class FilterResult(NamedTuple):
     n_head: int
     nll: float
     J: PiecewiseCov
-    Q: PiecewiseCov
+    Q_inf: np.ndarray
 
 
 class SmootherResult(NamedTuple):
@@ -252,7 +252,7 @@ def linear_recurrence(A: np.ndarray, U: np.ndarray, z0: np.ndarray) -> np.ndarra
         if k >= n:
             break
         P = P @ P
-        if float(np.max(np.abs(P))) * H <= 1e-18:
+        if np.vdot(P, P) * (H * H) <= 1e-36:  # |P|_F >= max |P_ij|: one dot instead of abs + max
             break  # every later term is below rounding
     return S
 
@@ -262,8 +262,8 @@ class CovRecursions(NamedTuple):
 
     V, P : PiecewiseCov   filtered V_t (eq. 18) and P_t = F V_t F^T + Lambda (eq. 15), no tail
     J : PiecewiseCov      smoother gains J_t = V_t F^T P_t^-1 (eq. 25); ``min(n_head, T - 1)`` explicit, no tail
-    Q : PiecewiseCov      ``V_t - J_t P_t J_t^T`` (same layout as J), so that eq. 27 reads
-                          ``Vhat_t = Q_t + J_t Vhat_{t+1} J_t^T``
+    Q_inf : (H, H)        ``V - J P J^T`` in the steady state, so that there eq. 27 reads
+                          ``Vhat_t = Q_inf + J Vhat_{t+1} J^T`` (zeros when the filter never gets steady)
     logdet_w : (T,)       ``log|G P_{t-1} G^T + sigma2 I| - m log sigma2`` per frame
     n_head : int          frames before the steady state
     """
@@ -271,7 +271,7 @@ class CovRecursions(NamedTuple):
     V: PiecewiseCov
     P: PiecewiseCov
     J: PiecewiseCov
-    Q: PiecewiseCov
+    Q_inf: np.ndarray
     logdet_w: np.ndarray
     n_head: int
 
@@ -305,14 +305,14 @@ def filter_covariances(params: LDSParams, T: int, rtol: float = STEADY_RTOL) -> 
     if T == 0:
         z = np.zeros((0, H, H))
         zero = PiecewiseCov(z, np.zeros((H, H)), z, 0)
-        return CovRecursions(zero, zero, zero, zero, np.zeros(0), 0)
+        return CovRecursions(zero, zero, zero, np.zeros((H, H)), np.zeros(0), 0)
     R = _factor_information(G, s)
     eye = np.asfortranarray(np.eye(H))
     lam = np.asfortranarray(Lam)
     FT = F.T
     r2 = rtol * rtol
     potrf, potrs, syrk, trsm, dot, vdot = _dpotrf, _dpotrs, _dsyrk, _dtrsm, np.dot, np.vdot
-    Vs, Ds, JTs, FVs = [], [], [], []  # V_t, diag(Lw_t), J_{t-1}^T, F V_{t-1}
+    Vs, Ds, JTs = [], [], []  # V_t, diag(Lw_t), J_{t-1}^T
     P = _sym(Gamma)
     n_head = T
     # Positional arguments (lower = 1, clean = 1, trans = 1): keyword parsing costs more than these tiny calls.
@@ -321,9 +321,7 @@ def filter_covariances(params: LDSParams, T: int, rtol: float = STEADY_RTOL) -> 
         if info != 0:
             raise np.linalg.LinAlgError(f"matrix not positive definite (potrf info {info})")
         if t:  # gain of the previous frame: P_{t-1}^-1 F V_{t-1} with F V = K^T Z
-            FV = dot(K.T, Z)
-            JTs.append(potrs(L, FV, 1)[0])
-            FVs.append(FV)
+            JTs.append(potrs(L, dot(K.T, Z), 1)[0])
         Lw = potrf(syrk(1.0, dot(R, L), 1.0, eye, 1, 1), 1)[0]  # I + L^T C L >= I: always positive definite
         Z = trsm(1.0, Lw, L.T, 0, 1)  # Lw^-1 L^T
         K = dot(Z, FT)
@@ -342,29 +340,26 @@ def filter_covariances(params: LDSParams, T: int, rtol: float = STEADY_RTOL) -> 
         L = potrf(Pn, 1, 1)[0]
         FV = dot(K.T, Z)
         JTs.append(potrs(L, FV, 1)[0])
-        FVs.append(FV)
     Vall = _sym_stack(np.array(Vs))
-    Pall = _sym_stack(F @ (Vall @ FT)) + Lam
+    Pall = _sym_stack(F @ (Vall @ np.ascontiguousarray(FT))) + Lam
     lw = np.log(np.array(Ds)).sum(axis=1) * 2.0
     logdet = np.full(T, lw[-1])
     logdet[:len(lw)] = lw
     nJ = min(n_head, T - 1)
     Jall = np.array([g.T for g in JTs]).reshape(-1, H, H)
-    # Q_t = V_t - J_t P_t J_t^T = V_t - J_t F V_t  (J P = V F^T)
-    Qall = _sym_stack(Vall[:len(Jall)] - Jall @ np.array(FVs).reshape(-1, H, H)) if len(Jall) else Jall
     empty = np.zeros((0, H, H))
     if n_head < T:
         V = PiecewiseCov(Vall[:-1], Vall[-1], empty, T)
         P = PiecewiseCov(Pall[:-1], Pall[-1], empty, T)
         J = PiecewiseCov(Jall[:-1], Jall[-1], empty, T)
-        Q = PiecewiseCov(Qall[:-1], Qall[-1], empty, T)
+        Q_inf = _sym(Vall[-1] - Jall[-1] @ FV)  # V - J P J^T = V - J F V  (J P = V F^T)
     else:
         V = PiecewiseCov(Vall, Vall[-1], empty, T)
         P = PiecewiseCov(Pall, Pall[-1], empty, T)
         zero = np.zeros((H, H))
         J = PiecewiseCov(Jall, Jall[-1] if nJ else zero, empty, T)
-        Q = PiecewiseCov(Qall, zero, empty, T)
-    return CovRecursions(V, P, J, Q, logdet, n_head)
+        Q_inf = zero
+    return CovRecursions(V, P, J, Q_inf, logdet, n_head)
 
 
 def kalman_filter(params: LDSParams, X: np.ndarray, *, rtol: float = STEADY_RTOL,
@@ -388,13 +383,14 @@ def kalman_filter(params: LDSParams, X: np.ndarray, *, rtol: float = STEADY_RTOL
         x2 = np.einsum("ij,ij->i", X, X)
     mu = np.empty((T, H))
     if k:  # transient: mu_t = A_t mu_{t-1} + V_t b_t with A_t = (I - V_t C) F, the products batched
-        u = np.matmul(V.head, b[:k, :, None])[:, :, 0]
-        A = F - (V.head @ C) @ F
+        u = list(np.matmul(V.head, b[:k, :, None])[:, :, 0])
+        A = list(F - V.head @ (C @ F))
         prev = mu0 - V.head[0] @ (C @ mu0) + u[0]
-        mu[0] = prev
+        out = [prev]
         for t in range(1, k):
-            prev = A[t] @ prev + u[t]
-            mu[t] = prev
+            prev = np.dot(A[t], prev) + u[t]
+            out.append(prev)
+        mu[:k] = out
     if k < T:  # steady state: mu_t = A mu_{t-1} + V b_t
         Vm = V.mid
         A = F - Vm @ C @ F
@@ -415,7 +411,7 @@ def kalman_filter(params: LDSParams, X: np.ndarray, *, rtol: float = STEADY_RTOL
     if k < T:
         quad[k:] -= np.einsum("ti,ti->t", g[k:] @ V.mid, g[k:])
     nll = 0.5 * float(T * m * np.log(2 * np.pi * s) + logdet_w.sum() + quad.sum())
-    return FilterResult(mu, pred, V, P, k, nll, cov.J, cov.Q)
+    return FilterResult(mu, pred, V, P, k, nll, cov.J, cov.Q_inf)
 
 
 def _stein_sequence(J: np.ndarray, Q: np.ndarray, S0: np.ndarray, n: int, rtol: float,
@@ -423,34 +419,32 @@ def _stein_sequence(J: np.ndarray, Q: np.ndarray, S0: np.ndarray, n: int, rtol: 
     """``S_i = Q + J S_{i-1} J^T`` for i = 1..n from ``S_0``, stopping at the first i with S_i within relative
     ``rtol`` (Frobenius) of S_{i-1}.
 
-    Batched by doubling, ``chunk`` steps at a time: with ``Q_j = sum_{i<j} J^i Q J^iT``,
-    ``S_{i+j} = J^j S_i J^jT + Q_j``, so ``log2(chunk)`` batched products give a whole chunk.
+    ``chunk`` steps at a time (two small products each), then one batched convergence test per chunk: the tests
+    cost more than the steps when run per step.
 
     Returns ``(S, converged)``: S (i + 1, H, H) holds S_0..S_i (symmetrised), i = n when not converged.
     """
-    out = [S0[None]]
     r2 = rtol * rtol
-    last = S0
-    while n > 0:
-        N = min(n, chunk)
-        S = (Q + J @ last @ J.T)[None]
-        Jj, Qj = J, Q
-        while len(S) < N:
-            S = np.concatenate([S, Jj @ S @ Jj.T + Qj])
-            if len(S) < N:
-                Qj = Qj + Jj @ Qj @ Jj.T
-                Jj = Jj @ Jj
-        S = _sym_stack(S[:N])
-        d = np.diff(np.concatenate([last[None], S]), axis=0).reshape(N, -1)
-        Sf = S.reshape(N, -1)
-        hit = np.flatnonzero(np.einsum("ij,ij->i", d, d) <= r2 * np.einsum("ij,ij->i", Sf, Sf))
+    dot = np.dot
+    JT = J.T
+    out = [S0]
+    cur = S0
+    done = 0
+    while done < n:
+        N = min(n - done, chunk)
+        for _ in range(N):
+            cur = Q + dot(dot(J, cur), JT)
+            out.append(cur)
+        S = np.array(out[done:])
+        Sf = S.reshape(N + 1, -1)
+        d = Sf[1:] - Sf[:-1]
+        hit = np.flatnonzero(np.einsum("ij,ij->i", d, d) <= r2 * np.einsum("ij,ij->i", Sf[1:], Sf[1:]))
         if hit.size:
-            out.append(S[:hit[0] + 1])
-            return np.concatenate(out), True
-        out.append(S)
-        last = S[-1]
-        n -= N
-    return np.concatenate(out), False
+            S = S[:hit[0] + 2] if not done else np.array(out[:done + hit[0] + 2])
+            return _sym_stack(S), True
+        done += N
+        chunk *= 2
+    return _sym_stack(np.array(out)), False
 
 
 def rts_smoother(params: LDSParams, filt: FilterResult, *, rtol: float = STEADY_RTOL) -> SmootherResult:
@@ -476,17 +470,21 @@ def rts_smoother(params: LDSParams, filt: FilterResult, *, rtol: float = STEADY_
         rev = linear_recurrence(J_inf, Wt[::-1], mu[T - 1])
         mean[k:T - 1] = rev[::-1]
     if nJ:  # transient: mhat_t = J_t mhat_{t+1} + (mu_t - J_t pred_{t+1})
-        w = mu[:nJ] - np.matmul(J.head, pred[1:nJ + 1, :, None])[:, :, 0]
+        w = list(mu[:nJ] - np.matmul(J.head, pred[1:nJ + 1, :, None])[:, :, 0])
+        Jl = list(J.head)
         cur = mean[nJ]
+        out = []
         for t in range(nJ - 1, -1, -1):
-            cur = J.head[t] @ cur + w[t]
-            mean[t] = cur
+            cur = np.dot(Jl[t], cur) + w[t]
+            out.append(cur)
+        mean[:nJ] = out[::-1]
 
     # Covariances, backward from Vhat_{T-1} = V_{T-1}.
     empty = np.zeros((0, H, H))
     steady_tail = None
     if k < T:  # t = k..T-1: constant J, Q
-        S, conv = _stein_sequence(J_inf, filt.Q.mid, V.mid, T - 1 - k, rtol)
+        # The tail converges about as fast as the filter did: a first chunk of n_head + 2 steps.
+        S, conv = _stein_sequence(J_inf, filt.Q_inf, V.mid, T - 1 - k, rtol, chunk=k + 2)
         if conv:  # S_0..S_{i-1} explicit (times T-1..T-i), S_i held for times k..T-1-i
             steady_tail = (S[-1], S[:-1][::-1])
             cur = S[-1]
@@ -497,10 +495,11 @@ def rts_smoother(params: LDSParams, filt: FilterResult, *, rtol: float = STEADY_
         cur = V.head[T - 1] if T else np.zeros((H, H))
         later = cur[None]
     heads = []
-    Q = filt.Q.head
-    for t in range(nJ - 1, -1, -1):
-        Jt = J.head[t]
-        cur = Q[t] + Jt @ cur @ Jt.T
+    dot = np.dot
+    Jl, Vl, Pl = list(J.head), list(V.head), list(filt.P.head)
+    for t in range(nJ - 1, -1, -1):  # eq. 27
+        Jt = Jl[t]
+        cur = Vl[t] + dot(dot(Jt, cur - Pl[t]), Jt.T)
         heads.append(cur)
     head = _sym_stack(np.array(heads[::-1]).reshape(-1, H, H))
     if steady_tail is not None:
