@@ -15,8 +15,14 @@ speed-ups this module is built on:
   ``V_t = (P^-1 + C)^-1 = L (I + L^T C L)^-1 L^T`` and ``mu_t = pred_t + V_t (b_t - C pred_t)``.  No m x m matrix is
   ever formed; ``|G P G^T + sigma2 I| = sigma2^m |I + L^T C L|`` gives the likelihood.
 * **Steady state.**  The covariance recursions (eqs. 15, 18, 25, 27) are run until successive matrices agree to a
-  relative ``rtol`` (1e-13); from then on the stored steady-state matrix is reused.  Covariance sequences are kept as
-  :class:`PiecewiseCov` (explicit head, constant middle, explicit tail).
+  relative ``rtol`` (:data:`STEADY_RTOL`); from then on the stored steady-state matrix is reused.  Covariance
+  sequences are kept as :class:`PiecewiseCov` (explicit head, constant middle, explicit tail).
+* **Few calls per transient frame.**  On short clips (a 145-frame trial: ~20 transient frames at each end, 200 EM
+  iterations) the cost is the number of small NumPy / LAPACK calls per frame, not flops.  The forward transient
+  (:func:`filter_covariances`) makes seven, on triangles, with positional arguments, and forms the smoother gains
+  with the filter's Cholesky factors; symmetrising, log-determinants and the V / P / J stacks are batched after the
+  loop; the smoother's tail (a Stein iteration with constant gain, :func:`_stein_sequence`) is tested for
+  convergence once per chunk, not per step.
 * **Vectorised means.**  In the steady state the filter mean obeys ``mu_t = A mu_{t-1} + u_t`` with constant
   ``A = (I - V C) F`` and the smoother mean ``mhat_t = J mhat_{t+1} + w_t``; both are solved by
   :func:`linear_recurrence` (a parallel prefix scan with matrix powers), not a Python loop over frames.
@@ -38,7 +44,10 @@ from typing import NamedTuple
 import numpy as np
 from scipy import linalg as sla
 
-#: Relative change below which a covariance recursion counts as having reached its steady state.
+#: Relative change below which a covariance recursion counts as having reached its steady state.  1e-10 instead of
+#: 1e-13 shortens the transients by ~20 % (a third of the explicit frames at 1e-8): on the authors' 40 trials the
+#: fills move by at most 3e-11 of their range (2e-9 mm on the RMSE), and the dense joint-Gaussian tests still hold
+#: at 1e-10; 1e-8 moves the fills by 5e-10 and fails them.
 STEADY_RTOL = 1e-10
 
 
@@ -453,8 +462,9 @@ def rts_smoother(params: LDSParams, filt: FilterResult, *, rtol: float = STEADY_
     ``J_t = V_t F^T P_t^-1`` is constant once the filter is steady (t >= n_head), so the mean recursion
     ``mhat_t = J_t mhat_{t+1} + (mu_t - J_t pred_{t+1})`` is vectorised there.  ``Vhat`` (eq. 27, written
     ``Vhat_t = Q_t + J_t Vhat_{t+1} J_t^T``) is a Stein iteration with constant J and Q there: from
-    ``Vhat_{T-1} = V_{T-1}`` it is evaluated in batches (:func:`_stein_sequence`) until it stops changing, then held;
-    through the filter's transient head it is iterated frame by frame (two products per frame).
+    ``Vhat_{T-1} = V_{T-1}`` it is evaluated in chunks (:func:`_stein_sequence`) until it stops changing, then held;
+    through the filter's transient head eq. 27 is iterated frame by frame (two products per frame, the gains come
+    with the filter).  ``params`` is unused (kept for the call signature).
     """
     mu, pred, V, k, J = filt.mu, filt.pred, filt.V, filt.n_head, filt.J
     T, H = mu.shape
