@@ -168,3 +168,112 @@ def test_missing_data_variance_matches_dense():
         for k in range(3):
             expected = 0.0 if observed[t, k] else d[k]
             assert var[t, k] == pytest.approx(expected, rel=1e-8, abs=1e-12)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# The fast recursions against a slow per-frame reference: the information-form filter and the RTS smoother written
+# out frame by frame over all T frames (no steady state, no batching), as the module did before its batched paths.
+# --------------------------------------------------------------------------------------------------------------
+
+def slow_e_step(p, X):
+    """Per-frame covariance filter + RTS smoother; returns (mu, V, P, mean, Vhat, J, cross, nll), dense over T."""
+    F, G, mu0, Gamma, Lam, s = p
+    T, m = X.shape
+    H = F.shape[0]
+    C = G.T @ G / s
+    mu, V, P = np.empty((T, H)), np.empty((T, H, H)), np.empty((T, H, H))
+    nll = 0.0
+    P_prev, pred = Gamma, mu0
+    for t in range(T):
+        if t:
+            pred = F @ mu[t - 1]
+        L = np.linalg.cholesky(P_prev)
+        W = np.eye(H) + L.T @ C @ L
+        V[t] = L @ np.linalg.solve(W, L.T)
+        V[t] = (V[t] + V[t].T) / 2
+        mu[t] = pred + V[t] @ (G.T @ X[t] / s - C @ pred)
+        P[t] = F @ V[t] @ F.T + Lam
+        e = X[t] - G @ pred
+        g = G.T @ e / s
+        nll += 0.5 * (m * np.log(2 * np.pi * s) + np.linalg.slogdet(W)[1] + e @ e / s - g @ V[t] @ g)
+        P_prev = P[t]
+    mean, Vhat, J = mu.copy(), V.copy(), np.zeros((T, H, H))
+    for t in range(T - 2, -1, -1):
+        J[t] = np.linalg.solve(P[t], F @ V[t]).T
+        mean[t] = mu[t] + J[t] @ (mean[t + 1] - F @ mu[t])
+        Vhat[t] = V[t] + J[t] @ (Vhat[t + 1] - P[t]) @ J[t].T
+        Vhat[t] = (Vhat[t] + Vhat[t].T) / 2
+    cross = sum((Vhat[t] @ J[t - 1].T for t in range(1, T)), np.zeros((H, H)))
+    return mu, V, P, mean, Vhat, J, cross, nll
+
+
+@pytest.mark.parametrize("T", [1, 2, 5, 12, 40, 150, 700])
+@pytest.mark.parametrize("iso", [False, True])
+@pytest.mark.parametrize("rho, sigma2", [(0.6, 0.02), (0.95, 0.02), (0.995, 0.02), (0.995, 1.0), (0.995, 20.0)])
+def test_fast_recursions_match_the_per_frame_reference(T, iso, rho, sigma2):
+    """Short (T below the steady state), medium and long sequences; slow and fast dynamics, informative and weak
+    observations (the filter steady after 5 frames, after 25, after 64 or never); full and isotropic."""
+    H, m = 5, 12
+    p = random_params(H=H, m=m, seed=T + 7 * iso, rho=rho, sigma2=sigma2, iso=iso)
+    _, X = simulate(p, T, seed=3)
+    mu, V, P, mean, Vhat, J, cross, nll = slow_e_step(p, X)
+    rtol = 1e-13  # steady state within rounding: checks the algebra of the fast paths, not the truncation
+    filt = lds.kalman_filter(p, X, rtol=rtol)
+    sm = lds.rts_smoother(p, filt, rtol=rtol)
+    stats, _, nll_e = lds.e_step(p, X, rtol=rtol)
+    close = dict(rtol=0, atol=1e-11)
+    sc = max(1.0, np.abs(mu).max())
+    np.testing.assert_allclose(filt.mu / sc, mu / sc, **close)
+    np.testing.assert_allclose(filt.V.dense(), V, atol=1e-12 * np.abs(V).max())
+    np.testing.assert_allclose(filt.P.dense(), P, atol=1e-12 * np.abs(P).max())
+    assert filt.nll == pytest.approx(nll, rel=1e-12) and nll_e == filt.nll
+    np.testing.assert_allclose(sm.mean / sc, mean / sc, **close)
+    np.testing.assert_allclose(sm.Vhat.dense(), Vhat, atol=1e-12 * np.abs(Vhat).max())
+    if T > 1:
+        np.testing.assert_allclose(sm.J.dense()[:T - 1], J[:T - 1], atol=1e-12 * np.abs(J).max())
+    np.testing.assert_allclose(sm.cross, cross, atol=1e-12 * max(1, T) * np.abs(Vhat).max())
+    np.testing.assert_allclose(stats.Szz, mean.T @ mean + Vhat.sum(axis=0), atol=1e-12 * T * np.abs(Vhat).max()
+                               + 1e-13 * np.abs(mean.T @ mean).max())
+    # The stored matrices are symmetric to the last bit where the module promises it.
+    for pc in (filt.V, filt.P, sm.Vhat):
+        d = pc.dense()
+        np.testing.assert_array_equal(d, d.transpose(0, 2, 1))
+    if T >= 700:  # long sequences use the steady state on both passes
+        assert filt.n_head < T // 2 and sm.Vhat.n_mid > 0
+    # The default tolerance truncates the transients earlier: still within a few STEADY_RTOL of the reference.
+    stats_d, sm_d, nll_d = lds.e_step(p, X)
+    tol = 100 * lds.STEADY_RTOL
+    np.testing.assert_allclose(sm_d.mean / sc, mean / sc, rtol=0, atol=tol)
+    np.testing.assert_allclose(sm_d.Vhat.dense(), Vhat, rtol=0, atol=tol * np.abs(Vhat).max())
+    assert nll_d == pytest.approx(nll, rel=tol)
+
+
+def test_fast_recursions_handle_a_rank_deficient_observation_matrix():
+    """G with fewer rows than H (C = G^T G / sigma2 singular): the filter must not need C to be invertible."""
+    p = random_params(H=6, m=3, seed=2, iso=True)
+    _, X = simulate(p, 60, seed=4)
+    mu, V, P, mean, Vhat, J, cross, nll = slow_e_step(p, X)
+    _, sm, nll_e = lds.e_step(p, X, rtol=1e-13)
+    np.testing.assert_allclose(sm.mean, mean, atol=1e-10 * max(1, np.abs(mean).max()))
+    np.testing.assert_allclose(sm.Vhat.dense(), Vhat, atol=1e-11 * np.abs(Vhat).max())
+    assert nll_e == pytest.approx(nll, rel=1e-11)
+
+
+@pytest.mark.parametrize("n, chunk", [(0, 4), (3, 4), (40, 3), (40, 64), (200, 5)])
+def test_stein_sequence_matches_the_loop(n, chunk):
+    """Batched chunks (one, several, more than needed) give the plain iteration and stop where it first settles."""
+    rng = np.random.default_rng(n + chunk)
+    H = 4
+    J = rng.standard_normal((H, H))
+    J *= 0.8 / np.max(np.abs(np.linalg.eigvals(J)))
+    B = rng.standard_normal((H, H))
+    Q, S0 = B @ B.T, np.eye(H)
+    S, conv = lds._stein_sequence(J, Q, S0, n, 1e-12, chunk=chunk)
+    ref = [S0]
+    for _ in range(n):
+        ref.append(Q + J @ ref[-1] @ J.T)
+        if np.linalg.norm(ref[-1] - ref[-2]) <= 1e-12 * np.linalg.norm(ref[-1]):
+            break
+    assert conv == (len(ref) - 1 < n or (n > 0 and np.linalg.norm(ref[-1] - ref[-2]) <= 1e-12 * np.linalg.norm(ref[-1])))
+    assert len(S) == len(ref)
+    np.testing.assert_allclose(S, np.array(ref), atol=1e-13 * np.abs(ref[-1]).max())

@@ -107,20 +107,17 @@ def frame_markers(positions: np.ndarray, *, axis: int | None = None, n: int = FR
     spread[i, j] = spread[j, i] = s
     size = np.zeros((M, M))  # mean distances: a group's spread counts relative to its size (the frame's lever arm)
     size[i, j] = size[j, i] = np.where(stats.count >= 2, stats.mean, 0.0)
-    scored = []
-    upper = np.triu_indices(n, 1)
-    for group in combinations(central, n):
-        g = np.array(group)
-        pairs = np.ix_(g, g)
-        score = float(spread[pairs][upper].max()) / max(float(size[pairs][upper].mean()), 1e-300)
-        if np.isfinite(score):
-            scored.append((score, g))
-    if not scored:  # no group observed together: the most central markers
+    groups = np.array(list(combinations(central, n)))  # (n_groups, n), all groups at once
+    iu, ju = np.triu_indices(n, 1)
+    gi, gj = groups[:, iu], groups[:, ju]
+    score = spread[gi, gj].max(axis=1) / np.maximum(size[gi, gj].mean(axis=1), 1e-300)
+    ok = np.isfinite(score)
+    if not ok.any():  # no group observed together: the most central markers
         return np.sort(central[:n])
     # Of the groups nearly as rigid as the most rigid one, the most central: a hand can be as rigid as the pelvis
     # (see RIGID_SLACK), but it is far from the centre, and in its frame the rest of the body swings.
-    least = min(score for score, _ in scored)
-    best = min((g for score, g in scored if score <= RIGID_SLACK * least), key=lambda g: float(dist[g].mean()))
+    near = np.flatnonzero(ok & (score <= RIGID_SLACK * score[ok].min()))
+    best = groups[near[np.argmin(dist[groups[near]].mean(axis=1))]]
     if torso <= 0:
         return np.sort(best)
     with warnings.catch_warnings():

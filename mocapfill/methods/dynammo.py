@@ -461,20 +461,18 @@ def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, p
     log_scale = float(np.log(scale))
     # The imputation touches only the missing entries: per marker, the frames where it is missing.  |x_t|^2 and
     # sum |x|^2 are kept as "observed part (constant) + missing part (updated)".
-    rows = [np.flatnonzero(miss_k[:, j]) for j in range(Mk)]
+    rows = [(r, slice(3 * j, 3 * j + 3)) for j in range(Mk) if len(r := np.flatnonzero(miss_k[:, j]))]
     x2_obs = np.einsum("ij,ij->i", X, X) - np.bincount(mi, weights=X[mi, mj] ** 2, minlength=T)
 
     def row_norms() -> np.ndarray:
         x2 = x2_obs.copy()
-        for j, r in enumerate(rows):
-            if len(r):
-                x2[r] += np.einsum("ij,ij->i", X[r, 3 * j:3 * j + 3], X[r, 3 * j:3 * j + 3])
+        for r, c in rows:
+            x2[r] += np.einsum("ij,ij->i", X[r, c], X[r, c])
         return x2
 
     def impute(Ez: np.ndarray, G: np.ndarray) -> None:
-        for j, r in enumerate(rows):
-            if len(r):
-                X[r, 3 * j:3 * j + 3] = Ez[r] @ G[3 * j:3 * j + 3].T
+        for r, c in rows:
+            X[r, c] = Ez[r] @ G[c].T
 
     if project is not None:
         hook = _ProjectHook(project, positions, missing, keep, miss_k, X, scale, centre, rot, shift)
@@ -483,9 +481,9 @@ def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, p
     converged = False
     n_iter = 0
     sm = None
+    x2 = row_norms()  # then updated after each imputation: the M-step and the next E-step share it
     for it in range(1, max_iter + 1):
         n_iter = it
-        x2 = row_norms()
         stats, sm, nll = lds.e_step(params, X, x2=x2)
         obj = nll / (T * m)  # per entry, internal scale
         objective.append(obj + log_scale)
@@ -501,7 +499,8 @@ def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, p
             break
         if it == max_iter:
             break
-        params = lds.m_step(stats, X.T @ stats.Ez, float(row_norms().sum()), m, params, isotropic=isotropic)
+        x2 = row_norms()
+        params = lds.m_step(stats, X.T @ stats.Ez, float(x2.sum()), m, params, isotropic=isotropic)
     if bridge:
         if project is not None:
             impute(stats.Ez, params.G)  # bridge the model's estimate, then let the hook have the last word
