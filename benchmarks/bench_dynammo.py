@@ -11,7 +11,8 @@ the BoLeRO authors' trials on 132_32 (``../shared/data/bolero``, when present) a
 (``bench_bolero.py``'s protocol) on CMU 85_02 and the tennis serve, the ratio of the actual RMS error per coordinate
 over the gap to the RMS of the predicted ``std`` there (1 = honest; the target is 0.5-2), and the same for the
 model's own std (``uncertainty="model"``) and for ``bolero-sc``; then the same on five captures the method was not
-designed on (:data:`OTHER_CLIPS`, when ``../shared/data`` is present).
+designed on (:data:`OTHER_CLIPS`, when ``../shared/data`` is present); and the same for short gaps (8-47 frames, 6
+trials of 3 gaps on each of four captures).
 Data: the real CMU capture sample_data/85_02.c3d (810 frames, 41 markers, 120 Hz) tiled forward-backward-forward...
 to the length needed (no jumps at the seams), with occlusions of one marker for 0.5-2 s at random (seeded) until
 5 % of the samples are missing.  Each size runs in a fresh subprocess so that its peak RSS (ru_maxrss) is its own.
@@ -163,6 +164,54 @@ def other_clip_trials(name, data, trials=4, seed=77):
     return out
 
 
+def short_gaps(read, run_dynammo) -> None:
+    """Actual / predicted error on short gaps (8-47 frames): 6 trials of 3 gaps each on four captures."""
+    import warnings
+
+    import numpy as np
+
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    import bench_bolero
+
+    shared = REPO.parent / "shared" / "data"
+    clips = {name: bench_bolero.FILES[name] for name in ("85_02", "tennis")}
+    clips.update({name: shared / OTHER_CLIPS[name] for name in ("sprint", "upper")})
+    ratios: dict[str, list[tuple[int, float]]] = {"second opinion": [], "model": []}
+    for name, path in clips.items():
+        if not Path(path).is_file():
+            continue
+        data = read(path)
+        T, M, _ = data.positions.shape
+        seen = np.flatnonzero(~np.isnan(data.positions).any(axis=2).any(axis=0))
+        for trial in range(6):
+            rng = np.random.default_rng(500 + trial)
+            hidden = np.zeros((T, M), bool)
+            for _ in range(3):
+                length = int(rng.integers(8, 48))
+                start = int(rng.integers(1, T - length - 1))
+                hidden[start:start + length, rng.choice(seen)] = True
+            occluded = data.positions.copy()
+            occluded[hidden] = np.nan
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                fills = {"second opinion": run_dynammo(occluded, seed=0),
+                         "model": run_dynammo(occluded, seed=0, uncertainty="model")}
+            for kind, res in fills.items():
+                for k in np.flatnonzero(hidden.any(axis=0)):
+                    h = hidden[:, k]
+                    actual = np.sqrt(np.mean((res.positions[h, k] - data.positions[h, k]) ** 2))
+                    ratios[kind].append((int(h.sum()), float(actual / np.sqrt(np.mean(res.std[h, k] ** 2)))))
+    for kind, pairs in ratios.items():
+        n = np.array([p[0] for p in pairs])
+        r = np.array([p[1] for p in pairs])
+        for lo, hi in ((8, 24), (24, 48)):
+            sel = r[(n >= lo) & (n < hi)]
+            if sel.size:
+                print(f"short gaps of {lo}-{hi - 1} frames (85_02, tennis, sprint, upper), dynammo {kind} std: "
+                      f"{sel.size} gaps, median ratio {np.median(sel):.2f}, within 0.5-2 on "
+                      f"{100 * np.mean((sel >= 0.5) & (sel <= 2)):.0f} %")
+
+
 def uncertainty() -> None:
     """Actual / predicted error of DynaMMo's ``std`` on gaps longer than 1 s (see the module docstring)."""
     import warnings
@@ -223,6 +272,7 @@ def uncertainty() -> None:
         ratios.setdefault(group, []).append((actual / predicted, actual / old, b_actual / b_predicted))
         print(f"{name:18s} {n:6d} {actual:9.4g} {predicted:9.4g} {actual / predicted:6.2f} {old:9.4g} "
               f"{actual / old:6.2f} {b_actual:9.4g} {b_predicted:9.4g} {b_actual / b_predicted:6.2f}", flush=True)
+    short_gaps(read, run_dynammo)
     titles = {"first": "the first three clips (132_32, 85_02, tennis)", "other": "five other clips"}
     for group, triples in ratios.items():
         for col, what in ((0, "dynammo std (second opinion)"), (1, "dynammo model std"),

@@ -33,17 +33,25 @@ def test_second_opinion_is_a_centred_ridge_from_the_markers_seen_throughout_the_
     assert gu.second_opinion(X, observed, np.array([1, 4]), frames) is None
 
 
-def test_gap_variance_is_the_disagreement_spread_over_the_gap_with_its_mean_kept():
+def bridged_opinion(X, observed, k, a, b):
+    """The second opinion on frames [a, b) of marker k, moved to meet the data at frames a - 1 and b."""
+    op = gu.second_opinion(X, observed, np.array([k]), np.arange(a - 1, b + 1))
+    left, right = X[a - 1, 3 * k:3 * k + 3] - op[0], X[b, 3 * k:3 * k + 3] - op[-1]
+    w = (np.arange(b - a) + 1.0)[:, None] / (b - a + 1.0)
+    return op[1:-1] + (1 - w) * left + w * right
+
+
+def test_gap_variance_is_the_disagreement_with_the_bridged_opinion_spread_over_the_gap():
     rng = np.random.default_rng(2)
     T, M = 500, 5
     X = np.cumsum(rng.standard_normal((T, 3 * M)), axis=0)
     observed = np.ones((T, M), bool)
-    observed[200:300, 3] = False  # long: a second opinion
-    observed[50:55, 1] = False  # short: left to the model
-    X[200:300, 9:12] += 4.0  # a fill 4 off what the others say (plus the regression's own miss)
+    observed[200:300, 3] = False  # long enough: a second opinion
+    observed[50:55, 1] = False  # too short: left to the model
+    X[200:300, 9:12] += 4.0 * np.sin(np.linspace(0, np.pi, 100))[:, None]  # a fill that bulges away in the middle
     var = gu.gap_variance(X, observed)
     assert np.isnan(var[observed]).all() and np.isnan(var[50:55, 1]).all()
-    opinion = gu.second_opinion(X, observed, np.array([3]), np.arange(200, 300))
+    opinion = bridged_opinion(X, observed, 3, 200, 300)
     np.testing.assert_allclose(var[200:300, 3].mean(), np.mean((opinion - X[200:300, 9:12]) ** 2))
     assert var[250, 3] > var[200, 3] and var[250, 3] > var[299, 3]
     X[200:300, 9:12] = opinion  # a fill that agrees: nothing to doubt

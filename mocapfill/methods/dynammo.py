@@ -42,14 +42,15 @@ non-increasing (up to rounding).  ``project`` replaces the imputation by somethi
 voids that guarantee.  Convergence: ``|objective[k] - objective[k-1]| <= tol * max(1, |objective[k-1]|)`` measured
 on the internal (unit-RMS) scale, where the objective is O(1); else ``ConvergenceWarning`` at ``max_iter``.
 
-Uncertainty: ``std`` of a filled sample is ``sqrt(mean_xyz diag(G_k Cov[z_t | observed] G_k^T) + sigma2 + drift)``,
-the predictive standard deviation of the marker's coordinates, in the data's units, where the posterior covariance
-treats the missing entries as *missing* (one extra covariance-only pass, :func:`.lds.missing_data_variance`).  In
-gaps of at least :data:`.gap_uncertainty.MIN_FRAMES` frames ``drift`` is the squared disagreement between the fill
-and a second opinion (:mod:`.gap_uncertainty`: the gap's markers regressed on the markers seen throughout it, over
-every frame where both are seen): the model's posterior hardly grows inside a gap, its error does, and by how much
-depends on whether the gap's poses are ones the capture has shown, which the model cannot know.  In shorter gaps
-(and with ``uncertainty="model"``) ``drift`` is a Brownian bridge across the gap (:data:`DRIFT_RATE`,
+Uncertainty: ``std`` of a filled sample is the predictive standard deviation of the marker's coordinates, in the
+data's units.  In gaps of at least :data:`.gap_uncertainty.MIN_FRAMES` frames it is
+``sqrt(mean_xyz diag(G_k Cov[z_t | observed] G_k^T) + d_t^2)``: the posterior, treating the missing entries as
+*missing* (one extra covariance-only pass, :func:`.lds.missing_data_variance`), plus the squared disagreement
+between the fill and a second opinion (:mod:`.gap_uncertainty`: the marker regressed on its nearest markers seen
+throughout the gap, bridged to the gap's ends as the fill is, in Brownian-bridge shape over the gap).  The model's
+posterior hardly grows inside a gap, its error does, and by how much depends on whether the gap's poses are ones
+the capture has shown, which the model cannot know.  In shorter gaps (and with ``uncertainty="model"``) it is
+``sqrt(posterior + sigma2 + drift)`` with a Brownian bridge ``drift`` across the gap (:data:`DRIFT_RATE`,
 :func:`gap_drift_variance`).
 
 Speed: see :mod:`.lds` (isotropic noise + Woodbury, steady-state covariances, vectorised mean passes).
@@ -516,12 +517,13 @@ def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, p
     std = None
     if uncertainty:
         posterior = lds.missing_data_variance(params, ~miss_k)
-        var = posterior + gap_drift_variance(miss_k, DRIFT_RATE * params.sigma2)
+        var = posterior + gap_drift_variance(miss_k, DRIFT_RATE * params.sigma2) + params.sigma2
         if uncertainty != "model":  # long gaps: the disagreement with a second opinion, not the model's belief
             second = gap_variance(X, ~miss_k, _frame_refit(estimate[:, keep], miss_k, frame_info, scale))
+            # The bridged fill meets the data at the gap's ends: no observation noise on top of the disagreement.
             var = np.where(np.isnan(second), var, posterior + second)
         std = np.full((T, M), np.nan)
-        std[:, keep] = np.sqrt(var + params.sigma2) * scale
+        std[:, keep] = np.sqrt(var) * scale
     info.update(hidden=H, sigma2=float(params.sigma2 * scale ** 2), scale=scale,
                 steady_state_frames=int(len(sm.Vhat.head)) if sm is not None else 0, body_frame=rot is not None,
                 objective_kind="negative log-likelihood of the completed data per entry (nats, data units)")

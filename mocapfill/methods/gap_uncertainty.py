@@ -1,20 +1,20 @@
-"""How wrong a fill is likely to be inside a long gap, from a second opinion measured on the capture itself.
+"""How wrong a fill is likely to be inside a gap, from a second opinion measured on the capture itself.
 
 A linear dynamical system's posterior hardly grows inside a long gap: the markers it still sees pin its state, and
 its error comes from the gap's poses not being the ones it was fitted to, which the model cannot know.  So the
-uncertainty of a long gap is measured instead, as the disagreement between the fill and an independent prediction:
-a ridge regression of the missing marker on its nearest markers seen throughout the gap, fitted on every frame
-where all of them are seen (in the body frame the fill works in) and evaluated in the gap.  Where the two agree, the gap's
-poses are ones the capture has shown and both fills are probably right; where they part, at least one is wrong by
-about that much, and the fill's error follows (the errors of two fills of the same gap are correlated, so it is the
-whole disagreement, not a share of it).
+uncertainty of a gap is measured instead, as the disagreement between the fill and an independent prediction: a
+ridge regression of the missing marker on its nearest markers seen throughout the gap, fitted on the frames around
+it where all of them are seen (in the body frame the fill works in), evaluated in the gap and bridged to the
+observed frames on either side as the fill is.  Where the two agree, the gap's poses are ones the capture has shown
+and both fills are probably right; where they part, at least one is wrong by about that much, and the fill's error
+follows (the errors of two fills of the same gap are correlated, so it is the whole disagreement, not a share).
 
-Measured with ``python benchmarks/bench_dynammo.py --uncertainty`` (DynaMMo's gaps longer than 1 s, actual / this
-predicted RMS error; ``benchmarks/README.md``, issue 10, fourth session): the DynaMMo posterior with a Brownian
+Measured with ``python benchmarks/bench_dynammo.py --uncertainty`` (actual / predicted RMS error per gap;
+``benchmarks/README.md``, issue 10, fourth session).  Gaps longer than 1 s: the DynaMMo posterior with a Brownian
 drift fitted to three clips had a median ratio of 1.4 there (59 % of gaps within 0.5-2) and 3.8 on five clips it
-was not fitted to (35 %, one gap 140).  Tried before this and left: the same regression's own cross-validated error
-on held-out blocks as long as the gap (median ~1 on both, but 55 % within 0.5-2 on the five clips: it measures how
-hard the capture is, not how this fill went).
+was not fitted to (35 %, one gap 140).  Tried and left: the regression's own error on held-out blocks as long as the
+gap (55 % within 0.5-2 on the five clips: it says how hard the capture is, not how this fill went), the
+disagreement without the bridge (88 % there instead of 95 %).
 
 Shapes: ``T`` frames, ``M`` markers; ``X`` (T, 3 M) with each marker's x, y, z consecutive.
 """
@@ -27,9 +27,9 @@ import numpy as np
 
 from ..gaps import runs
 
-#: Gaps shorter than this (frames) keep the model's own variance; so do gaps past :data:`MAX_GAPS` (longest first,
-#: a guard against pathological inputs: a ridge of ~40 features costs ~1 ms per gap).
-MIN_FRAMES = 24
+#: Gaps shorter than this (frames) keep the model's own variance; so do gaps past :data:`MAX_GAPS` (longest first;
+#: each costs a ridge of ~40 features, a few ms).
+MIN_FRAMES = 8
 MAX_GAPS = 5000
 #: Ridge penalty, relative to the mean eigenvalue of the features' centred scatter matrix.
 RIDGE = 1e-2
@@ -94,12 +94,11 @@ def gap_variance(X: np.ndarray, observed: np.ndarray,
     observed : (T, M) bool; ``refit(hidden)``: the same filled data in a body frame fitted without the ``hidden``
     markers, or None when they are not among its markers (else a frame marker's motion leaks into the others' body
     coordinates, where the regression finds it again; in the gap the frame was fitted without it).
-    For each gap of marker k of at least :data:`MIN_FRAMES` frames (the :data:`MAX_GAPS` longest), S = the markers
-    missing in most of its frames; the mean squared disagreement ``d^2`` between k's fill and
-    :func:`second_opinion` over the gap is spread over it in the shape of a Brownian bridge (growing from the
-    observed end alone at a capture edge) with mean ``d^2``: a fill is right at the ends of a gap and wrong most in its
-    middle.  NaN where a gap is shorter, past the budget, or has no second opinion (the caller keeps the model's
-    variance there).
+    For each gap of marker k of at least :data:`MIN_FRAMES` frames (the :data:`MAX_GAPS` longest), the mean squared
+    disagreement ``d^2`` between k's fill and the bridged :func:`second_opinion` is spread over the gap in the shape
+    of a Brownian bridge (growing from the observed end alone at a capture edge) with mean ``d^2``: a fill is right
+    at the ends of a gap and wrong most in its middle.  NaN where a gap is shorter, past the budget, or has no second
+    opinion (the caller keeps the model's variance there).
     """
     T, M = observed.shape
     out = np.full((T, M), np.nan)
@@ -112,10 +111,20 @@ def gap_variance(X: np.ndarray, observed: np.ndarray,
         absent = np.union1d(np.flatnonzero((missing[frames].mean(axis=0) > 0.5) & observed.any(axis=0)), [k])
         coords = refit(absent) if refit is not None else None
         coords = X if coords is None else coords
-        opinion = second_opinion(coords, observed, np.array([k]), frames)
+        lo, hi = max(a - 1, 0), min(a + length + 1, T)  # with the observed frame on either side
+        opinion = second_opinion(coords, observed, np.array([k]), np.arange(lo, hi))
         if opinion is None:
             continue
-        d2 = float(np.mean((opinion - coords[frames, 3 * k:3 * k + 3]) ** 2))
+        # Bridged as the fill is: the opinion's residuals at the observed frames on either side, blended across.
+        ends = []
+        if a > 0:
+            ends.append(coords[a - 1, 3 * k:3 * k + 3] - opinion[0])
+        if a + length < T:
+            ends.append(coords[a + length, 3 * k:3 * k + 3] - opinion[-1])
+        left, right = (ends[0], ends[-1]) if a > 0 else (ends[-1], ends[-1])
+        w = (np.arange(length) + 1.0)[:, None] / (length + 1.0)
+        inner = opinion[int(a > 0):int(a > 0) + length] + (1.0 - w) * left + w * right
+        d2 = float(np.mean((inner - coords[frames, 3 * k:3 * k + 3]) ** 2))
         t = np.arange(length, dtype=np.float64)
         if a > 0 and a + length < T:
             shape = (t + 1.0) * (length - t)
