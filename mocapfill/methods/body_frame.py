@@ -57,6 +57,9 @@ CENTRAL_CANDIDATES = 12
 #: this rule every trial gets the pelvis, 11.2 / 19.7 mm.
 RIGID_SLACK = 1.5
 
+#: :func:`frame_markers` reads at most this many frames (evenly spaced) of a long take.
+STAT_FRAMES = 10000
+
 #: Frames over which a frame marker's weight fades to ``FLOOR_WEIGHT`` towards one of its gaps.
 FADE_FRAMES = 5
 
@@ -88,6 +91,8 @@ def frame_markers(positions: np.ndarray, *, axis: int | None = None, n: int = FR
     markers above it: of the markers 0.05-0.35 body heights above the pelvis centre (median over frames), those
     whose largest distance spread to the pelvis markers is smallest.  With ``M <= n`` every usable marker.
     """
+    if len(positions) > STAT_FRAMES:  # statistics of a long take: every k-th frame tells the same
+        positions = positions[::-(-len(positions) // STAT_FRAMES)]
     T, M, _ = positions.shape
     observed = ~np.isnan(positions).any(axis=2)
     usable = np.flatnonzero(observed.sum(axis=0) >= 2)
@@ -142,11 +147,11 @@ def fade_weights(observed: np.ndarray, *, fade: int = FADE_FRAMES, floor: float 
     """
     T, M = observed.shape
     big = T + fade + 2
-    d = np.where(observed, big, 0).astype(np.int64)
-    for t in range(1, T):  # distance to the nearest missing frame, forward then backward (T x M, cheap)
-        d[t] = np.minimum(d[t], d[t - 1] + 1)
-    for t in range(T - 2, -1, -1):
-        d[t] = np.minimum(d[t], d[t + 1] + 1)
+    t = np.arange(T)[:, None]
+    # Distance to the nearest missing frame: the last one at or before t and the first one at or after t.
+    before = np.maximum.accumulate(np.where(observed, -big, t), axis=0)
+    after = np.minimum.accumulate(np.where(observed, T + big, t)[::-1], axis=0)[::-1]
+    d = np.minimum(np.minimum(t - before, after - t), big)
     return np.maximum(np.minimum(1.0, d / (fade + 1.0)), floor)
 
 

@@ -209,10 +209,10 @@ def body_frame_transform(Y: np.ndarray, observed: np.ndarray, frame: str, marker
 
 
 def _frame_refit(filled: np.ndarray, missing: np.ndarray, frame_info: dict, scale: float):
-    """``refit(hidden)`` for :func:`.gap_uncertainty.gap_variance`: the filled data (T, 3 M) in a body frame fitted
-    as the engine's was but without the ``hidden`` markers, divided by ``scale``; None when they are not frame
-    markers (or fewer than 2 would remain).  filled (T, M, 3): the modelled markers, data and fill, world frame;
-    missing (T, M)."""
+    """``refit(hidden, lo, hi)`` for :func:`.gap_uncertainty.gap_variance`: frames [lo, hi) of the filled data
+    (hi - lo, 3 M) in a body frame fitted as the engine's was but without the ``hidden`` markers, divided by
+    ``scale``; None when they are not frame markers (or fewer than 2 would remain).  filled (T, M, 3): the modelled
+    markers, data and fill, world frame; missing (T, M)."""
     from . import body_frame as bf
 
     idx = frame_info.get("frame_markers") or []
@@ -220,14 +220,14 @@ def _frame_refit(filled: np.ndarray, missing: np.ndarray, frame_info: dict, scal
     if kind not in ("yaw", "full") or not idx:
         return None
 
-    def refit(hidden: np.ndarray) -> np.ndarray | None:
+    def refit(hidden: np.ndarray, lo: int, hi: int) -> np.ndarray | None:
         rest = np.setdiff1d(idx, hidden)
         if len(rest) == len(idx) or len(rest) < 2:
             return None
-        T, M, _ = filled.shape
-        R, c = bf.fit_frames(filled[:, rest], bf.fade_weights(~missing[:, rest]),
+        window = filled[lo:hi]
+        R, c = bf.fit_frames(window[:, rest], bf.fade_weights(~missing[lo:hi, rest]), rounds=1,
                              axis=frame_info["vertical_axis"] if kind == "yaw" else None)
-        return np.matmul(filled - c[:, None, :], R).reshape(T, 3 * M) / scale
+        return np.matmul(window - c[:, None, :], R).reshape(hi - lo, -1) / scale
 
     return refit
 

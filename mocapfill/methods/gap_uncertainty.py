@@ -33,10 +33,14 @@ MIN_FRAMES = 8
 MAX_GAPS = 5000
 #: Ridge penalty, relative to the mean eigenvalue of the features' centred scatter matrix.
 RIDGE = 1e-2
-#: Training frames: those within this many frames of the gap, at most this many of them (evenly thinned).
-MAX_ROWS = 2000
+#: Training frames: those within half this many frames of the gap, at most this many of them (evenly thinned).
+MAX_ROWS = 1000
 #: Fewer training frames than this: no second opinion (the model's variance stays).
 MIN_ROWS = 16
+#: At most this many frames of body frames are fitted again without a gap's frame markers (longest gaps first); past
+#: it, a frame marker's opinion is taken in the fill's frame, which its own motion moved a little (a cost guard for
+#: long takes: a full-rotation fit costs ~3 us per frame; a 72,000-frame take needs ~540,000).
+REFIT_FRAMES = 200_000
 #: The opinion comes from the marker's nearest markers seen throughout the gap (median distance over up to 200 frames
 #: where it is seen): local, like a person's guess, and a bounded cost per gap.  On the 74 gaps of the benchmark, 12
 #: or all of them make no difference to the ratios' spread (8-24 tried).
@@ -57,8 +61,8 @@ def second_opinion(X: np.ndarray, observed: np.ndarray, hidden: np.ndarray, fram
     if not others.any():
         return None
     # Learn from the frames around the gap only (a long take's poses drift over minutes; and a bounded cost).
-    lo = max(0, int(frames[0]) - MAX_ROWS)
-    hi = min(len(X), int(frames[-1]) + 1 + MAX_ROWS)
+    lo = max(0, int(frames[0]) - MAX_ROWS // 2)
+    hi = min(len(X), int(frames[-1]) + 1 + MAX_ROWS // 2)
     X, observed, frames = X[lo:hi], observed[lo:hi], frames - lo
     if others.sum() > NEAREST:
         seen = observed[:, hidden].all(axis=1)
@@ -87,12 +91,12 @@ def second_opinion(X: np.ndarray, observed: np.ndarray, hidden: np.ndarray, fram
 
 
 def gap_variance(X: np.ndarray, observed: np.ndarray,
-                 refit: Callable[[np.ndarray], np.ndarray | None] | None = None) -> np.ndarray:
+                 refit: Callable[[np.ndarray, int, int], np.ndarray | None] | None = None) -> np.ndarray:
     """(T, M) error variance per coordinate of each sample of a long gap's fill, NaN elsewhere.
 
     X : (T, 3 M) the filled data in the body frame (observed entries = the data, missing ones = the fill);
-    observed : (T, M) bool; ``refit(hidden)``: the same filled data in a body frame fitted without the ``hidden``
-    markers, or None when they are not among its markers (else a frame marker's motion leaks into the others' body
+    observed : (T, M) bool; ``refit(hidden, lo, hi)``: frames [lo, hi) of the same filled data in a body frame
+    fitted without the ``hidden`` markers, or None when they are not among its markers (else a frame marker's motion leaks into the others' body
     coordinates, where the regression finds it again; in the gap the frame was fitted without it).
     For each gap of marker k of at least :data:`MIN_FRAMES` frames (the :data:`MAX_GAPS` longest), the mean squared
     disagreement ``d^2`` between k's fill and the bridged :func:`second_opinion` is spread over the gap in the shape
@@ -106,25 +110,33 @@ def gap_variance(X: np.ndarray, observed: np.ndarray,
     gaps = [(length, a, k) for k in range(M) if missing[:, k].any() and observed[:, k].any()
             for a, length in runs(missing[:, k]) if length >= MIN_FRAMES]
     gaps.sort(key=lambda g: -g[0])
+    refitted = 0  # frames of body frames fitted again so far (REFIT_FRAMES)
     for length, a, k in gaps[:MAX_GAPS]:
-        frames = np.arange(a, a + length)
+        b = a + length
+        frames = np.arange(a, b)
+        # Everything happens in a window around the gap (second_opinion learns from no more): bounded cost.
+        lo, hi = max(a - 1 - MAX_ROWS // 2, 0), min(b + 1 + MAX_ROWS // 2, T)
         absent = np.union1d(np.flatnonzero((missing[frames].mean(axis=0) > 0.5) & observed.any(axis=0)), [k])
-        coords = refit(absent) if refit is not None else None
-        coords = X if coords is None else coords
-        lo, hi = max(a - 1, 0), min(a + length + 1, T)  # with the observed frame on either side
-        opinion = second_opinion(coords, observed, np.array([k]), np.arange(lo, hi))
+        coords = None
+        if refit is not None and refitted + hi - lo <= REFIT_FRAMES:
+            coords = refit(absent, lo, hi)
+            refitted += 0 if coords is None else hi - lo
+        coords = X[lo:hi] if coords is None else coords
+        seen = observed[lo:hi]
+        first, last = max(a - 1, 0), min(b + 1, T)  # with the observed frame on either side
+        opinion = second_opinion(coords, seen, np.array([k]), np.arange(first - lo, last - lo))
         if opinion is None:
             continue
         # Bridged as the fill is: the opinion's residuals at the observed frames on either side, blended across.
         ends = []
         if a > 0:
-            ends.append(coords[a - 1, 3 * k:3 * k + 3] - opinion[0])
-        if a + length < T:
-            ends.append(coords[a + length, 3 * k:3 * k + 3] - opinion[-1])
+            ends.append(coords[a - 1 - lo, 3 * k:3 * k + 3] - opinion[0])
+        if b < T:
+            ends.append(coords[b - lo, 3 * k:3 * k + 3] - opinion[-1])
         left, right = (ends[0], ends[-1]) if a > 0 else (ends[-1], ends[-1])
         w = (np.arange(length) + 1.0)[:, None] / (length + 1.0)
         inner = opinion[int(a > 0):int(a > 0) + length] + (1.0 - w) * left + w * right
-        d2 = float(np.mean((inner - coords[frames, 3 * k:3 * k + 3]) ** 2))
+        d2 = float(np.mean((inner - coords[a - lo:b - lo, 3 * k:3 * k + 3]) ** 2))
         t = np.arange(length, dtype=np.float64)
         if a > 0 and a + length < T:
             shape = (t + 1.0) * (length - t)
