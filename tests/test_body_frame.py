@@ -51,6 +51,31 @@ def test_fade_weights_fall_towards_gaps():
     assert np.allclose(w[2:10, 0], [1.0, 2 / 3, 1 / 3, bf.FLOOR_WEIGHT, bf.FLOOR_WEIGHT, 1 / 3, 2 / 3, 1.0])
 
 
+def test_fade_weights_are_the_distance_to_the_nearest_gap_on_random_masks():
+    rng = np.random.default_rng(0)
+    for T in (1, 2, 7, 300):
+        for p in (0.0, 0.03, 0.5, 1.0):
+            observed = rng.random((T, 5)) >= p
+            observed[:, 0] = True
+            d = np.full(observed.shape, float(T + 10))  # the definition, by brute force
+            for t in range(T):
+                for k in range(5):
+                    gaps = np.flatnonzero(~observed[:, k])
+                    if gaps.size:
+                        d[t, k] = np.abs(gaps - t).min()
+            expected = np.maximum(np.minimum(1.0, d / (bf.FADE_FRAMES + 1.0)), bf.FLOOR_WEIGHT)
+            np.testing.assert_array_equal(bf.fade_weights(observed), expected)
+
+
+def test_a_long_take_chooses_its_frame_markers_from_evenly_spaced_frames(sample_data, monkeypatch):
+    from mocapfill.io import read
+
+    positions = read(sample_data / "85_02.c3d").positions
+    chosen = bf.frame_markers(positions)
+    monkeypatch.setattr(bf, "STAT_FRAMES", len(positions) // 3)  # every third frame
+    np.testing.assert_array_equal(bf.frame_markers(positions), chosen)
+
+
 def test_a_rigid_hand_far_from_the_centre_does_not_carry_the_frame():
     """A hand can be as rigid as the pelvis (CMU 127_07: 4.2 against 5.4 mm); the frame must still be the pelvis."""
     rng = np.random.default_rng(1)
