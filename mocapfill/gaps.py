@@ -1,4 +1,4 @@
-"""Runs of missing samples ("gaps") per marker, and whole-body blackouts."""
+"""Runs of missing samples ("gaps") per marker, whole-body blackouts, and the shapes fills take across a gap."""
 
 from __future__ import annotations
 
@@ -35,6 +35,32 @@ def runs(mask: np.ndarray) -> list[tuple[int, int]]:
     edges = np.flatnonzero(padded[1:] != padded[:-1])
     starts, stops = edges[0::2], edges[1::2]
     return [(int(a), int(b - a)) for a, b in zip(starts, stops)]
+
+
+def brownian_variance(start: int, length: int, n_frames: int) -> np.ndarray:
+    """(length,) variance per unit rate of a random walk across the gap [start, start + length) of a capture of
+    ``n_frames``, pinned at the observed frame on either side: ``d_a d_b / (length + 1)`` with d_a, d_b the distances
+    (frames) to them; from its one observed end at a capture edge, ``d``; zeros with no observed end."""
+    t = np.arange(length, dtype=np.float64)
+    if start > 0 and start + length < n_frames:
+        return (t + 1.0) * (length - t) / (length + 1.0)
+    if start > 0:
+        return t + 1.0
+    if start + length < n_frames:
+        return length - t
+    return np.zeros(length)
+
+
+def end_blend(left: np.ndarray | None, right: np.ndarray | None, length: int) -> np.ndarray | None:
+    """(length, d) the straight blend across a gap from ``left`` (d,), the value at the frame before it, to ``right``,
+    at the frame after it: weights ``(i + 1) / (length + 1)``.  A missing end (None: the gap touches the capture's
+    edge) holds the other; None when both are missing."""
+    if left is None and right is None:
+        return None
+    left = right if left is None else left
+    right = left if right is None else right
+    w = (np.arange(length) + 1.0)[:, None] / (length + 1.0)
+    return (1.0 - w) * left + w * right
 
 
 def find_gaps(missing: np.ndarray) -> list[Gap]:

@@ -39,3 +39,29 @@ def one_blas_thread():
     """Small matrices everywhere: BLAS threads only add contention on a busy 2-core machine (10-50x slower fills)."""
     with single_blas_thread():
         yield
+
+
+@pytest.fixture(scope="session")
+def authors_trial(shared_data):
+    """``load(clip, protocol, trial) -> (data, occluded, hidden)``: one of the BoLeRO authors' fixed trials
+    (../shared/data/bolero, 120 Hz), its markers hidden over its span; hidden (n_frames, n_markers) bool."""
+    import json
+
+    import numpy as np
+
+    import mocapfill
+
+    folder = shared_data / "bolero"
+    spec = json.loads((folder / "occlusions.json").read_text())["trials"]
+
+    def load(clip: str, protocol: str, trial: int):
+        t = next(t for t in spec if (t["clip"], t["protocol"], t["trial"]) == (clip, protocol, trial))
+        data = mocapfill.read(folder / f"{clip}.csv", rate=120.0)
+        labels = list(data.labels)
+        hidden = np.zeros(data.positions.shape[:2], dtype=bool)
+        hidden[t["start"]:t["start"] + t["length"], [labels.index(m) for m in t["markers"]]] = True
+        occluded = data.positions.copy()
+        occluded[hidden] = np.nan
+        return data, occluded, hidden
+
+    return load

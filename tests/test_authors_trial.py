@@ -7,12 +7,10 @@ Skips cleanly when ../shared/data is absent.  The full comparison (40 trials, fo
 from __future__ import annotations
 
 import csv
-import json
 import warnings
 
 import numpy as np
 
-import mocapfill
 from mocapfill.methods.dynammo import fill_dynammo
 
 
@@ -24,16 +22,10 @@ def authors_rmse(folder, clip, protocol, trial, method):
     raise AssertionError(f"no {method} row for {clip} {protocol} {trial}")
 
 
-def test_dynammo_matches_the_authors_code_on_a_short_shared_trial(shared_data):
+def test_dynammo_matches_the_authors_code_on_a_short_shared_trial(shared_data, authors_trial):
     folder = shared_data / "bolero"
-    spec = json.loads((folder / "occlusions.json").read_text())["trials"]
-    t = next(t for t in spec if (t["clip"], t["protocol"], t["trial"]) == ("127_07", "P2", 3))  # RUPA + RELB
-    data = mocapfill.read(folder / "127_07.csv", rate=120.0)
+    data, occluded, hidden = authors_trial("127_07", "P2", 3)  # RUPA + RELB
     labels = list(data.labels)
-    hidden = np.zeros(data.positions.shape[:2], dtype=bool)
-    hidden[t["start"]:t["start"] + t["length"], [labels.index(m) for m in t["markers"]]] = True
-    occluded = data.positions.copy()
-    occluded[hidden] = np.nan
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = fill_dynammo(occluded, seed=0)

@@ -86,21 +86,9 @@ def test_dynammo_std_follows_the_error_on_a_long_gap():
         assert 0.2 < err / std < 5
 
 
-def test_honest_on_the_authors_two_marker_trial_where_the_model_was_8x_overconfident(shared_data):
+def test_honest_on_the_authors_two_marker_trial_where_the_model_was_8x_overconfident(authors_trial):
     """132_32 P2 3: knee and shin hidden for 270 frames; DynaMMo misses by ~94 mm where its posterior said ~11."""
-    import json
-
-    import mocapfill
-
-    folder = shared_data / "bolero"
-    spec = json.loads((folder / "occlusions.json").read_text())["trials"]
-    t = next(t for t in spec if (t["clip"], t["protocol"], t["trial"]) == ("132_32", "P2", 3))
-    data = mocapfill.read(folder / "132_32.csv", rate=120.0)
-    labels = list(data.labels)
-    hidden = np.zeros(data.positions.shape[:2], dtype=bool)
-    hidden[t["start"]:t["start"] + t["length"], [labels.index(m) for m in t["markers"]]] = True
-    occluded = data.positions.copy()
-    occluded[hidden] = np.nan
+    data, occluded, hidden = authors_trial("132_32", "P2", 3)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = run_dynammo(occluded, seed=0)

@@ -374,7 +374,7 @@ def dynamics_guide(positions: np.ndarray, trust: np.ndarray, gap: np.ndarray, lo
         if boneset is not None and len(boneset):
             from .bolero import fill_bolero_sc
             # The inverse-variance mix below was measured with the model's own std ("model"), not the
-            # cross-validated one a user of bolero-sc gets.
+            # second-opinion one a user of bolero-sc gets.
             res = fill_bolero_sc(positions, bones=boneset, units=units, labels=labels, seed=0, uncertainty="model")
             return res.positions, res.std, "bolero-sc"
         return run_dynammo(positions, seed=0, uncertainty=False).positions, None, "dynammo"

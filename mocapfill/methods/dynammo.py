@@ -64,7 +64,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from ..errors import ConvergenceWarning, MethodError
-from ..gaps import runs
+from ..gaps import brownian_variance, end_blend, runs
 from ..blas import single_blas_thread
 from . import lds
 from .base import FillResult, ProgressFn, check_positions, finish
@@ -243,14 +243,7 @@ def gap_drift_variance(missing: np.ndarray, rate: float) -> np.ndarray:
     out = np.zeros((T, M))
     for j in range(M):
         for a, length in runs(missing[:, j]):
-            b = a + length
-            t = np.arange(length, dtype=np.float64)
-            if a > 0 and b < T:
-                out[a:b, j] = rate * (t + 1.0) * (length - t) / (length + 1.0)
-            elif a > 0:
-                out[a:b, j] = rate * (t + 1.0)
-            elif b < T:
-                out[a:b, j] = rate * (length - t)
+            out[a:a + length, j] = rate * brownian_variance(a, length, T)
     return out
 
 
@@ -273,12 +266,9 @@ def bridge_residuals(X: np.ndarray, Ez: np.ndarray, G: np.ndarray, missing: np.n
             b = a + length
             left = X[a - 1, cols] - G[cols] @ Ez[a - 1] if a > 0 else None
             right = X[b, cols] - G[cols] @ Ez[b] if b < T else None
-            if left is None and right is None:
-                continue
-            left = right if left is None else left
-            right = left if right is None else right
-            w = (np.arange(a, b) - a + 1.0)[:, None] / (length + 1.0)
-            X[a:b, cols] += (1.0 - w) * left + w * right
+            blend = end_blend(left, right, length)
+            if blend is not None:
+                X[a:b, cols] += blend
 
 
 def choose_hidden(X: np.ndarray, energy: float) -> int:

@@ -25,7 +25,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..gaps import runs
+from ..gaps import brownian_variance, end_blend, runs
 
 #: Gaps shorter than this (frames) keep the model's own variance; so do gaps past :data:`MAX_GAPS` (longest first;
 #: each costs a ridge of ~40 features, a few ms).
@@ -127,22 +127,12 @@ def gap_variance(X: np.ndarray, observed: np.ndarray,
         opinion = second_opinion(coords, seen, np.array([k]), np.arange(first - lo, last - lo))
         if opinion is None:
             continue
-        # Bridged as the fill is: the opinion's residuals at the observed frames on either side, blended across.
-        ends = []
-        if a > 0:
-            ends.append(coords[a - 1 - lo, 3 * k:3 * k + 3] - opinion[0])
-        if b < T:
-            ends.append(coords[b - lo, 3 * k:3 * k + 3] - opinion[-1])
-        left, right = (ends[0], ends[-1]) if a > 0 else (ends[-1], ends[-1])
-        w = (np.arange(length) + 1.0)[:, None] / (length + 1.0)
-        inner = opinion[int(a > 0):int(a > 0) + length] + (1.0 - w) * left + w * right
+        # Bridged as the fill is (dynammo.bridge_residuals): the opinion's residuals at the observed frames on either
+        # side, blended across.
+        left = coords[a - 1 - lo, 3 * k:3 * k + 3] - opinion[0] if a > 0 else None
+        right = coords[b - lo, 3 * k:3 * k + 3] - opinion[-1] if b < T else None
+        inner = opinion[int(a > 0):int(a > 0) + length] + end_blend(left, right, length)
         d2 = float(np.mean((inner - coords[a - lo:b - lo, 3 * k:3 * k + 3]) ** 2))
-        t = np.arange(length, dtype=np.float64)
-        if a > 0 and a + length < T:
-            shape = (t + 1.0) * (length - t)
-        elif a > 0:
-            shape = t + 1.0
-        else:
-            shape = length - t
+        shape = brownian_variance(a, length, T)
         out[frames, k] = d2 * shape / shape.mean()
     return out

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import MethodError
+from ..gaps import end_blend
 from .base import FillResult, finish
 from ..blas import single_blas_thread
 from ..units import length_factor
@@ -110,16 +111,9 @@ def edge_shift(
     """
     d_b = np.arange(1, length + 1, dtype=float)  # frames from the last observation before
     d_a = length + 1 - d_b  # frames to the first observation after
-    zero = np.zeros(3)
     if tau == "linear":
-        rb = zero if resid_before is None else resid_before
-        ra = zero if resid_after is None else resid_after
-        if resid_before is None and resid_after is not None:
-            rb = ra
-        if resid_after is None and resid_before is not None:
-            ra = rb
-        alpha = (d_b / (length + 1))[:, None]
-        return (1 - alpha) * rb + alpha * ra, np.ones(length)
+        shift = end_blend(resid_before, resid_after, length)
+        return (np.zeros((length, 3)) if shift is None else shift), np.ones(length)
     tau = float(tau)
     rho_b, rho_a = np.exp(-d_b / tau), np.exp(-d_a / tau)
     if resid_before is not None and resid_after is not None:
