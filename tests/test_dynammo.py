@@ -139,7 +139,8 @@ def run_quiet(*args, **kwargs):
 
 
 @pytest.mark.parametrize("body_frame", [False, True])
-def test_fast_engine_matches_reference_implementation(body_frame):
+def test_fast_engine_matches_reference_implementation(body_frame, monkeypatch):
+    monkeypatch.setattr(lds, "STEADY_RTOL", 1e-13)  # steady state within rounding: the algebra, not the truncation
     P, _ = lds_markers(T=90, M=4, H=3, seed=1)
     X = with_gaps(P)
     n_iter = 12

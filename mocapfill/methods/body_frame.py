@@ -31,7 +31,7 @@ from itertools import combinations
 
 import numpy as np
 
-from ..distances import pair_distance_stats
+from ..distances import all_pairs, pair_distance_stats
 
 #: ``frame`` options of DynaMMo: "auto" = "yaw" unless the frame markers tilt more than UPRIGHT_TILT_DEG (then
 #: "full"); "yaw" = rotation about the vertical axis; "full" = any rotation; "none" = the data's own coordinates.
@@ -105,7 +105,11 @@ def frame_markers(positions: np.ndarray, *, axis: int | None = None, n: int = FR
         centre = np.nanmean(positions, axis=1)  # (T, 3)
         dist = np.nanmedian(np.linalg.norm(positions - centre[:, None, :], axis=2), axis=0)  # (M,)
     central = usable[np.argsort(dist[usable], kind="stable")[:max(candidates, n)]]
-    stats = pair_distance_stats(positions[:, usable, :], percentiles=())
+    # Only pairs with a central marker are ever looked at (groups of central markers, torso markers against them).
+    pairs = all_pairs(len(usable))
+    is_central = np.isin(usable, central)
+    pairs = pairs[is_central[pairs[:, 0]] | is_central[pairs[:, 1]]]
+    stats = pair_distance_stats(positions[:, usable, :], pairs, percentiles=())
     spread = np.full((M, M), np.inf)
     i, j = usable[stats.pairs[:, 0]], usable[stats.pairs[:, 1]]
     s = np.where(stats.count >= 2, stats.std, np.inf)

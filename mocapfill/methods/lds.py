@@ -11,18 +11,18 @@ of the missing entries as data, so the filter's covariances do not depend on the
 speed-ups this module is built on:
 
 * **Woodbury / information form.**  With isotropic observation noise the filter update (eqs. 16-18) needs only
-  ``C = G^T G / sigma2`` (H x H) and ``b_t = G^T x_t / sigma2``: with ``P = L L^T`` (Cholesky),
-  ``V_t = (P^-1 + C)^-1 = L (I + L^T C L)^-1 L^T`` and ``mu_t = pred_t + V_t (b_t - C pred_t)``.  No m x m matrix is
-  ever formed; ``|G P G^T + sigma2 I| = sigma2^m |I + L^T C L|`` gives the likelihood.
+  ``C = G^T G / sigma2`` (H x H) and ``b_t = G^T x_t / sigma2``: ``V_t = (P^-1 + C)^-1`` and
+  ``mu_t = pred_t + V_t (b_t - C pred_t)``.  No m x m matrix is ever formed; ``|G P G^T + sigma2 I| =
+  sigma2^m |I + R P R^T|`` (``R^T R = C``) gives the likelihood.  The covariances run in whitened coordinates
+  ``z' = R z``, where ``C`` is the identity (:func:`filter_covariances`).
 * **Steady state.**  The covariance recursions (eqs. 15, 18, 25, 27) are run until successive matrices agree to a
   relative ``rtol`` (:data:`STEADY_RTOL`); from then on the stored steady-state matrix is reused.  Covariance
   sequences are kept as :class:`PiecewiseCov` (explicit head, constant middle, explicit tail).
-* **Few calls per transient frame.**  On short clips (a 145-frame trial: ~20 transient frames at each end, 200 EM
+* **Few calls per transient frame.**  On short clips (a 145-frame trial: ~6 transient frames at each end, 200 EM
   iterations) the cost is the number of small NumPy / LAPACK calls per frame, not flops.  The forward transient
-  (:func:`filter_covariances`) makes seven, on triangles, with positional arguments, and forms the smoother gains
-  with the filter's Cholesky factors; symmetrising, log-determinants and the V / P / J stacks are batched after the
-  loop; the smoother's tail (a Stein iteration with constant gain, :func:`_stein_sequence`) is tested for
-  convergence once per chunk, not per step.
+  (:func:`filter_covariances`) makes three, on triangles, with positional arguments; V, P, the smoother gains J and
+  the log-determinants are formed batched after the loop; the smoother's tail (a Stein iteration with constant
+  gain, :func:`_stein_sequence`) is tested for convergence once per chunk, not per step.
 * **Vectorised means.**  In the steady state the filter mean obeys ``mu_t = A mu_{t-1} + u_t`` with constant
   ``A = (I - V C) F`` and the smoother mean ``mhat_t = J mhat_{t+1} + w_t``; both are solved by
   :func:`linear_recurrence` (a parallel prefix scan with matrix powers), not a Python loop over frames.
@@ -44,11 +44,19 @@ from typing import NamedTuple
 import numpy as np
 from scipy import linalg as sla
 
-#: Relative change below which a covariance recursion counts as having reached its steady state.  1e-10 instead of
-#: 1e-13 shortens the transients by ~20 % (a third of the explicit frames at 1e-8): on the authors' 40 trials the
-#: fills move by at most 3e-11 of their range (2e-9 mm on the RMSE), and the dense joint-Gaussian tests still hold
-#: at 1e-10; 1e-8 moves the fills by 5e-10 and fails them.
-STEADY_RTOL = 1e-10
+#: Relative change below which a covariance recursion counts as having reached its steady state (the filter's is
+#: measured in the observations' metric, see :func:`filter_covariances`), as in :func:`missing_data_variance`.  On a
+#: 145-frame clip 1e-6 leaves ~6 transient frames where 1e-10 left ~15 (a quarter of DynaMMo's time); the
+#: covariances are then within ~1e-6 of the exact ones, and after 200 EM iterations the fills of the authors' trials
+#: move by at most ~0.04 mm (the EM path amplifies any rounding; 1e-8 moves them by 6e-4 mm), with unchanged
+#: median RMSEs.  Tests of the algebra pass ``rtol=1e-13``.
+STEADY_RTOL = 1e-6
+
+#: :func:`filter_covariances` works in whitened coordinates (``R^T R = G^T G / sigma2``) when ``cond(C)`` is at most
+#: MAX_WHITEN_COND and the steady ``V_ii >= MIN_WHITEN_RATIO (C^-1)_ii`` (``V = C^-1 - N^T N`` then loses at most
+#: ~3 digits); else it runs the direct recursion.  Mocap data sit far inside both (observation noise << motion).
+MAX_WHITEN_COND = 1e8
+MIN_WHITEN_RATIO = 1e-3
 
 
 class LDSParams(NamedTuple):
@@ -209,6 +217,7 @@ _dpotrf = sla.lapack.dpotrf
 _dpotrs = sla.lapack.dpotrs
 _dsyrk = sla.blas.dsyrk
 _dtrsm = sla.blas.dtrsm
+_dtrtri = sla.lapack.dtrtri
 
 
 def _cholesky(A: np.ndarray) -> np.ndarray:
@@ -301,6 +310,99 @@ def _sym_stack(a: np.ndarray) -> np.ndarray:
 def filter_covariances(params: LDSParams, T: int, rtol: float = STEADY_RTOL) -> CovRecursions:
     """Covariance part of the Kalman filter (eqs. 15-18, 20-22) and the smoother gains (eq. 25), for T frames.
 
+    Run in whitened coordinates ``z' = R z`` with ``R^T R = C = G^T G / sigma2`` (the observations then carry unit
+    information in every direction).  There ``P'_t = R P_t R^T``, ``Q_t = I + P'_{t-1}`` and the whole recursion is
+
+        Q_0 = I + R Gamma R^T,    Q_t = L_t L_t^T,    Q_{t+1} = B - (L_t^-1 F'^T)^T (L_t^-1 F'^T)
+
+    with ``F' = R F R^-1`` and the constant ``B = I + R Lambda R^T + F' F'^T``: three small LAPACK calls per transient
+    frame (potrf, trsm, syrk), on lower triangles.  ``V_t = C^-1 - N_t^T N_t`` with ``N_t = L_t^-1 R^-T`` (from the
+    same trsm), ``log|I + R P R^T| = log|Q_t|``, and P and J are formed batched after the loop.  The steady state is
+    tested in the whitened metric (the change of ``P'`` relative to ``P'``): it weighs each direction by what the
+    observations see of it, which is what the fill ``G z`` depends on, and it is reached in about half the frames
+    the model's own metric needs.  Falls back to :func:`_direct_covariances` when C is singular or badly conditioned,
+    or when the observations are so weak that ``C^-1 - N^T N`` would cancel.
+    """
+    F, G, _, Gamma, Lam, s = params
+    H = F.shape[0]
+    if T == 0:
+        return _direct_covariances(params, T, rtol)
+    R = _factor_information(G, s)
+    d = np.abs(R.diagonal()) if R.shape[0] == H else np.zeros(1)
+    if d.min() <= MAX_WHITEN_COND ** -0.5 * d.max():  # (nearly) singular C: cond(C) ~ (d.max / d.min)^2
+        return _direct_covariances(params, T, rtol)
+    Ri = _dtrtri(R, 0)[0]  # R^-1 (upper): R^-T and C^-1 = R^-1 R^-T are needed explicitly below
+    RiT = Ri.T
+    rhs = np.asfortranarray(np.hstack([RiT @ (F.T @ R.T), RiT]))  # [F'^T | R^-T]
+    FwT = rhs[:, :H]
+    eye = np.eye(H)
+    # Lower triangles only (upper zeros): syrk and potrf read the lower one, and the steady test then sees no junk.
+    B = np.asfortranarray(np.tril(eye + R @ Lam @ R.T + FwT.T @ FwT))
+    Q = np.asfortranarray(np.tril(eye + R @ Gamma @ R.T))
+    potrf, syrk, trsm, vdot = _dpotrf, _dsyrk, _dtrsm, np.vdot
+    Ls, Ns = [], []
+    r2 = rtol * rtol
+    n_head = T
+    for t in range(T):
+        L, info = potrf(Q, 1, 1)
+        if info != 0:
+            raise np.linalg.LinAlgError(f"matrix not positive definite (potrf info {info})")
+        Y = trsm(1.0, L, rhs, 0, 1)  # L^-1 [F'^T | R^-T]
+        Ls.append(L)
+        Ns.append(Y[:, H:])
+        Qn = syrk(-1.0, Y[:, :H], 1.0, B, 1, 1)
+        if t:  # steady when |P'_t - P'_{t-1}| <= rtol |P'_t| (P'_t = Q_{t+1} - I)
+            d = Qn - Q
+            Pw = Qn - eye
+            if vdot(d, d) <= r2 * vdot(Pw, Pw):
+                n_head = t
+                break
+        Q = Qn
+    n = min(n_head + 1, T)  # frames with their own V: the transient and the first steady one
+    Nst = np.array(Ns[:n])
+    Cinv = Ri @ RiT
+    Vall = _sym_stack(Cinv - Nst.transpose(0, 2, 1) @ Nst)
+    # Weak observations (V << C^-1 in the steady state) would lose digits in the subtraction.  The first frames may
+    # hold a much smaller V when Gamma has shrunk in EM (1e-5 C^-1 seen), but they stay accurate to ~1e-10 there.
+    if (Vall[-1].diagonal() < MIN_WHITEN_RATIO * Cinv.diagonal()).any():
+        return _direct_covariances(params, T, rtol)
+    lw = 2.0 * np.log(np.diagonal(np.array(Ls[:n]), axis1=1, axis2=2)).sum(axis=1)
+    FV = F @ Vall
+    Pall = _sym_stack(FV @ np.ascontiguousarray(F.T)) + Lam
+    nJ = n if n_head < T else T - 1
+    Jall = np.linalg.solve(Pall[:nJ], FV[:nJ]).transpose(0, 2, 1)  # J_t^T = P_t^-1 F V_t
+    return _assemble(F, Lam, Vall, Jall, lw, n_head, T, Pall=Pall, FV=FV[-1] if n_head < T else None)
+
+
+def _assemble(F, Lam, Vall, Jall, lw, n_head, T, *, Pall=None, FV=None) -> CovRecursions:
+    """:class:`CovRecursions` from the explicit filtered covariances ``Vall`` (n, H, H) (V_0..V_{n_head} when steady,
+    else V_0..V_{T-1}), the gains ``Jall`` (J_0..J_{n_head}, else J_0..J_{T-2}) and log-determinants ``lw`` (n,)."""
+    H = F.shape[0]
+    if Pall is None:
+        Pall = _sym_stack(F @ (Vall @ np.ascontiguousarray(F.T))) + Lam
+    logdet = np.full(T, lw[-1])
+    logdet[:len(lw)] = lw
+    empty = np.zeros((0, H, H))
+    if n_head < T:
+        if FV is None:
+            FV = F @ Vall[-1]
+        V = PiecewiseCov(Vall[:-1], Vall[-1], empty, T)
+        P = PiecewiseCov(Pall[:-1], Pall[-1], empty, T)
+        J = PiecewiseCov(Jall[:-1], Jall[-1], empty, T)
+        Q_inf = _sym(Vall[-1] - Jall[-1] @ FV)  # V - J P J^T = V - J F V  (J P = V F^T)
+    else:
+        V = PiecewiseCov(Vall, Vall[-1], empty, T)
+        P = PiecewiseCov(Pall, Pall[-1], empty, T)
+        zero = np.zeros((H, H))
+        J = PiecewiseCov(Jall, Jall[-1] if len(Jall) else zero, empty, T)
+        Q_inf = zero
+    return CovRecursions(V, P, J, Q_inf, logdet, n_head)
+
+
+def _direct_covariances(params: LDSParams, T: int, rtol: float = STEADY_RTOL) -> CovRecursions:
+    """:func:`filter_covariances` in the model's own coordinates, for any ``C`` (also singular, ``m < H``); the steady
+    state is tested on ``P`` itself.
+
     Each transient frame costs seven small BLAS / LAPACK calls and works on triangles only: with ``P_{t-1} = L L^T``
     and ``C = R^T R``, ``W = I + (R L)^T (R L)`` = ``Lw Lw^T``, ``Z = Lw^-1 L^T`` gives ``V_t = Z^T Z`` (so V is PSD
     by construction) and ``K = Z F^T`` gives ``P_t = K^T K + Lambda`` (syrk: lower triangle, all potrf reads).  The
@@ -349,26 +451,10 @@ def filter_covariances(params: LDSParams, T: int, rtol: float = STEADY_RTOL) -> 
         L = potrf(Pn, 1, 1)[0]
         FV = dot(K.T, Z)
         JTs.append(potrs(L, FV, 1)[0])
-    Vall = _sym_stack(np.array(Vs))
-    Pall = _sym_stack(F @ (Vall @ np.ascontiguousarray(FT))) + Lam
     lw = np.log(np.array(Ds)).sum(axis=1) * 2.0
-    logdet = np.full(T, lw[-1])
-    logdet[:len(lw)] = lw
-    nJ = min(n_head, T - 1)
+    Vall = _sym_stack(np.array(Vs))
     Jall = np.array([g.T for g in JTs]).reshape(-1, H, H)
-    empty = np.zeros((0, H, H))
-    if n_head < T:
-        V = PiecewiseCov(Vall[:-1], Vall[-1], empty, T)
-        P = PiecewiseCov(Pall[:-1], Pall[-1], empty, T)
-        J = PiecewiseCov(Jall[:-1], Jall[-1], empty, T)
-        Q_inf = _sym(Vall[-1] - Jall[-1] @ FV)  # V - J P J^T = V - J F V  (J P = V F^T)
-    else:
-        V = PiecewiseCov(Vall, Vall[-1], empty, T)
-        P = PiecewiseCov(Pall, Pall[-1], empty, T)
-        zero = np.zeros((H, H))
-        J = PiecewiseCov(Jall, Jall[-1] if nJ else zero, empty, T)
-        Q_inf = zero
-    return CovRecursions(V, P, J, Q_inf, logdet, n_head)
+    return _assemble(F, Lam, Vall, Jall, lw, n_head, T)
 
 
 def kalman_filter(params: LDSParams, X: np.ndarray, *, rtol: float = STEADY_RTOL,
@@ -493,8 +579,9 @@ def rts_smoother(params: LDSParams, filt: FilterResult, *, rtol: float = STEADY_
     empty = np.zeros((0, H, H))
     steady_tail = None
     if k < T:  # t = k..T-1: constant J, Q
-        # The tail converges about as fast as the filter did: a first chunk of n_head + 2 steps.
-        S, conv = _stein_sequence(J_inf, filt.Q_inf, V.mid, T - 1 - k, rtol, chunk=k + 2)
+        # The tail converges slower than the filter, whose test is in the observations' metric (measured: ~2 n_head
+        # steps); a step costs a tenth of a convergence test, so the first chunk is generous.
+        S, conv = _stein_sequence(J_inf, filt.Q_inf, V.mid, T - 1 - k, rtol, chunk=2 * k + 4)
         if conv:  # S_0..S_{i-1} explicit (times T-1..T-i), S_i held for times k..T-1-i
             steady_tail = (S[-1], S[:-1][::-1])
             cur = S[-1]
@@ -560,22 +647,24 @@ def m_step(stats: Stats, XtEz: np.ndarray, sum_x2: float, m: int, old: LDSParams
     T, H = Ez.shape
     eye = np.eye(H)
     mu0 = Ez[0].copy()  # (31)
-    Gamma = _sym(stats.V1)  # (32)
     if T >= 2:
         S_prev = stats.Szz - stats.Ezz_last
         S_next = stats.Szz - stats.Ezz_first
         F = _chol_solve(S_prev, stats.Sz1z0.T).T  # (33)
-        Lam = _sym(S_next - F @ stats.Sz1z0.T) / (T - 1)  # (34) at the optimal F
     else:
-        F, Lam = old.F, old.Lambda
+        F = old.F
     G = _chol_solve(stats.Szz, XtEz.T).T  # (35)
-    sigma2 = (sum_x2 - float(np.sum(G * XtEz))) / (T * m)  # trace of (36) at the optimal G
+    sigma2 = (sum_x2 - float(np.vdot(G, XtEz))) / (T * m)  # trace of (36) at the optimal G
     sigma2 = max(sigma2, var_floor)
+    # (32) and (34) at the optimal F, Lambda = (S_next - F Sz1z0^T) / (T - 1); isotropic needs their traces only
+    # (tr(F B^T) = sum F * B: this runs once per EM iteration, and small calls add up on short clips).
     if isotropic:
-        Gamma = max(np.trace(Gamma) / H, var_floor) * eye
-        Lam = max(np.trace(Lam) / H, var_floor) * eye
+        lam = (np.trace(S_next) - np.vdot(F, stats.Sz1z0)) / (T - 1) if T >= 2 else np.trace(old.Lambda)
+        Gamma = max(np.trace(stats.V1) / H, var_floor) * eye
+        Lam = max(lam / H, var_floor) * eye
     else:
-        Gamma = Gamma + var_floor * eye
+        Lam = _sym(S_next - F @ stats.Sz1z0.T) / (T - 1) if T >= 2 else old.Lambda
+        Gamma = _sym(stats.V1) + var_floor * eye
         Lam = Lam + var_floor * eye
     return LDSParams(F, G, mu0, Gamma, Lam, float(sigma2))
 
