@@ -102,7 +102,8 @@ def test_steady_state_is_used_on_long_sequences():
     np.testing.assert_allclose(sm_short.mean, mean, atol=100 * lds.STEADY_RTOL * max(1, np.abs(mean).max()))
 
 
-@pytest.mark.parametrize("rho, n, nonnormal", [(0.97, 500, 0.0), (0.999, 3000, 0.0), (0.9, 700, 3.0), (0.5, 1, 0.0)])
+@pytest.mark.parametrize("rho, n, nonnormal", [(0.97, 500, 0.0), (0.999, 3000, 0.0), (0.9, 700, 3.0), (0.5, 1, 0.0),
+                                             (0.999, 10001, 0.0), (0.95, 4096, 3.0), (1.0, 6000, 0.0)])
 def test_linear_recurrence_matches_loop(rho, n, nonnormal):
     rng = np.random.default_rng(5)
     H = 6

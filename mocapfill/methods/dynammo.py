@@ -461,9 +461,14 @@ def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, p
             x2[r] += np.einsum("ij,ij->i", X[r, c], X[r, c])
         return x2
 
-    def impute(Ez: np.ndarray, G: np.ndarray) -> None:
+    def impute(Ez: np.ndarray, G: np.ndarray) -> np.ndarray:
+        """Missing entries <- G E[z_t]; returns the completed rows' |x_t|^2 (no second pass over X for it)."""
+        x2 = x2_obs.copy()
         for r, c in rows:
-            X[r, c] = Ez[r] @ G[c].T
+            v = Ez[r] @ G[c].T
+            X[r, c] = v
+            x2[r] += np.einsum("ij,ij->i", v, v)
+        return x2
 
     if project is not None:
         hook = _ProjectHook(project, positions, missing, keep, miss_k, X, scale, centre, rot, shift)
@@ -480,9 +485,10 @@ def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, p
         objective.append(obj + log_scale)
         if progress is not None:
             progress(it, max_iter, obj + log_scale)
-        impute(stats.Ez, params.G)  # missing entries <- G E[z_t]
+        x2 = impute(stats.Ez, params.G)  # missing entries <- G E[z_t]
         if project is not None and it >= project_start:
             hook(params.sigma2 * scale ** 2, it, final=False)  # ... or the hook's answer
+            x2 = row_norms()
         # With a hook, compare only objectives of two completed data the hook has shaped (from project_start + 2):
         # the first one after it starts jumps, and may by chance be close to the last unprojected one.
         if it >= first_test and abs(objective[-1] - objective[-2]) <= tol * max(1.0, abs(objective[-2] - log_scale)):
@@ -490,7 +496,6 @@ def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, p
             break
         if it == max_iter:
             break
-        x2 = row_norms()
         params = lds.m_step(stats, X.T @ stats.Ez, float(x2.sum()), m, params, isotropic=isotropic)
     if bridge:
         if project is not None:

@@ -25,7 +25,8 @@ speed-ups this module is built on:
   gain, :func:`_stein_sequence`) is tested for convergence once per chunk, not per step.
 * **Vectorised means.**  In the steady state the filter mean obeys ``mu_t = A mu_{t-1} + u_t`` with constant
   ``A = (I - V C) F`` and the smoother mean ``mhat_t = J mhat_{t+1} + w_t``; both are solved by
-  :func:`linear_recurrence` (a parallel prefix scan with matrix powers), not a Python loop over frames.
+  :func:`linear_recurrence` (a parallel prefix scan with matrix powers, or blocks of frames on long takes), not a
+  Python loop over frames.
 
 Sufficient statistics (eqs. 28-30) are formed as matrix products (``Ez^T Ez``) plus closed-form sums of the
 piecewise-constant covariances, and :func:`m_step` implements eqs. 31-36 (with isotropic ``Gamma``/``Lambda`` by
@@ -242,12 +243,12 @@ def _chol_solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 def linear_recurrence(A: np.ndarray, U: np.ndarray, z0: np.ndarray) -> np.ndarray:
     """Solve ``z_t = A z_{t-1} + u_t`` for t = 0..n-1 with ``z_{-1} = z0``, vectorised over time.
 
-    A parallel prefix scan: after step k every row holds the sum of its last 2^k inputs propagated by powers of A
-    (``S_t += A^(2^k) S_{t-2^k}``), so ceil(log2 n) matrix products of shape (n, H) x (H, H) replace n sequential
-    steps.  It stops early once ``A^(2^k)`` has decayed below rounding relative to the data, so for a stable A
-    (spectral radius < 1, as for the steady-state filter and smoother) the number of steps depends on A's decay
-    time, not on n.  Measured faster than a complex Schur form + one ``scipy.signal.lfilter`` per mode at every
-    length from 1e3 to 7e4 frames, and as accurate as the sequential loop.
+    Short sequences (n < :data:`BLOCKED_MIN`): a parallel prefix scan.  After step k every row holds the sum of its
+    last 2^k inputs propagated by powers of A (``S_t += A^(2^k) S_{t-2^k}``), so ceil(log2 n) matrix products of
+    shape (n, H) x (H, H) replace n sequential steps.  It stops early once ``A^(2^k)`` has decayed below rounding
+    relative to the data, so for a stable A (spectral radius < 1, as for the steady-state filter and smoother) the
+    number of steps depends on A's decay time, not on n.  Long sequences: :func:`_blocked_recurrence`, whose cost
+    does not grow with A's decay time (7 ms against 36 ms for 72,000 x 16 and a slow A).
 
     Parameters
     ----------
@@ -258,6 +259,8 @@ def linear_recurrence(A: np.ndarray, U: np.ndarray, z0: np.ndarray) -> np.ndarra
     Z : (n, H), row t is z_t.
     """
     n, H = U.shape
+    if n >= BLOCKED_MIN:
+        return _blocked_recurrence(A, U, z0)
     S = np.array(U, dtype=np.float64)
     if n == 0:
         return S
@@ -273,6 +276,44 @@ def linear_recurrence(A: np.ndarray, U: np.ndarray, z0: np.ndarray) -> np.ndarra
         if np.vdot(P, P) * (H * H) <= 1e-36:  # |P|_F >= max |P_ij|: one dot instead of abs + max
             break  # every later term is below rounding
     return S
+
+
+#: :func:`linear_recurrence` works in blocks from this many frames on (measured: the prefix scan is faster below
+#: ~4,000 frames, the blocks 1.3x at 5,000 and 5x at 72,000, H = 16), with blocks of BLOCK_FRAMES frames.
+BLOCKED_MIN = 4096
+BLOCK_FRAMES = 64
+
+
+def _blocked_recurrence(A: np.ndarray, U: np.ndarray, z0: np.ndarray, c: int = BLOCK_FRAMES) -> np.ndarray:
+    """:func:`linear_recurrence` in blocks of ``c`` frames: three passes over the data whatever A's decay time.
+
+    1. Every block runs the recurrence from a zero state, all blocks at once: c steps of one (blocks, H) x (H, H)
+       product each (the data laid out (c, blocks, H) so that each step reads contiguous rows).
+    2. The true state entering each block: the block ends obey ``e_b = A^c e_{b-1} + local_end_b``, the same
+       recurrence on n / c rows (solved by the prefix scan).
+    3. Frame j of block b adds ``A^(j+1) e_{b-1}``: one (blocks, H) x (H, c H) product with the stacked powers.
+    Shapes as :func:`linear_recurrence`.
+    """
+    n, H = U.shape
+    nb = -(-n // c)
+    pad = nb * c - n
+    Ub = np.asarray(U, dtype=np.float64) if not pad else np.concatenate([U, np.zeros((pad, H))])
+    L = np.ascontiguousarray(Ub.reshape(nb, c, H).transpose(1, 0, 2))  # (c, blocks, H)
+    AT = np.ascontiguousarray(A.T)
+    for j in range(1, c):
+        L[j] += L[j - 1] @ AT
+    powers = np.empty((H, c, H))  # powers[:, j] = (A^(j+1))^T
+    P = AT
+    for j in range(c):
+        powers[:, j] = P
+        P = P @ AT
+    ends = linear_recurrence(powers[:, -1].T, L[c - 1], z0)  # (blocks, H): the state at each block's last frame
+    start = np.empty((nb, H))
+    start[0] = z0
+    start[1:] = ends[:-1]
+    out = L.transpose(1, 0, 2).reshape(nb, c * H)  # a copy, frame order
+    out += start @ powers.reshape(H, c * H)
+    return out.reshape(nb * c, H)[:n]
 
 
 class CovRecursions(NamedTuple):
