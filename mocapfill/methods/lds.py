@@ -377,9 +377,10 @@ def filter_covariances(params: LDSParams, T: int, rtol: float = STEADY_RTOL) -> 
     rhs = np.asfortranarray(np.hstack([RiT @ (F.T @ R.T), RiT]))  # [F'^T | R^-T]
     FwT = rhs[:, :H]
     eye = np.eye(H)
-    # Lower triangles only (upper zeros): syrk and potrf read the lower one, and the steady test then sees no junk.
+    # B's upper triangle zero: syrk and potrf read the lower one, so every Q_t from t = 1 on (syrk's output) has a
+    # zero upper triangle, and the steady test (from t = 1 on) sees no junk there.
     B = np.asfortranarray(np.tril(eye + R @ Lam @ R.T + FwT.T @ FwT))
-    Q = np.asfortranarray(np.tril(eye + R @ Gamma @ R.T))
+    Q = np.asfortranarray(eye + R @ Gamma @ R.T)
     potrf, syrk, trsm, vdot = _dpotrf, _dsyrk, _dtrsm, np.vdot
     Ls, Ns = [], []
     r2 = rtol * rtol
