@@ -369,8 +369,8 @@ def filter_covariances(params: LDSParams, T: int, rtol: float = STEADY_RTOL) -> 
     if T == 0:
         return _direct_covariances(params, T, rtol)
     R = _factor_information(G, s)
-    d = np.abs(R.diagonal()) if R.shape[0] == H else np.zeros(1)
-    if d.min() <= MAX_WHITEN_COND ** -0.5 * d.max():  # (nearly) singular C: cond(C) ~ (d.max / d.min)^2
+    rd = np.abs(R.diagonal()) if R.shape[0] == H else np.zeros(1)
+    if rd.min() <= MAX_WHITEN_COND ** -0.5 * rd.max():  # (nearly) singular C: cond(C) ~ (rd.max / rd.min)^2
         return _direct_covariances(params, T, rtol)
     Ri = _dtrtri(R, 0)[0]  # R^-1 (upper): R^-T and C^-1 = R^-1 R^-T are needed explicitly below
     RiT = Ri.T
