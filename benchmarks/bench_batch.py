@@ -15,7 +15,7 @@ serial folder (every file skipped).  Outputs of every filling run are compared b
 Each run also prints where its time went, summed from the rows: per-file CPU seconds (user + kernel of the task's
 thread), kernel seconds, minor page faults, per-file wall seconds, and each worker's idle time (the run's wall time
 minus the wall time of its files).  ``--without-malloc-fix`` adds a LocalCluster run whose workers keep the
-nanny's ``MALLOC_TRIM_THRESHOLD_`` (:mod:`mocapfill.malloc`): the cause of the old 0.72x.
+nanny's ``MALLOC_TRIM_THRESHOLD_`` (:mod:`mocapfill.runtime.malloc`): the cause of the old 0.72x.
 
 Run from the repository root (``pip install ".[dask]"`` for the cluster run)::
 
@@ -46,7 +46,7 @@ import numpy as np  # noqa: E402
 
 import mocapfill  # noqa: E402
 from mocapfill.evaluation import make_occlusions  # noqa: E402
-from mocapfill.malloc import KEEP_ENV  # noqa: E402
+from mocapfill.runtime.malloc import KEEP_ENV  # noqa: E402
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

@@ -3,7 +3,7 @@
 What ``mocapfill evaluate FILE -p random --reject-outliers self`` runs, on real complete clips: per trial, Holden's
 corruption with stretches (``random`` protocol: up to 10 % of each marker's samples hidden and up to 10 % displaced
 by one uniform +-50 cm offset per stretch, stretches of 0.05-0.5 s), then
-:func:`mocapfill.outliers.reject_outliers` with the corrupted clip as its own reference (what ``fill
+:func:`mocapfill.guards.outliers.reject_outliers` with the corrupted clip as its own reference (what ``fill
 --reject-outliers`` does), then each fill method; the scored samples are the hidden and the displaced ones (a
 displaced sample that is not caught pays its whole displacement).
 
@@ -48,7 +48,7 @@ sys.path.insert(0, str(REPO))
 import mocapfill  # noqa: E402
 from mocapfill.evaluation import evaluate, make_occlusions  # noqa: E402
 from mocapfill.gaps import runs  # noqa: E402
-from mocapfill.outliers import reject_outliers  # noqa: E402
+from mocapfill.guards.outliers import reject_outliers  # noqa: E402
 from mocapfill.units import length_factor  # noqa: E402
 
 SHARED = REPO.parent / "shared" / "data"

@@ -17,7 +17,7 @@ Run from the repository root::
 
     /work/venv/bin/python benchmarks/bench_default.py [--trials 20] [--seed 0] [--methods spline,bolero-sc]
 
-BLAS threads: the fills run NumPy's BLAS on one thread themselves (:mod:`mocapfill.blas`; they work
+BLAS threads: the fills run NumPy's BLAS on one thread themselves (:mod:`mocapfill.runtime.blas`; they work
 on many small matrices, at most 123 x 123, where threads only add contention: on the shared 2-core development
 machine 2 BLAS threads made the default fill of the many-gaps layout 17.8 s instead of 2.7 s).  The script also pins
 OpenBLAS/MKL/OMP to one thread for the rest (bone estimation, scoring) unless the environment says otherwise; the
@@ -48,7 +48,7 @@ from mocapfill import api  # noqa: E402
 from mocapfill.bones import estimate_bones  # noqa: E402
 from mocapfill.evaluation import evaluate, make_occlusions, score  # noqa: E402
 from mocapfill.io import read  # noqa: E402
-from mocapfill.methods.local_pca import fill_local_pca  # noqa: E402
+from mocapfill.engines.local_pca import fill_local_pca  # noqa: E402
 
 CLIPS = {
     "cmu-85_02": REPO / "sample_data" / "85_02.c3d",

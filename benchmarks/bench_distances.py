@@ -26,7 +26,7 @@ import tempfile
 CHILD = r"""
 import json, resource, sys, time
 import numpy as np
-from mocapfill.distances import pair_distance_stats
+from mocapfill.bones.distances import pair_distance_stats
 positions = np.load(sys.argv[1])
 rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 t0, c0 = time.perf_counter(), time.process_time()
@@ -144,7 +144,7 @@ def outlier_trials(n_seeds: int) -> None:
 
     import mocapfill
     from mocapfill.units import length_factor
-    from mocapfill.outliers import reject_outliers
+    from mocapfill.guards.outliers import reject_outliers
 
     root = Path(__file__).resolve().parents[1] / "sample_data"
     print(f"reject_outliers (self-reference, defaults, the file's frame rate), {n_seeds} seeds per corruption")

@@ -16,7 +16,7 @@ trials of 3 gaps on each of four captures).
 Data: the real CMU capture sample_data/85_02.c3d (810 frames, 41 markers, 120 Hz) tiled forward-backward-forward...
 to the length needed (no jumps at the seams), with occlusions of one marker for 0.5-2 s at random (seeded) until
 5 % of the samples are missing.  Each size runs in a fresh subprocess so that its peak RSS (ru_maxrss) is its own.
-BLAS threads: run_dynammo limits OpenBLAS to one thread while it runs (mocapfill.blas.single_blas_thread): the per-frame
+BLAS threads: run_dynammo limits OpenBLAS to one thread while it runs (mocapfill.runtime.blas.single_blas_thread): the per-frame
 H x H work gains nothing from threads, and on a busy machine OpenBLAS threads make it 10-40x slower.  The
 one-iteration figure below runs the lds functions directly, inside the same limiter.
 """
@@ -90,8 +90,8 @@ def one_iteration() -> None:
     sys.path.insert(0, str(REPO / "tests"))
     from test_dynammo import dense_e_step, dense_m_step
 
-    from mocapfill.blas import single_blas_thread
-    from mocapfill.methods import lds
+    from mocapfill.runtime.blas import single_blas_thread
+    from mocapfill.engines import lds
     from mocapfill.methods.dynammo import initial_params, interpolate_columns
 
     X3, _, mask = make_data(1500)

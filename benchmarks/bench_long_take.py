@@ -7,7 +7,7 @@ seed 0).  Each fill runs in its own subprocess, which reports its wall time and 
 
 - ``part``: frames 0-4,999 of the take with the same gaps, filled with ``mocapfill.fill(data)`` (the default);
 - ``default``: the whole take with ``mocapfill.fill(data)``: whatever ``auto`` is in this checkout;
-- ``windows``: the whole take with ``mocapfill.methods.windows.fill_in_windows(positions, default fill)`` applied
+- ``windows``: the whole take with ``mocapfill.guards.windows.fill_in_windows(positions, default fill)`` applied
   from the outside (windows of at most 5,000 frames, 400 shared), i.e. what ``auto`` gives once it delegates long
   takes to the windows; ``windows-2jobs``: the same with two windows at a time in worker processes (``jobs=2``).
 
@@ -74,7 +74,7 @@ def worker(mode: str, frames: int, part: int, missing: float, seed: int, window:
     """One fill in this process; returns the figures as a dict."""
     import mocapfill
     from mocapfill.markers import MarkerData
-    from mocapfill.methods.windows import fill_in_windows
+    from mocapfill.guards.windows import fill_in_windows
 
     truth, hidden = build_take(frames, missing, seed)
     if mode == "part":

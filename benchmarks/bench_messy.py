@@ -12,7 +12,7 @@ protocols of :func:`mocapfill.evaluation.occlusions.make_occlusions`:
 - ``segment`` (a marker and every marker within 250 mm median distance vanish together, 3 events of 0.5-3 s): the
   median over trials of the per-trial RMSE (mm), per clip and over all trials;
 - plausibility: every capture with real gaps in ``sample_data/``, ``tests/data/`` and ``../shared/data`` filled
-  by the default, and the worst ratios of :func:`mocapfill.methods.plausibility.plausibility`: the largest filled
+  by the default, and the worst ratios of :func:`mocapfill.guards.plausibility.plausibility`: the largest filled
   distance from the body's median centre over the farthest observed marker (must stay <= 1.1) and the largest
   filled step over its marker's largest observed step (the issue asks <= 1.5), plus the same step over the larger
   of that and the body's largest step at that frame (what the default guards).
@@ -53,7 +53,7 @@ from mocapfill.evaluation.occlusions import make_occlusions  # noqa: E402
 from mocapfill.io import read  # noqa: E402
 from mocapfill.methods import METHODS  # noqa: E402
 from mocapfill.methods.auto import MIN_SPEED_MM, step_reference  # noqa: E402
-from mocapfill.methods.plausibility import (body_centre, observed_speed, plausibility,  # noqa: E402
+from mocapfill.guards.plausibility import (body_centre, observed_speed, plausibility,  # noqa: E402
                                             project_plausible)
 from mocapfill.units import length_factor  # noqa: E402
 

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapfill.blas import single_blas_thread
+from mocapfill.runtime.blas import single_blas_thread
 from mocapfill.io import read
 from mocapfill.markers import MarkerData
 from mocapfill.pipeline import FillSettings, fill_capture, write_fill_report

@@ -21,7 +21,7 @@ _LAZY = {
     "write": "mocapfill.io:write",
     "fill": "mocapfill.api:fill",
     "fill_data": "mocapfill.api:fill_data",
-    "estimate_bones": "mocapfill.bones:estimate_bones",
+    "estimate_bones": "mocapfill.bones.boneset:estimate_bones",
     "evaluate": "mocapfill.evaluation:evaluate",
     "batch": "mocapfill.batching:batch",
     "MarkerData": "mocapfill.markers:MarkerData",

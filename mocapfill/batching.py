@@ -7,7 +7,7 @@
 - **Results table** ``out_dir/mocapfill-batch.csv`` (:data:`COLUMNS`), one row per input, appended as files finish.
 - **Resumable**: ``out_dir/.mocapfill-batch.jsonl`` records, per finished output, the SHA-256 of its input's content
   and of the settings; a re-run skips an input whose output exists and whose two hashes are unchanged.
-- **Local processes** (``jobs`` > 1) or **Dask** (``scheduler``): :mod:`mocapfill.workers` runs the tasks; a local
+- **Local processes** (``jobs`` > 1) or **Dask** (``scheduler``): :mod:`mocapfill.runtime.workers` runs the tasks; a local
   worker that dies (killed, out of memory) fails only the file it was filling.  On Dask the file is read inside the
   task (inputs and ``out_dir`` must be on a file system the workers share).
 
@@ -263,10 +263,10 @@ def run_task(task: FileTask) -> BatchRow:
     """Fill one file: read it, fill it, write the output (atomically) and the report.  Never raises an Exception.
 
     The row's ``seconds`` is the wall time of the whole task (read to report); a failure becomes
-    ``status="failed"`` with a one-line ``error``.  Runs under :func:`mocapfill.malloc.roomy_malloc` (a Dask
+    ``status="failed"`` with a one-line ``error``.  Runs under :func:`mocapfill.runtime.malloc.roomy_malloc` (a Dask
     worker's fixed malloc thresholds cost a fill a fifth of its time in page faults).
     """
-    from .malloc import roomy_malloc
+    from .runtime.malloc import roomy_malloc
 
     row = BatchRow(task.input, task.output, method=task.settings.method, started=time.time())
     before = _thread_usage()
@@ -374,7 +374,7 @@ def _dask_failed(task: FileTask, exc: BaseException) -> BatchRow:
 
 def _run(tasks: Sequence[FileTask], jobs: int, scheduler: Any, on_row: Callable[[BatchRow], None]) -> None:
     """Run :func:`run_task` on every task (in process, on local workers or on Dask), ``on_row`` as each ends."""
-    from .workers import SchedulerUnreachable, run_dask, run_local
+    from .runtime.workers import SchedulerUnreachable, run_dask, run_local
 
     if scheduler is None:
         run_local(run_task, tasks, jobs, on_row, on_death=_died)
@@ -681,7 +681,7 @@ def _scan_missing(path: str) -> tuple[float, int] | None:
 
 
 def _c3d_missing(handle, path: str) -> tuple[float, int] | None:
-    from .io.c3d import _decode_points
+    from .io.c3d import decode_points
     from .io.c3dfile import parse
 
     # parse reads the header and the parameters through the map (and the data section only when nothing else gives
@@ -699,7 +699,7 @@ def _c3d_missing(handle, path: str) -> tuple[float, int] | None:
         handle.seek(f.data_offset + frame * f.frame_bytes)
         words += handle.read(row)
     sampled = dataclasses.replace(f, raw=bytes(words), n_frames=len(words) // row, data_offset=0, analog_words=0)
-    positions, _ = _decode_points(sampled, sampled.point_block())
+    positions, _ = decode_points(sampled, sampled.point_block())
     return float(np.isnan(positions[:, :, 0]).mean()), f.n_frames * f.n_points
 
 

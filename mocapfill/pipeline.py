@@ -110,7 +110,7 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
     rejected = None
     record: dict[str, Any] = {}
     if settings.reject_outliers:
-        from .outliers import reject_outliers
+        from .guards.outliers import reject_outliers
 
         options: dict[str, Any] = {"units": data.units, "labels": list(data.labels), "rate": data.rate}
         if settings.delta is not None:
@@ -126,7 +126,7 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
 
     bones = None
     if settings.bones is not None:
-        from .bones import load_bones
+        from .bones.boneset import load_bones
 
         bones = load_bones(settings.bones, data.labels, units=data.units)
 
@@ -148,7 +148,7 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
 
     positions = result.positions
     if settings.smooth:
-        from .smooth import savgol_smooth
+        from .guards.smooth import savgol_smooth
 
         smooth_options: dict[str, Any] = {"rate": data.rate}
         if settings.smooth_window is not None:
@@ -177,7 +177,7 @@ def write_fill_report(outcome: FillOutcome, path: str, *, method: str, input_pat
 
     bones = outcome.bones
     if bones is None:
-        from .bones import estimate_bones
+        from .bones.boneset import estimate_bones
 
         bones = estimate_bones(outcome.work.positions, units=outcome.data.units, labels=outcome.data.labels)
         if len(bones) == 0:

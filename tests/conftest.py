@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from mocapfill.blas import single_blas_thread
+from mocapfill.runtime.blas import single_blas_thread
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE_DATA = REPO / "sample_data"

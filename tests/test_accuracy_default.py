@@ -14,7 +14,7 @@ Why not fewer trials: per-trial errors spread from 2 to 250 mm, so the median of
 a 20 % margin: the first 5 trials put the CMU limb ratio auto/pca at 0.84 and the first 8 the tennis limb ratio just
 above 0.80 (10 or 12 trials: 0.79), although the default wins 95 % of the 20 limb trials of each clip and its 20-trial
 medians are 30 % (tennis) and 63 % (CMU) lower.  The 160 fills take about 20 s (the fills run their BLAS on one
-thread, see :mod:`mocapfill.blas`).
+thread, see :mod:`mocapfill.runtime.blas`).
 """
 
 from __future__ import annotations

@@ -12,8 +12,8 @@ from mocapfill.bones import BoneSet
 from mocapfill.errors import MethodError
 from mocapfill.methods import DEFAULT_METHOD, get_method
 from mocapfill.methods.auto import fill_auto
-from mocapfill.methods.bone_refinement import refine_bones
-from mocapfill.methods.local_pca import edge_shift, fill_local_pca, kabsch_rotations
+from mocapfill.bones.refinement import refine_bones
+from mocapfill.engines.local_pca import edge_shift, fill_local_pca, kabsch_rotations
 
 
 def tumbling_body(n_frames: int = 300, n_markers: int = 9, seed: int = 2) -> np.ndarray:

@@ -17,7 +17,7 @@ from click.testing import CliRunner
 import mocapfill
 from mocapfill.batching import COLUMNS, INDEX_NAME, RESULTS_NAME, STATE_NAME
 from mocapfill.cli import cli
-from mocapfill.workers import WORKER_NAME
+from mocapfill.runtime.workers import WORKER_NAME
 from mocapfill.errors import MocapfillError
 
 GOOD = {"serve.c3d": 1092, "vicon.csv": 580, "sub/T.trc": 89, "sub/deeper/racing.c3d": 700}
@@ -131,7 +131,7 @@ def test_dask_local_cluster_gives_the_serial_outputs(session, tmp_path):
 
 def test_an_unreachable_scheduler_is_a_one_line_error(session, tmp_path, monkeypatch):
     pytest.importorskip("distributed")
-    monkeypatch.setattr("mocapfill.workers.CONNECT_TIMEOUT", "1s")
+    monkeypatch.setattr("mocapfill.runtime.workers.CONNECT_TIMEOUT", "1s")
     result = CliRunner().invoke(cli, ["batch", str(session), "-o", str(tmp_path / "o"), "--scheduler",
                                       "tcp://127.0.0.1:9", "-m", "linear"])
     assert result.exit_code == 1 and "Dask scheduler" in result.stderr and "Traceback" not in result.output
@@ -254,7 +254,7 @@ def test_rows_account_cpu_and_tasks_undo_a_fixed_malloc_threshold(session, tmp_p
     # whose pages fault in one by one.  Inside roomy_malloc they come from the heap again.
     script = (
         "import resource, numpy as np\n"
-        "from mocapfill.malloc import roomy_malloc\n"
+        "from mocapfill.runtime.malloc import roomy_malloc\n"
         "def faults(fix):\n"
         "    import contextlib\n"
         "    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt\n"

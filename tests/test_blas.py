@@ -1,6 +1,6 @@
 from threadpoolctl import threadpool_info, threadpool_limits
 
-from mocapfill.blas import single_blas_thread
+from mocapfill.runtime.blas import single_blas_thread
 
 
 def _blas_threads():

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 import mocapfill
-from mocapfill.methods import body_frame as bf
+from mocapfill.engines import body_frame as bf
 
 
 def short(labels, idx):

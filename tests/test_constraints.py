@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from mocapfill.methods.constraints import bone_errors, solve_hard, solve_soft
+from mocapfill.bones.constraints import bone_errors, solve_hard, solve_soft
 
 
 def _scene(n_frames=6, n_markers=5, seed=0, scale=100.0):

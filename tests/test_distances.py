@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 import pytest
 
-from mocapfill.distances import all_pairs, pair_distance_stats, pair_distances, pair_index
+from mocapfill.bones.distances import all_pairs, pair_distance_stats, pair_distances, pair_index
 from mocapfill.errors import MocapfillError
 
 

@@ -9,7 +9,7 @@ import pytest
 from scipy.interpolate import CubicSpline
 
 from mocapfill.errors import ConvergenceWarning
-from mocapfill.methods import lds
+from mocapfill.engines import lds
 from mocapfill.methods.dynammo import (bridge_residuals, choose_hidden, fill_dynammo, body_frame_transform, DEFAULT_INIT_NOISE, initial_params,
                                        interpolate_columns, run_dynammo)
 

@@ -314,7 +314,7 @@ def test_only_observed_samples_are_scored(clip):
 
 
 def test_outlier_rejection_with_the_clean_reference_catches_shifts(clip):
-    pytest.importorskip("mocapfill.outliers")
+    pytest.importorskip("mocapfill.guards.outliers")
     plain = evaluate(clip, ["linear"], "random", trials=2, seed=4)
     cleaned = evaluate(clip, ["linear"], "random", trials=2, seed=4, reject_outliers="clean")
     assert all(s.detected is None for s in plain.scores)

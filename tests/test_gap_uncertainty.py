@@ -6,7 +6,7 @@ import warnings
 
 import numpy as np
 
-from mocapfill.methods import gap_uncertainty as gu
+from mocapfill.engines import gap_uncertainty as gu
 from mocapfill.methods.dynammo import run_dynammo
 
 

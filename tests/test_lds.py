@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import linalg as sla
 
-from mocapfill.methods import lds
+from mocapfill.engines import lds
 
 
 def random_params(H=3, m=6, *, seed=0, rho=0.95, sigma2=0.05, iso=False):

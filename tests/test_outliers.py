@@ -7,7 +7,7 @@ import pytest
 
 import mocapfill
 from mocapfill.errors import MocapfillError
-from mocapfill.outliers import reject_outliers, shifted_runs
+from mocapfill.guards.outliers import reject_outliers, shifted_runs
 
 
 @pytest.fixture(scope="module")
@@ -221,7 +221,7 @@ def test_fill_reject_outliers_writes_refilled_samples_as_filled_in_a_c3d(test_da
     import mocapfill
     from mocapfill.cli import cli
     from mocapfill.io import c3dfile
-    from mocapfill.io.c3d import _decode_points
+    from mocapfill.io.c3d import decode_points
 
     data = mocapfill.read(test_data / "ADemo1_rewrite_c3d_pc_float.c3d")  # real residuals (> 0)
     marker = 5
@@ -235,7 +235,7 @@ def test_fill_reject_outliers_writes_refilled_samples_as_filled_in_a_c3d(test_da
     def residuals(path):
         f = c3dfile.parse(path.read_bytes(), str(path))
         extra = mocapfill.read(path).extra
-        return _decode_points(f, f.point_block()[:, extra.marker_points, :])[1]
+        return decode_points(f, f.point_block()[:, extra.marker_points, :])[1]
 
     before = residuals(source)
     result = CliRunner().invoke(cli, ["fill", str(source), str(out), "-m", "linear", "--reject-outliers", "-q"])

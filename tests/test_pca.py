@@ -8,14 +8,14 @@ import pytest
 import mocapfill
 from mocapfill.errors import MethodError
 from mocapfill.methods import get_method
-from mocapfill.methods.pca import (
+from mocapfill.engines.weighted_pca import (
     _keep,
-    fill_pca,
     gaussian_weights,
     mean_distances,
     pattern_groups,
     weight_width,
 )
+from mocapfill.methods.pca import fill_pca
 
 
 def walking_cloud(n_frames: int = 400, n_markers: int = 10, seed: int = 1) -> np.ndarray:

@@ -2,7 +2,7 @@
 
 On every committed capture with real gaps, no filled sample lies farther from the body's median centre than 1.1x
 the farthest observed marker, and no step touching a filled sample is longer than 1.5x its marker's largest
-observed step (:mod:`mocapfill.methods.plausibility`).  ``benchmarks/bench_messy.py`` runs the same check on every
+observed step (:mod:`mocapfill.guards.plausibility`).  ``benchmarks/bench_messy.py`` runs the same check on every
 capture with real gaps in ../shared/data.
 """
 
@@ -16,7 +16,7 @@ import pytest
 import mocapfill
 from mocapfill.evaluation.occlusions import make_occlusions
 from mocapfill.methods.auto import MIN_SPEED_MM, fill_auto, mix_by_uncertainty
-from mocapfill.methods.plausibility import (body_centre, implausible, observed_speed, plausibility,
+from mocapfill.guards.plausibility import (body_centre, implausible, observed_speed, plausibility,
                                             project_plausible)
 from mocapfill.units import length_factor
 

@@ -7,7 +7,7 @@ import pytest
 from scipy.signal import savgol_filter
 
 from mocapfill.errors import MocapfillError
-from mocapfill.smooth import default_window, savgol_smooth
+from mocapfill.guards.smooth import default_window, savgol_smooth
 
 
 def _noisy(seed: int = 0, n_frames: int = 200, n_markers: int = 3) -> tuple[np.ndarray, np.ndarray]:

@@ -1,4 +1,4 @@
-"""Filling a long take in overlapping windows (:mod:`mocapfill.methods.windows`)."""
+"""Filling a long take in overlapping windows (:mod:`mocapfill.guards.windows`)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from mocapfill.errors import MethodError
 from mocapfill.methods.base import finish
 from mocapfill.methods.interp import fill_linear
 from mocapfill.methods.pca import fill_pca
-from mocapfill.methods.windows import fill_in_windows, window_bounds
+from mocapfill.guards.windows import fill_in_windows, window_bounds
 
 
 @pytest.fixture(scope="module")

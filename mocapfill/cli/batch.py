@@ -11,7 +11,7 @@ import click
 from ..pipeline import FillSettings
 from . import cli
 from .common import ReadOptions, StderrProgress, console, fill_options, format_options, quiet_option
-from .fill import _EPILOG
+from .fill import FILL_EPILOG
 
 
 class _BatchProgress(StderrProgress):
@@ -37,7 +37,7 @@ class _BatchProgress(StderrProgress):
         self.update(completed=done, total=total, **self.counts)
 
 
-@cli.command("batch", epilog=_EPILOG)
+@cli.command("batch", epilog=FILL_EPILOG)
 @click.argument("inputs", metavar="INPUT...", nargs=-1, required=True)
 @click.option("-o", "--out-dir", required=True, type=str, metavar="DIR",
               help="Folder for the outputs (created), the results table mocapfill-batch.csv and index.html.")

@@ -81,7 +81,7 @@ def estimate_bones_command(input_path: str, output: str | None, fmt: str | None,
     labels, the length (median distance), the spread and the frames used; edit it and pass it back with
     `mocapfill fill --bones FILE`.  A table goes to stderr.
     """
-    from ..bones import (DEFAULT_MAX_REL_SPREAD, DEFAULT_MIN_PARTNERS, bones_to_csv, bones_to_dict,
+    from ..bones.boneset import (DEFAULT_MAX_REL_SPREAD, DEFAULT_MIN_PARTNERS, bones_to_csv, bones_to_dict,
                          estimate_bones, save_bones)
     from ..io.atomic import check_output_path
     import json

@@ -1,8 +1,8 @@
 """`mocapfill fill IN OUT`: fill the gaps of a capture and write it back (``-`` = stdin / stdout).
 
 The command is a thin door: read with :func:`mocapfill.io.read`, optionally reject outliers
-(:func:`mocapfill.outliers.reject_outliers`), fill with :func:`mocapfill.api.fill`, optionally smooth
-(:func:`mocapfill.smooth.savgol_smooth`), write with :func:`mocapfill.io.write`, optionally write a report
+(:func:`mocapfill.guards.outliers.reject_outliers`), fill with :func:`mocapfill.api.fill`, optionally smooth
+(:func:`mocapfill.guards.smooth.savgol_smooth`), write with :func:`mocapfill.io.write`, optionally write a report
 (:mod:`mocapfill.report`).  stdout carries data only; progress, warnings and the summary go to stderr.
 """
 
@@ -37,10 +37,10 @@ class _ProgressBar(StderrProgress):
         self.update(completed=iteration, total=n_max, objective=f"{objective:.6g}")
 
 
-_EPILOG = "\b\nMethods:\n" + "\n".join(f"  {spec.name:<10} {spec.summary}" for spec in METHODS.values())
+FILL_EPILOG = "\b\nMethods:\n" + "\n".join(f"  {spec.name:<10} {spec.summary}" for spec in METHODS.values())
 
 
-@cli.command("fill", epilog=_EPILOG)
+@cli.command("fill", epilog=FILL_EPILOG)
 @click.argument("input_path", metavar="IN", type=str)
 @click.argument("output_path", metavar="OUT", type=str)
 @fill_options

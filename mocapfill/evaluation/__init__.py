@@ -243,7 +243,7 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
     method_options : dict of dict, optional
         Per-method options, overriding ``options``.
     reject_outliers : None, "self" (or True) or "clean"
-        Run :func:`mocapfill.outliers.reject_outliers` on each corrupted clip before filling (the samples it rejects
+        Run :func:`mocapfill.guards.outliers.reject_outliers` on each corrupted clip before filling (the samples it rejects
         become gaps); ``detected`` then reports the fraction of shifted samples it caught.  "self": the corrupted
         clip is its own reference (what ``fill`` does without a reference); "clean": the clean clip is the reference
         take of Holden's rule (its distance ranges, not its positions).

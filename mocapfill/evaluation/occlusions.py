@@ -176,7 +176,7 @@ def rigid_partners(positions: np.ndarray, *, k: int = 3) -> np.ndarray:
     positions : (n_frames, n_markers, 3), NaN = missing.  Returns (n_markers, k) int, the most rigid first; pairs
     never observed together rank last.  The spread is the standard deviation of the distance.
     """
-    from ..distances import pair_distance_stats
+    from ..bones.distances import pair_distance_stats
 
     n_markers = positions.shape[1]
     k = max(1, min(k, n_markers - 1))
@@ -354,7 +354,7 @@ def _neighbourhoods(positions: np.ndarray, radius: float) -> list[np.ndarray]:
 
     positions : (n_frames, n_markers, 3).  Pairs never observed together are not neighbours.
     """
-    from ..distances import pair_distance_stats
+    from ..bones.distances import pair_distance_stats
 
     n_markers = positions.shape[1]
     stats = pair_distance_stats(positions, percentiles=(50,))

@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import MocapfillError
 from ..markers import MarkerData
 from .metrics import score
-from ..bones import estimate_bones
+from ..bones.boneset import estimate_bones
 from .occlusions import Trial
 
 
@@ -69,7 +69,7 @@ def run_trial(truth: MarkerData, index: int, trial: Trial, method_seed: int, con
     corrupted, hidden, shifted = trial.apply(positions)
     detected = None
     if config.reject_outliers:
-        from ..outliers import reject_outliers
+        from ..guards.outliers import reject_outliers
 
         # "clean": the clean clip plays Holden's reference take of the same marker set (distance ranges only).
         reference = positions if config.reject_outliers == "clean" else None

@@ -72,7 +72,7 @@ def _all_labels(f: C3DFile) -> list[str]:
     return labels
 
 
-def _decode_points(f: C3DFile, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def decode_points(f: C3DFile, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Positions (n_frames, k, 3) float64 with NaN where missing, and the residual words (n_frames, k) float64.
 
     ``points`` is the raw point block of the selected points, shape (n_frames, k, 4).
@@ -114,7 +114,7 @@ def read_c3d(raw: bytes, name: str) -> MarkerData:
                       DataWarning, stacklevel=3)
 
     block = f.point_block()
-    positions, _ = _decode_points(f, block[:, marker_points, :])
+    positions, _ = decode_points(f, block[:, marker_points, :])
     units_raw = " ".join(f.strings("POINT", "UNITS"))
     units, unit_note = normalise_units(units_raw, positions)
     if unit_note:
@@ -166,7 +166,7 @@ def _rewrite(data: MarkerData, extra: C3DExtra, name: str) -> bytes:
     if f.n_frames == 0 or len(extra.marker_points) == 0:
         return bytes(buf)
     block = f.point_block()[:, extra.marker_points, :]
-    original, _ = _decode_points(f, block)
+    original, _ = decode_points(f, block)
     new = data.positions
     both_nan = np.isnan(new) & np.isnan(original)
     same = ((new == original) | both_nan).all(axis=2)

@@ -99,7 +99,7 @@ def csv_rows(text: str, name: str) -> list[list[str]]:
         raise FormatError(f"{name}: malformed CSV: {exc}") from None
 
 
-def _check_width(rows: list[list[str]], width: int, name: str, first_line: int, pad_short: bool = False
+def check_width(rows: list[list[str]], width: int, name: str, first_line: int, pad_short: bool = False
                  ) -> list[list[str]]:
     """Rows trimmed of trailing empty fields beyond ``width``; FormatError for a row of another width."""
     out = []
@@ -115,7 +115,7 @@ def _check_width(rows: list[list[str]], width: int, name: str, first_line: int, 
     return out
 
 
-def _rate_from_times(times: np.ndarray, name: str) -> float:
+def rate_from_times(times: np.ndarray, name: str) -> float:
     steps = np.diff(times[np.isfinite(times)])
     if steps.size == 0 or not np.all(steps > 0):
         raise FormatError(f"{name}: the time column does not increase; cannot tell the frame rate")
@@ -212,7 +212,7 @@ def _read_wide(rows: list[list[str]], name: str) -> MarkerData:
         raise FormatError(f"{name}: no marker columns (<label>_x, <label>_y, <label>_z) in the header")
 
     data_rows = [r for r in rows[i + 1:] if any(c.strip() for c in r)]
-    data_rows = _check_width(data_rows, len(header), name, header_line + 1)
+    data_rows = check_width(data_rows, len(header), name, header_line + 1)
     values = parse_numbers(data_rows, name, header_line + 1, header)
     order = [axes[a] for _, axes in markers for a in "xyz"]
     positions = _finish(values[:, order], name) if values.size else np.zeros((0, len(markers), 3))
@@ -238,7 +238,7 @@ def _read_wide(rows: list[list[str]], name: str) -> MarkerData:
         except ValueError:
             raise FormatError(f"{name}: rate {meta['rate']!r} in the comment line is not a number") from None
     elif time_col is not None and len(values) >= 2:
-        rate = _rate_from_times(values[:, time_col], name)
+        rate = rate_from_times(values[:, time_col], name)
     if rate is None:
         # No rate in the file: the caller's (``--rate``); NaN tells io.read that the file had none.
         rate = float("nan")
@@ -284,7 +284,7 @@ def _read_vicon(rows: list[list[str]], name: str) -> MarkerData:
         if not any(c.strip() for c in r):
             break  # a blank line ends the section
         data_rows.append(r)
-    data_rows = _check_width(data_rows, width, name, start + 6)
+    data_rows = check_width(data_rows, width, name, start + 6)
     header = ["Frame", "Sub Frame"] + [f"{lab}_{a}" for lab in labels for a in "xyz"]
     values = parse_numbers(data_rows, name, start + 6, header)
     positions = _finish(values[:, 2:], name) if values.size else np.zeros((0, n_markers, 3))

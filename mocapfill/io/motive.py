@@ -27,7 +27,7 @@ import numpy as np
 
 from ..errors import FormatError
 from ..markers import MarkerData
-from .csv import _check_width, _rate_from_times, csv_rows, frame_number, parse_numbers
+from .csv import check_width, rate_from_times, csv_rows, frame_number, parse_numbers
 from .labels import make_unique, normalise_units, unit_name
 
 __all__ = ["read_motive"]
@@ -79,7 +79,7 @@ def read_motive(text: str, name: str) -> MarkerData:
     notes.extend(f"duplicate label {old!r} renamed {new!r}" for old, new in renamed)
 
     data_rows = [r for r in rows[axis_at + 1:] if any(c.strip() for c in r)]
-    data_rows = _check_width(data_rows, width, name, axis_at + 2)
+    data_rows = check_width(data_rows, width, name, axis_at + 2)
     cols = np.array(columns, dtype=int)
     header_names = [f"{lab}_{a}" for lab in labels for a in "xyz"]
     values = parse_numbers([[r[k] for k in cols.reshape(-1)] for r in data_rows], name, axis_at + 2, header_names)
@@ -109,5 +109,5 @@ def _rate(meta: dict, times: np.ndarray, name: str) -> float:
                 raise FormatError(f"{name}: {key} {rate:g} is not a positive frame rate")
             return rate
     if np.isfinite(times).sum() >= 2:
-        return _rate_from_times(times, name)
+        return rate_from_times(times, name)
     return float("nan")

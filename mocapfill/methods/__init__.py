@@ -5,7 +5,7 @@ shape (n_frames, n_markers, 3) with NaN = missing.  The CLI's ``--method`` choic
 from :data:`METHODS`.  Modules are imported lazily so that ``import mocapfill`` stays cheap.
 
 Context keywords: besides its own options a method may accept any of ``seed``, ``units`` ("mm", "cm", "m"),
-``rate`` (Hz), ``labels`` (list of str), ``bones`` (:class:`mocapfill.bones.BoneSet` or None) and ``progress``
+``rate`` (Hz), ``labels`` (list of str), ``bones`` (:class:`mocapfill.bones.boneset.BoneSet` or None) and ``progress``
 (a :data:`~mocapfill.methods.base.ProgressFn`); :func:`mocapfill.fill` passes those the function's signature names.
 """
 

@@ -84,12 +84,12 @@ import numpy as np
 from ..errors import ConvergenceWarning, MethodError
 from ..gaps import find_gaps
 from .base import FillResult, finish
-from ..blas import single_blas_thread
-from ..bones import resolve_bones
-from .bone_refinement import refine_bones
-from .plausibility import implausible, observed_speed, project_plausible
-from .local_pca import DEFAULT_ALIGN_MM, DEFAULT_SCALES_MM, reconstruct_local
-from .windows import DEFAULT_WINDOW, fill_in_windows
+from ..runtime.blas import single_blas_thread
+from ..bones.boneset import resolve_bones
+from ..bones.refinement import refine_bones
+from ..guards.plausibility import implausible, observed_speed, project_plausible
+from ..engines.local_pca import DEFAULT_ALIGN_MM, DEFAULT_SCALES_MM, reconstruct_local
+from ..guards.windows import DEFAULT_WINDOW, fill_in_windows
 from ..units import length_factor
 
 #: The PCA uncertainty is multiplied by this before the bone refinement weighs it against the bones' spread
@@ -284,7 +284,7 @@ def guide_where_implausible(positions: np.ndarray, estimate: np.ndarray, std: np
     Returns estimate, std and the (n_frames, n_markers) mask of replaced samples.
     """
     from ..gaps import runs
-    from .pca import _linear_fallback
+    from ..engines.weighted_pca import linear_fallback
 
     bad = implausible(estimate, positions, limit, factor=STEP_BOUND)
     replaced = np.zeros_like(gap)
@@ -297,7 +297,7 @@ def guide_where_implausible(positions: np.ndarray, estimate: np.ndarray, std: np
     shifted = {}
     for m, start, length in todo:
         if m not in shifted:
-            shifted[m] = guide[:, m] + _linear_fallback(positions[:, m] - guide[:, m], missing[:, m])
+            shifted[m] = guide[:, m] + linear_fallback(positions[:, m] - guide[:, m], missing[:, m])
         candidate[start:start + length, m] = shifted[m][start:start + length]
     still = implausible(candidate, positions, limit, factor=STEP_BOUND)
     estimate, std = estimate.copy(), std.copy()
@@ -352,7 +352,7 @@ def dynamics_guide(positions: np.ndarray, trust: np.ndarray, gap: np.ndarray, lo
     (None, None, "none") when no untrusted stretch is longer than ``longest`` and the capture is not gappy
     everywhere (:data:`GUIDE_COMPLETE`, :data:`GUIDE_MISSING`).
 
-    BoLeRO-SC with ``boneset`` (a :class:`~mocapfill.bones.BoneSet`) when it holds bones, else DynaMMo.
+    BoLeRO-SC with ``boneset`` (a :class:`~mocapfill.bones.boneset.BoneSet`) when it holds bones, else DynaMMo.
     positions (n_frames, n_markers, 3); trust / gap (n_frames, n_markers).  When many markers are missing at once
     (20-30 % of the samples in 0.25-2 s gaps) some markers lose every near neighbour and the local PCA doubts
     itself over whole seconds; a straight line there missed a tennis player's hand by up to a metre.  The linear
@@ -392,7 +392,7 @@ def fallback_path(positions: np.ndarray, pca: np.ndarray, trusted: np.ndarray, l
     """
     from ..gaps import runs
     from .interp import fill_spline
-    from .pca import _linear_fallback
+    from ..engines.weighted_pca import linear_fallback
 
     missing = np.isnan(positions).any(axis=2)
     known = ~missing | (trusted & missing & np.isfinite(pca).all(axis=2))
@@ -403,10 +403,10 @@ def fallback_path(positions: np.ndarray, pca: np.ndarray, trusted: np.ndarray, l
     todo = np.flatnonzero((~known).any(axis=0) & known.any(axis=0))
     for m in todo:
         if guide is None:
-            out[:, m] = _linear_fallback(series[:, m], ~known[:, m])
+            out[:, m] = linear_fallback(series[:, m], ~known[:, m])
         else:  # interior runs: the guide, shifted linearly to meet the known samples at the run's ends
-            out[:, m] = _linear_fallback(series[:, m], ~known[:, m])
-            shifted = guide[:, m] + _linear_fallback(series[:, m] - guide[:, m], ~known[:, m])
+            out[:, m] = linear_fallback(series[:, m], ~known[:, m])
+            shifted = guide[:, m] + linear_fallback(series[:, m] - guide[:, m], ~known[:, m])
             seen = np.flatnonzero(known[:, m])
             out[seen[0]:seen[-1], m] = shifted[seen[0]:seen[-1]]
         for start, length in runs(~known[:, m]):

@@ -53,7 +53,7 @@ from ..errors import MethodError
 from ..gaps import all_missing_markers, blackout_frames, missing_mask, runs
 from .base import FillResult, finish
 from .interp import interpolate_linear
-from ..blas import single_blas_thread
+from ..runtime.blas import single_blas_thread
 from .msvd import energy_rank
 
 

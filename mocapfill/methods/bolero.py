@@ -2,7 +2,7 @@
 
 Both variants run the DynaMMo EM engine (:func:`mocapfill.methods.dynammo.run_dynammo`) and, after each E-step from
 iteration ``project_start`` on, replace the imputation of every frame with a missing marker by the solution of a
-per-frame problem around the model's estimate e_t = G E[z_t] (:mod:`mocapfill.methods.constraints`), and once more
+per-frame problem around the model's estimate e_t = G E[z_t] (:mod:`mocapfill.bones.constraints`), and once more
 after EM on the estimate with DynaMMo's gap-end residual bridge added (that solve is the output).  The engine runs
 with ``fill_dynammo``'s settings (its defaults) and hands the hook only the frames with a missing marker
 (:class:`mocapfill.methods.dynammo.ProjectStep`):
@@ -21,8 +21,8 @@ with ``fill_dynammo``'s settings (its defaults) and hands the hook only the fram
   marker and frame).  The paper's fixed lambda = 10^6 (in metres) instead depends on the units, on the noise level
   EM happens to reach and on each bone's length.  Default w = :data:`DEFAULT_PENALTY` (measured).
 
-Bones come from ``bones`` (a :class:`mocapfill.bones.BoneSet`) or, when None, from
-:func:`mocapfill.bones.estimate_bones` on the observed samples of the same input.
+Bones come from ``bones`` (a :class:`mocapfill.bones.boneset.BoneSet`) or, when None, from
+:func:`mocapfill.bones.boneset.estimate_bones` on the observed samples of the same input.
 """
 
 from __future__ import annotations
@@ -31,10 +31,10 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..bones import resolve_bones
+from ..bones.boneset import resolve_bones
 from ..errors import MethodError
 from .base import FillResult, ProgressFn, check_positions
-from .constraints import SolveStats, bone_errors, frame_groups, solve_hard, solve_soft
+from ..bones.constraints import SolveStats, bone_errors, frame_groups, solve_hard, solve_soft
 from .dynammo import DEFAULT_HIDDEN, DEFAULT_MAX_ITER, DEFAULT_TOL, ProjectStep, run_dynammo
 
 #: Default dimensionless penalty weight w of BoLeRO-SC.  Measured with ``benchmarks/bench_bolero.py --sweep-penalty``

@@ -65,10 +65,10 @@ import numpy as np
 
 from ..errors import ConvergenceWarning, MethodError
 from ..gaps import brownian_variance, end_blend, runs
-from ..blas import single_blas_thread
-from . import lds
+from ..runtime.blas import single_blas_thread
+from ..engines import lds
 from .base import FillResult, ProgressFn, check_positions, finish
-from .gap_uncertainty import gap_variance
+from ..engines.gap_uncertainty import gap_variance
 from .interp import interpolate_columns
 
 #: Defaults chosen by measurement.  H = 16 and at most 200 iterations as in the authors' experiments (on the 40
@@ -181,7 +181,7 @@ def body_frame_transform(Y: np.ndarray, observed: np.ndarray, frame: str, marker
     Returns ``(R, c, info)``: R (T, 3, 3), c (T, 3) with ``world = R @ local + c``; (None, None, info) for "none"
     or fewer than 3 markers.
     """
-    from . import body_frame as bf
+    from ..engines import body_frame as bf
 
     T, M, _ = Y.shape
     if frame not in bf.FRAMES:
@@ -213,7 +213,7 @@ def _frame_refit(filled: np.ndarray, missing: np.ndarray, frame_info: dict, scal
     (hi - lo, 3 M) in a body frame fitted as the engine's was but without the ``hidden`` markers, divided by
     ``scale``; None when they are not frame markers (or fewer than 2 would remain).  filled (T, M, 3): the modelled
     markers, data and fill, world frame; missing (T, M)."""
-    from . import body_frame as bf
+    from ..engines import body_frame as bf
 
     idx = frame_info.get("frame_markers") or []
     kind = frame_info.get("frame")

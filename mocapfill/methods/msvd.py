@@ -27,7 +27,7 @@ from ..errors import ConvergenceWarning, MethodError
 from ..gaps import all_missing_markers, missing_mask
 from .base import FillResult, ProgressFn, finish
 from .interp import interpolate_linear
-from ..blas import single_blas_thread
+from ..runtime.blas import single_blas_thread
 
 
 def energy_rank(singular_values: np.ndarray, energy: float) -> int:

@@ -21,7 +21,7 @@ from .json_report import SCHEMA_PATH, build_fill_report, load_schema, report_jso
 __all__ = ["build_fill_report", "write_report", "load_schema", "SCHEMA_PATH", "report_json"]
 
 
-def _atomic_write_text(path: str | Path, text: str) -> None:
+def atomic_write_text(path: str | Path, text: str) -> None:
     """Write ``text`` (UTF-8) to ``path`` through a temporary file renamed into place (no half-written report)."""
     from ..io.atomic import atomic_write
 
@@ -54,11 +54,11 @@ def write_report(report: dict[str, Any], path: str | Path, *, data, result, bone
     path_str = str(path)
     suffix = Path(path_str).suffix.lower()
     if suffix == ".json":
-        _atomic_write_text(path, report_json(report))
+        atomic_write_text(path, report_json(report))
     elif suffix in (".html", ".htm"):
         from .html_report import render_html
 
-        _atomic_write_text(path, render_html(report, data=data, result=result, bones=bones,
+        atomic_write_text(path, render_html(report, data=data, result=result, bones=bones,
                                              max_markers=max_markers, max_bones=max_bones, player=player))
     else:
         raise InputError(f"report {path_str}: unknown extension {suffix or '(none)'!r}; use .json or .html")

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from .html_report import _e, _table, page, reader_notes
+from .html_report import escape, html_table, page, reader_notes
 from .player import player_payload, player_section
 
 #: Bones for the player's lines are estimated on at most this many frames (evenly spaced): enough for stable
@@ -17,7 +17,7 @@ BONE_FRAMES = 5000
 
 
 def _bones(data):
-    from ..bones import estimate_bones
+    from ..bones.boneset import estimate_bones
     from ..errors import MocapfillError
 
     step = max(1, -(-data.n_frames // BONE_FRAMES))
@@ -53,30 +53,30 @@ def render_capture_html(data, summary: dict[str, Any]) -> str:
         ("Missing throughout", ", ".join(summary["markers_missing_throughout"]) or "none"),
         ("Blackout frames (every marker missing)", str(summary["blackout_frames"])),
     ]
-    parts = [f"<h1>mocapfill capture report<small>{_e(title)}</small></h1>",
+    parts = [f"<h1>mocapfill capture report<small>{escape(title)}</small></h1>",
              '<nav><a href="#player">Player</a><a href="#summary">Summary</a><a href="#markers">Markers</a></nav>']
     if summary["notes"]:
         parts.append(reader_notes(summary["notes"]))
     parts.append(player_section(player_payload(data, bones=_bones(data)), heading="Player (the raw capture)"))
     parts.append('<h2 id="summary">Summary</h2><table class="summary"><tbody>')
-    parts.extend(f"<tr><th>{_e(k)}</th><td>{_e(v)}</td></tr>" for k, v in rows)
+    parts.extend(f"<tr><th>{escape(k)}</th><td>{escape(v)}</td></tr>" for k, v in rows)
     parts.append("</tbody></table>")
     parts.append(f'<h2 id="markers">Markers ({summary["n_markers"]})</h2>')
-    table = [[_e(m["label"]), f"{m['percent_missing']:.1f}", str(m["n_gaps"]),
+    table = [[escape(m["label"]), f"{m['percent_missing']:.1f}", str(m["n_gaps"]),
               str(m["longest_gap_frames"]) if m["n_gaps"] else "", "yes" if m["gap_at_start"] else "",
               "yes" if m["gap_at_end"] else ""]
              for m in sorted(summary["markers"], key=lambda m: -m["percent_missing"])]
     parts.append('<p class="note">Most missing first.</p>')
-    parts.append(_table(["marker", "missing %", "gaps", "longest gap (frames)", "gap at start", "gap at end"],
+    parts.append(html_table(["marker", "missing %", "gaps", "longest gap (frames)", "gap at start", "gap at end"],
                         table, {1, 2, 3}))
     return page(title=f"mocapfill capture: {title}", body="\n".join(parts), script=True)
 
 
 def write_capture_report(data, summary: dict[str, Any], path: str) -> None:
     """Write :func:`render_capture_html` to ``path`` atomically (nothing half-written)."""
-    from . import _atomic_write_text
+    from . import atomic_write_text
 
-    _atomic_write_text(path, render_capture_html(data, summary))
+    atomic_write_text(path, render_capture_html(data, summary))
 
 
 __all__ = ["render_capture_html", "write_capture_report"]

@@ -53,7 +53,7 @@ details summary { cursor: pointer; color: #0072B2; }
 """
 
 
-def _e(value: Any) -> str:
+def escape(value: Any) -> str:
     return html.escape("" if value is None else str(value))
 
 
@@ -114,16 +114,16 @@ def _summary_rows(report: dict) -> list[tuple[str, str]]:
 def reader_notes(notes: list[str], shown: int = 2) -> str:
     """The reader's notes; past ``shown`` folded, so that a file with dozens of renamed labels does not push the
     player off the screen."""
-    text = "; ".join(_e(n) for n in notes[:shown])
+    text = "; ".join(escape(n) for n in notes[:shown])
     if len(notes) <= shown:
         return f'<p class="note">Reader notes: {text}</p>'
-    rest = "; ".join(_e(n) for n in notes[shown:])
+    rest = "; ".join(escape(n) for n in notes[shown:])
     return (f'<details class="note"><summary>Reader notes ({len(notes)}): {text} ...</summary>'
             f"<p>{rest}</p></details>")
 
 
-def _table(headers: list[str], rows: list[list[str]], numeric: set[int]) -> str:
-    head = "".join(f'<th class="num">{_e(h)}</th>' if i in numeric else f"<th>{_e(h)}</th>"
+def html_table(headers: list[str], rows: list[list[str]], numeric: set[int]) -> str:
+    head = "".join(f'<th class="num">{escape(h)}</th>' if i in numeric else f"<th>{escape(h)}</th>"
                    for i, h in enumerate(headers))
     body = []
     for row in rows:
@@ -133,7 +133,7 @@ def _table(headers: list[str], rows: list[list[str]], numeric: set[int]) -> str:
 
 
 def _figure(svg: str, caption: str, kind: str, name: str) -> str:
-    return (f'<figure class="plot {kind}-plot" data-name="{_e(name)}">{svg}'
+    return (f'<figure class="plot {kind}-plot" data-name="{escape(name)}">{svg}'
             f"<figcaption>{caption}</figcaption></figure>")
 
 
@@ -182,7 +182,7 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
     std = None if result.std is None else np.asarray(result.std, dtype=float)
 
     title = s["file"] or "capture"
-    parts = [f"<h1>mocapfill fill report<small>{_e(title)}</small></h1>"]
+    parts = [f"<h1>mocapfill fill report<small>{escape(title)}</small></h1>"]
     parts.append('<nav>' + ('<a href="#player">Player</a>' if player else '') + '<a href="#summary">Summary</a><a href="#overview">Overview</a><a href="#gaps">Gaps</a>'
                  '<a href="#markers">Markers</a><a href="#bones">Bones</a><a href="#convergence">Convergence</a></nav>')
 
@@ -198,13 +198,13 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
         parts.append('<div class="alert ok">The input had no gaps: nothing was filled.</div>')
     elif not alerts:
         parts.append(f'<div class="alert ok">Every gap was filled ({s["filled_samples"]} samples).</div>')
-    parts.extend(f'<div class="alert">{_e(a)}</div>' for a in alerts)
+    parts.extend(f'<div class="alert">{escape(a)}</div>' for a in alerts)
     if s["notes"]:
         parts.append(reader_notes(s["notes"]))
     player_at = len(parts)  # the player goes here, sized last to what the rest of the page leaves (fit_player)
 
     parts.append('<h2 id="summary">Summary</h2><table class="summary"><tbody>')
-    parts.extend(f"<tr><th>{_e(k)}</th><td>{_e(v)}</td></tr>" for k, v in _summary_rows(report))
+    parts.extend(f"<tr><th>{escape(k)}</th><td>{escape(v)}</td></tr>" for k, v in _summary_rows(report))
     parts.append("</tbody></table>")
 
     # Overview map.
@@ -231,16 +231,16 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
             headers += ["filled by"]
         rows = []
         for g in gaps:
-            row = [_e(g["marker"]), str(g["first_frame"]), str(g["last_frame"]), str(g["length"]),
+            row = [escape(g["marker"]), str(g["first_frame"]), str(g["last_frame"]), str(g["length"]),
                    _num(g["seconds"], 3), f'<span class="status-{g["status"]}">{g["status"]}</span>'
                    + (f' ({g["rejected_samples"]} outliers)' if g["rejected_samples"] else "")]
             if has_std:
                 row += [_num(g["mean_std"], 3), _num(g["max_std"], 3)]
             if has_method:
                 # The reason (when the method gives one) is a tooltip: a sentence per row would drown the table.
-                cell = _e(g["method"] or "\u2013")
+                cell = escape(g["method"] or "\u2013")
                 if g.get("reason"):
-                    cell = f'<span title="{_e(g["reason"])}">{cell}</span>'
+                    cell = f'<span title="{escape(g["reason"])}">{cell}</span>'
                 row += [cell]
             rows.append(row)
         numeric = {1, 2, 3, 4} | ({6, 7} if has_std else set())
@@ -248,12 +248,12 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
             # A long table is folded; the longest gaps, what a person checks first, stay in view.
             longest = sorted(range(len(rows)), key=lambda i: -gaps[i]["length"])[:10]
             parts.append(f"<h3>The {len(longest)} longest gaps</h3>")
-            parts.append(_table(headers, [rows[i] for i in sorted(longest)], numeric))
+            parts.append(html_table(headers, [rows[i] for i in sorted(longest)], numeric))
             shown = "all" if len(gaps) <= MAX_TABLE_ROWS else "the first"
             parts.append(f"<details><summary>Show {shown} {min(len(gaps), MAX_TABLE_ROWS)} of {len(gaps)} gaps"
-                         f"</summary>{_table(headers, rows[:MAX_TABLE_ROWS], numeric)}</details>")
+                         f"</summary>{html_table(headers, rows[:MAX_TABLE_ROWS], numeric)}</details>")
         else:
-            parts.append(_table(headers, rows, numeric))
+            parts.append(html_table(headers, rows, numeric))
         if len(gaps) > MAX_TABLE_ROWS:
             parts.append(f'<p class="note">{len(gaps) - MAX_TABLE_ROWS} more gaps not shown; the JSON report '
                          "(--report file.json) lists them all.</p>")
@@ -261,14 +261,14 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
         parts.append("<p>No gaps.</p>")
     if report["unfilled"]:
         parts.append("<h3>Left unfilled</h3>")
-        rows = [[_e(u["marker"]), str(u["first_frame"]), str(u["length"])] for u in report["unfilled"][:MAX_TABLE_ROWS]]
-        parts.append(_table(["marker", "first frame", "frames"], rows, {1, 2}))
+        rows = [[escape(u["marker"]), str(u["first_frame"]), str(u["length"])] for u in report["unfilled"][:MAX_TABLE_ROWS]]
+        parts.append(html_table(["marker", "first frame", "frames"], rows, {1, 2}))
     if report["rejected"]:
         per_marker: dict[str, int] = {}
         for rec in report["rejected"]:
             per_marker[rec["marker"]] = per_marker.get(rec["marker"], 0) + 1
         parts.append(f"<h3>Outliers rejected before filling ({len(report['rejected'])} samples)</h3>")
-        parts.append(_table(["marker", "samples"], [[_e(k), str(v)] for k, v in per_marker.items()], {1}))
+        parts.append(html_table(["marker", "samples"], [[escape(k), str(v)] for k, v in per_marker.items()], {1}))
 
     # Trajectories of the filled markers.
     counts = filled.sum(axis=0)
@@ -278,7 +278,7 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
         keep = np.sort(filled_markers[np.argsort(-counts[filled_markers], kind="stable")[:max_markers]])
         left = [labels[m] for m in filled_markers if m not in set(keep.tolist())]
         parts.append(f'<p class="note">Plotted the {max_markers} markers with the most filled samples; '
-                     f"{len(left)} more not plotted: {_e(', '.join(left))}.</p>")
+                     f"{len(left)} more not plotted: {escape(', '.join(left))}.</p>")
     else:
         keep = filled_markers
     if len(keep):
@@ -294,7 +294,7 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
                                    max_points=points)
         n_gaps = sum(1 for g in gaps if g["marker"] == labels[m])
         shown = "" if window is None else f" Frames {frames[window[0]]}-{frames[window[1] - 1]} shown."
-        parts.append(_figure(svg, f"{_e(labels[m])}: {int(counts[m])} filled samples in {n_gaps} gap(s).{shown}",
+        parts.append(_figure(svg, f"{escape(labels[m])}: {int(counts[m])} filled samples in {n_gaps} gap(s).{shown}",
                              "marker", labels[m]))
 
     # Bone lengths.
@@ -321,7 +321,7 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
                      "rigid pair should stay near its reference (dashed). Worst first.</p>")
         if len(order) > max_bones:
             left = [f"{labels[pairs[b, 0]]}\u2013{labels[pairs[b, 1]]}" for b in order[max_bones:]]
-            parts.append(f'<p class="note">{len(left)} more bones not plotted: {_e(", ".join(left))}.</p>')
+            parts.append(f'<p class="note">{len(left)} more bones not plotted: {escape(", ".join(left))}.</p>')
         for b in order[:max_bones]:
             a, c = pairs[b]
             name = f"{labels[a]} \u2013 {labels[c]}"
@@ -330,7 +330,7 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
             svg = plots.bone_svg(frames, dist(observed, a, c), dist(output, a, c), float(lengths[b]), either,
                                  name=name, units=units, window=window, max_points=points)
             shown = "" if window is None else f" Frames {frames[window[0]]}-{frames[window[1] - 1]} shown."
-            parts.append(_figure(svg, f"Length of {_e(name)} in the input (breaks at gaps) and after the fill."
+            parts.append(_figure(svg, f"Length of {escape(name)} in the input (breaks at gaps) and after the fill."
                                  + shown, "bone", name))
 
     parts.append('<h2 id="convergence">Convergence</h2>')
@@ -341,9 +341,9 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
         parts.append("<p>The method is direct (no objective to plot).</p>")
     info = {k: v for k, v in report["info"].items() if k not in ("gap_methods",)}
     if info:
-        rows = [[_e(k), _e(v if not isinstance(v, (list, dict)) or len(str(v)) < 300 else str(v)[:300] + "...")]
+        rows = [[escape(k), escape(v if not isinstance(v, (list, dict)) or len(str(v)) < 300 else str(v)[:300] + "...")]
                 for k, v in info.items()]
-        parts.append("<h3>Method details</h3>" + _table(["key", "value"], rows, set()))
+        parts.append("<h3>Method details</h3>" + html_table(["key", "value"], rows, set()))
 
     if player:
         from .player import fit_player
@@ -360,5 +360,5 @@ def page(*, title: str, body: str, script: bool = False) -> str:
 
     return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
             "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
-            f"<title>{_e(title)}</title>{ERROR_HOOK if script else ''}<style>{_CSS}</style></head>"
+            f"<title>{escape(title)}</title>{ERROR_HOOK if script else ''}<style>{_CSS}</style></head>"
             f"<body><main>\n{body}\n</main></body></html>\n")

@@ -31,7 +31,7 @@ from itertools import combinations
 
 import numpy as np
 
-from ..distances import all_pairs, pair_distance_stats
+from ..bones.distances import all_pairs, pair_distance_stats
 
 #: ``frame`` options of DynaMMo: "auto" = "yaw" unless the frame markers tilt more than UPRIGHT_TILT_DEG (then
 #: "full"); "yaw" = rotation about the vertical axis; "full" = any rotation; "none" = the data's own coordinates.

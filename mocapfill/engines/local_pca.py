@@ -33,13 +33,13 @@ import numpy as np
 
 from ..errors import MethodError
 from ..gaps import end_blend
-from .base import FillResult, finish
-from ..blas import single_blas_thread
+from ..methods.base import FillResult, finish
+from ..runtime.blas import single_blas_thread
 from ..units import length_factor
-from .pca import (
+from .weighted_pca import (
     MIN_TRAINING_FRAMES,
-    _linear_fallback,
     cv_curve,
+    linear_fallback,
     fit_model,
     gaussian_weights,
     mean_distances,
@@ -304,7 +304,7 @@ def reconstruct_local(
             needed = np.concatenate([[m], predictors])
             if len(predictors) < 3 or len(train) < MIN_TRAINING_FRAMES:
                 info["fallback"].append(int(m))
-                estimate[group, m] = _linear_fallback(positions[:, m], missing[:, m])[group]
+                estimate[group, m] = linear_fallback(positions[:, m], missing[:, m])[group]
                 continue
             anchors = _anchor_set(predictors, align_weight)
             used = np.concatenate([train, group])

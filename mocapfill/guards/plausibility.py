@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .interp import interpolate_columns
+from ..methods.interp import interpolate_columns
 
 #: Filled samples may reach this multiple of the farthest observed distance from the body's centre ...
 EXTENT = 1.1

@@ -1,7 +1,7 @@
 """Inter-marker distance statistics over the frames where both markers of a pair are observed.
 
-One module serves bone estimation (:mod:`mocapfill.bones`: which pairs keep a constant distance) and outlier
-rejection (:mod:`mocapfill.outliers`: the distance range each pair normally stays in).
+One module serves bone estimation (:mod:`mocapfill.bones.boneset`: which pairs keep a constant distance) and outlier
+rejection (:mod:`mocapfill.guards.outliers`: the distance range each pair normally stays in).
 
 Percentiles are exact (NumPy's default "linear" definition, the same numbers as ``np.nanpercentile``): the
 distances of a chunk of pairs are sorted in place, which on NumPy >= 2 uses a vectorised sort and is cheaper than
@@ -15,7 +15,7 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from .errors import MocapfillError
+from ..errors import MocapfillError
 
 #: Default percentiles (in percent) computed per pair.
 DEFAULT_PERCENTILES = (1.0, 5.0, 50.0, 95.0, 99.0)

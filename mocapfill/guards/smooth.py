@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import savgol_filter
 
-from .errors import MocapfillError
-from .gaps import runs
+from ..errors import MocapfillError
+from ..gaps import runs
 
 #: Default polynomial order (3 keeps peaks better than 2 for the same window).
 DEFAULT_ORDER = 3

@@ -2,7 +2,7 @@
 
 A *bone* here is the BoLeRO paper's bone-length constraint ``<i, j, d_ij>`` (Definition 1): two markers on the same
 rigid segment and the distance between them.  :func:`estimate_bones` picks them from inter-marker distance
-statistics (:mod:`mocapfill.distances`) computed **only over frames where both markers are observed**, so a bone
+statistics (:mod:`mocapfill.bones.distances`) computed **only over frames where both markers are observed**, so a bone
 length never sees a filled or hidden sample.
 
 Choice of pairs
@@ -59,8 +59,8 @@ from typing import Sequence
 import numpy as np
 
 from .distances import pair_distance_stats, pair_distances
-from .errors import FormatError, InputError, MethodError, MocapfillError
-from .units import MM_PER_UNIT, length_factor
+from ..errors import FormatError, InputError, MethodError, MocapfillError
+from ..units import MM_PER_UNIT, length_factor
 
 #: Default thresholds (see the module docstring for the evidence).
 DEFAULT_MAX_REL_SPREAD = 0.04
@@ -298,7 +298,7 @@ def save_bones(bones: BoneSet, path, *, labels: Sequence[str], units: str | None
 
     ``units`` defaults to ``bones.units``; written atomically (temporary file + rename).
     """
-    from .io.atomic import atomic_write
+    from ..io.atomic import atomic_write
 
     fmt = format or ("csv" if str(path).lower().endswith(".csv") else "json")
     if fmt == "csv":

@@ -39,7 +39,7 @@ import numpy as np
 
 from ..errors import MethodError
 from ..gaps import runs
-from .base import FillResult, finish
+from ..methods.base import FillResult, finish
 
 #: Defaults: windows of at most 5,000 frames (the length the default fill is measured on), 400 shared (3.3 s at
 #: 120 Hz: longer than most gaps, so that one window holds each gap whole).

@@ -69,10 +69,10 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from .bones import default_min_frames
-from .units import length_factor
-from .distances import pair_distance_stats
-from .errors import MocapfillError
+from ..bones.boneset import default_min_frames
+from ..units import length_factor
+from ..bones.distances import pair_distance_stats
+from ..errors import MocapfillError
 
 #: Default margin floor (mm, converted to the data's units).
 DEFAULT_MIN_MARGIN_MM = 1.0

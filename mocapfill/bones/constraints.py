@@ -30,7 +30,7 @@ from typing import Iterator
 
 import numpy as np
 
-from .body_frame import nearest_rotation
+from ..engines.body_frame import nearest_rotation
 
 #: Relative bone residual |r_b| / L_b under which a frame counts as satisfying its hard constraints.
 FEASIBLE_RTOL = 1e-9
