@@ -12,6 +12,11 @@ from .errors import MocapfillError
 
 KNOWN_UNITS = ("mm", "cm", "m")
 
+#: What a point of a capture is.  Only ``"marker"`` points are filled and enter a fill's statistics by default; a
+#: model point (computed by the capture software: segment axes, joint centres, centre of mass) and an unlabelled
+#: trajectory (a reconstruction nobody labelled) are kept in the file untouched.
+POINT_KINDS = ("marker", "model", "unlabelled")
+
 
 @dataclass
 class MarkerData:
@@ -38,6 +43,8 @@ class MarkerData:
         Where the data came from ("-" for stdin), used in messages.
     notes : list of str
         Things the reader repaired or ignored (renamed duplicate labels, truncated rows), for reports.
+    kinds : list of str, length n_markers
+        Each point's kind (:data:`POINT_KINDS`), as the file says; ``"marker"`` where nothing says otherwise.
     """
 
     positions: np.ndarray
@@ -49,6 +56,7 @@ class MarkerData:
     extra: Any = None
     path: str | None = None
     notes: list[str] = field(default_factory=list)
+    kinds: list[str] | None = None
 
     def __post_init__(self) -> None:
         pos = np.asarray(self.positions, dtype=np.float64)
@@ -61,6 +69,10 @@ class MarkerData:
         if len(set(self.labels)) != len(self.labels):
             raise MocapfillError("marker labels must be unique")
         self.rate = float(self.rate)
+        kinds = ["marker"] * pos.shape[1] if self.kinds is None else [str(k) for k in self.kinds]
+        if len(kinds) != pos.shape[1] or not set(kinds) <= set(POINT_KINDS):
+            raise MocapfillError(f"kinds must be one of {POINT_KINDS} per point, got {kinds!r}")
+        self.kinds = kinds
 
     @property
     def n_frames(self) -> int:
