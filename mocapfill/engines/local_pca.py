@@ -267,7 +267,9 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
     positions (n_frames, n_markers, 3) finite at ``m`` on ``train`` and at ``predictors`` on every frame used;
     weights one (n_markers,) array per width in ``scales``; align_weight / dist (n_markers,).  Returns the
     reconstruction (n_train + n_group, 3) in the laboratory frame, the leverage (n_train + n_group,), the mixed
-    cross-validated RMS, components and RMS per width, and the anchor markers of the local frame.
+    cross-validated RMS, components and RMS per width, the anchor markers of the local frame and the sensitivity
+    (n_markers,): an error of variance v per coordinate in marker j's sample adds sensitivity[j] v to the variance
+    per coordinate of the reconstruction (rotations and the nearest-pose correction left out).
     """
     n_markers = positions.shape[1]
     needed = np.concatenate([[m], predictors])
@@ -280,7 +282,7 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
     flat = local.reshape(len(used), 3 * n_markers)
     tr = np.arange(n_train)
     target = np.array([m])
-    ests, rmss, levs, ks = [], [], [], []
+    ests, rmss, levs, ks, sens = [], [], [], [], []
     for w, width in zip(weights, scales):
         # markers beyond ``reach`` widths weigh < 0.012: leaving them out changed no median, only the cost
         pred = predictors[dist[predictors] <= reach * width]
@@ -300,6 +302,13 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
         rmss.append(rms)
         levs.append(leverage)
         ks.append(int(model.basis.shape[1]))
+        # d target / d predictor coordinate (q_p, 3): how an error in a predictor moves the reconstruction
+        nt = model.n_target
+        gain = (model.weight[nt:] / model.scale[nt:])[:, None] * (model.basis[nt:] @ model.basis[:nt].T) \
+            * (model.scale[:nt] / model.weight[:nt])[None, :]
+        full = np.zeros((3 * n_markers, 3))
+        full[model.columns[nt:]] = gain
+        sens.append(full)
     rmss_a = np.asarray(rmss)
     if np.isfinite(rmss_a).all() and (rmss_a > 0).all():
         mix = 1.0 / rmss_a ** 2
@@ -311,7 +320,8 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
     rms_mix = float(np.dot(mix, rmss_a)) if np.isfinite(rmss_a).all() else np.nan
     # back to the laboratory frame: x = local R^T + centre
     est_all = np.einsum("tc,tdc->td", est_local, rot) + centre
-    return est_all, leverage, rms_mix, ks, rmss, anchors
+    sensitivity = (np.einsum("s,sqc->qc", mix, np.stack(sens)) ** 2).reshape(n_markers, 9).sum(axis=1) / 3.0
+    return est_all, leverage, rms_mix, ks, rmss, anchors, sensitivity
 
 
 def reconstruct_local(
@@ -328,6 +338,7 @@ def reconstruct_local(
     max_patterns: int = 3,
     min_train: int = MIN_TRAIN_WANTED,
     edge_frames: int = 0,
+    context: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """Estimate every missing sample with the weighted PCA in each missing marker's local frame.
 
@@ -350,6 +361,10 @@ def reconstruct_local(
         n_markers) hold the model's reconstruction (and its uncertainty) at up to this many observed training frames
         on either side of each gap run (NaN elsewhere): what a smoother needs to learn the model's error at a gap's
         ends instead of the ``edge`` bridge.
+    context : ndarray (n_frames, n_markers, 3) or None: the take with the missing samples a previous estimate
+        trusts filled (NaN elsewhere); when given, a marker's predictors are read from it (its own samples still
+        from ``positions``): one EM-style imputation step, in which frames where a neighbour was missing but is
+        now estimated become training and prediction frames.
 
     Returns
     -------
@@ -367,9 +382,15 @@ def reconstruct_local(
         info["edge_estimate"] = np.full((n_frames, n_markers, 3), np.nan)
         info["edge_std"] = np.full((n_frames, n_markers), np.nan)
     gap_markers = np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0))
+    if context is not None:
+        ctx_missing = np.isnan(context).any(axis=2)
     for m in gap_markers:
         frames = np.flatnonzero(missing[:, m])
-        dist = mean_distances(positions, m)
+        src, miss = positions, missing
+        if context is not None:  # predictors from the context, the target's own samples as observed
+            src, miss = context.copy(), ctx_missing.copy()
+            src[:, m], miss[:, m] = positions[:, m], missing[:, m]
+        dist = mean_distances(src, m)
         weights = []
         for width in scales:
             w = gaussian_weights(dist, width)
@@ -381,13 +402,13 @@ def reconstruct_local(
         other_idx = np.flatnonzero(others)
         near = other_idx[np.isfinite(dist[other_idx]) & (dist[other_idx] <= reach * max(scales))]
         near = near[np.argsort(dist[near], kind="stable")]
-        for group, predictors, train in observed_groups(missing, m, frames, near, max_patterns, min_train):
+        for group, predictors, train in observed_groups(miss, m, frames, near, max_patterns, min_train):
             if len(predictors) < 3 or len(train) < MIN_TRAINING_FRAMES:
                 info["fallback"].append(int(m))
                 estimate[group, m] = linear_fallback(positions[:, m], missing[:, m])[group]
                 continue
-            est_all, leverage, rms_mix, ks, rmss, anchors = group_model(
-                positions, m, group, predictors, train, weights, align_weight, dist, scales, reach=reach,
+            est_all, leverage, rms_mix, ks, rmss, anchors, _ = group_model(
+                src, m, group, predictors, train, weights, align_weight, dist, scales, reach=reach,
                 normalise=normalise, folds=folds, knn=knn)
             n_train = len(train)
             used = np.concatenate([train, group])
@@ -409,9 +430,10 @@ def reconstruct_local(
     return estimate, std, info
 
 
-def impute_local(
+def reconstruct_completed(
     positions: np.ndarray,
     completed: np.ndarray,
+    completed_std: np.ndarray,
     *,
     scales: tuple[float, ...],
     align_scale: float,
@@ -425,18 +447,22 @@ def impute_local(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The local model refitted on a completed take (one EM-style imputation step).
 
-    positions (n_frames, n_markers, 3) the input, NaN = missing; completed the same with the missing samples filled
-    (a previous estimate; NaN for markers never observed).  For each marker with gaps, one model whose predictors are
-    all its near markers (within ``reach`` times the largest width), trained on every frame where the marker is
-    observed (the predictors' missing samples taken from ``completed``), predicts the marker's missing samples.
-    reference (n, n_markers, 3) or None: complete-enough frames of other takes added to the training frames (a
-    frame is used where the marker and its predictors are all finite).  Returns estimate (n_frames, n_markers, 3)
-    and std (n_frames, n_markers) at the missing samples (NaN elsewhere and where no model could be fitted), and
-    the reconstruction / std at up to ``edge_frames`` observed frames on either side of each gap (NaN elsewhere).
+    positions (n_frames, n_markers, 3) the input, NaN = missing; completed the same with the missing samples
+    estimated (NaN for markers never observed), completed_std (n_frames, n_markers) their std per coordinate (0 where
+    observed).  For each marker with gaps, ONE model whose predictors are all its near markers (within ``reach``
+    times the largest width), trained on every frame where the marker is observed (the neighbours' missing samples
+    taken from ``completed``), predicts all its missing samples; the predictors' uncertainty is propagated into the
+    prediction's (``sensitivity`` of :func:`group_model`).  reference (n, n_markers, 3) or None: frames of other takes
+    added to the training frames where the marker and its predictors are finite.  Returns estimate (n_frames,
+    n_markers, 3) and std (n_frames, n_markers) at the missing samples (NaN elsewhere and where no model could be
+    fitted), and the reconstruction / std at up to ``edge_frames`` observed frames either side of each gap.
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
     data = completed if reference is None else np.concatenate([completed, reference])
+    var = np.nan_to_num(completed_std, nan=np.inf) ** 2
+    if reference is not None:
+        var = np.concatenate([var, np.zeros(reference.shape[:2])])
     known = np.concatenate([~missing, np.isfinite(reference).all(axis=2)]) if reference is not None else ~missing
     finite = np.isfinite(data).all(axis=2)
     estimate = np.full((n_frames, n_markers, 3), np.nan)
@@ -454,21 +480,25 @@ def impute_local(
         align_weight = gaussian_weights(dist, align_scale)
         others = np.flatnonzero(np.arange(n_markers) != m)
         near = others[np.isfinite(dist[others]) & (dist[others] <= reach * max(scales))
-                      & finite[:n_frames][group][:, others].all(axis=0)]
+                      & finite[group][:, others].all(axis=0)]
         near = near[np.argsort(dist[near], kind="stable")]
         train = np.flatnonzero(known[:, m] & finite[:, near].all(axis=1)) if len(near) else np.zeros(0, int)
         if len(near) < 3 or len(train) < MIN_TRAINING_FRAMES:
             continue
-        est_all, leverage, rms_mix, _, _, _ = group_model(
+        est_all, leverage, rms_mix, _, _, _, sens = group_model(
             data, m, group, near, train, weights, align_weight, dist, scales, reach=reach, normalise=normalise,
             folds=folds, knn=knn)
         n_train = len(train)
+        with np.errstate(invalid="ignore"):
+            spread = var[group][:, near] @ sens[near]  # propagated predictor variance (n_group,)
         estimate[group, m] = est_all[n_train:]
-        std[group, m] = rms_mix * np.sqrt(1.0 + leverage[n_train:])
+        std[group, m] = np.sqrt(rms_mix ** 2 * (1.0 + leverage[n_train:]) + spread)
         if edge_frames:
             own = train < n_frames
+            with np.errstate(invalid="ignore"):
+                spread_t = var[train[own]][:, near] @ sens[near]
             _edge_samples(info, m, group, train[own], est_all[:n_train][own],
-                          rms_mix * np.sqrt(1.0 + leverage[:n_train][own]), edge_frames)
+                          np.sqrt(rms_mix ** 2 * (1.0 + leverage[:n_train][own]) + spread_t), edge_frames)
     return estimate, std, info["edge_estimate"], info["edge_std"]
 
 

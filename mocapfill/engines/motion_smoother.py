@@ -96,8 +96,8 @@ def jerk_gain(positions: np.ndarray, missing: np.ndarray, q: np.ndarray, *, wind
 
     positions (n_frames, n_markers, 3); missing (n_frames, n_markers); q (n_markers,) from :func:`jerk_density`.
     Each observed third difference's squared norm over 3 JERK_GAIN q_m is that marker's jerk power at that frame
-    (mean 1 over its frames); the gain is the mean over the markers observed there, averaged over a moving
-    ``window`` of frames, at least ``floor``; 1 where nothing is observed.
+    (mean 1 over its frames); the gain is the median over the markers observed there, averaged over a moving
+    ``window`` of frames, scaled to mean 1 over the frames, at least ``floor``; 1 where nothing is observed.
     """
     n_frames = positions.shape[0]
     gain = np.ones(n_frames)
@@ -105,16 +105,21 @@ def jerk_gain(positions: np.ndarray, missing: np.ndarray, q: np.ndarray, *, wind
         return gain
     d3 = positions[3:] - 3 * positions[2:-1] + 3 * positions[1:-2] - positions[:-3]
     ok = ~(missing[3:] | missing[2:-1] | missing[1:-2] | missing[:-3])
-    power = np.where(ok, np.nan_to_num(d3 ** 2).sum(axis=2) / (3.0 * JERK_GAIN * q[None, :]), 0.0)
-    total = np.zeros(n_frames)
-    count = np.zeros(n_frames)
-    total[2:-1] = power.sum(axis=1)  # the third difference centred between frames t and t + 1: credit t + 1
-    count[2:-1] = ok.sum(axis=1)
+    power = np.where(ok, np.nan_to_num(d3 ** 2).sum(axis=2) / (3.0 * JERK_GAIN * q[None, :]), np.nan)
+    per_frame = np.full(n_frames, np.nan)
+    seen = ok.any(axis=1)
+    with np.errstate(all="ignore"):
+        # the median over the markers seen: one glitching marker does not make the whole body fast
+        per_frame[2:-1][seen] = np.nanmedian(power[seen], axis=1)
     w = max(int(window), 1)
     kernel = np.ones(w)
-    tot = np.convolve(total, kernel, mode="same")
-    cnt = np.convolve(count, kernel, mode="same")
-    gain = np.where(cnt > 0, tot / np.maximum(cnt, 1), 1.0)
+    known = np.isfinite(per_frame)
+    tot = np.convolve(np.where(known, per_frame, 0.0), kernel, mode="same")
+    cnt = np.convolve(known.astype(float), kernel, mode="same")
+    gain = np.where(cnt > 0, tot / np.maximum(cnt, 1), np.nan)
+    if np.isfinite(gain).any():
+        gain = gain / np.nanmean(gain)  # mean 1 over the frames: q stays the capture's average
+    gain = np.where(np.isfinite(gain), gain, 1.0)
     return np.maximum(gain, floor)
 
 
@@ -170,7 +175,12 @@ def smooth(
     m[:, 0] = init
     P = np.zeros((S, N_STATE, N_STATE))
     P[:, 0, 0] = big
-    P[:, 1, 1] = P[:, 2, 2] = big * 1e-4
+    # velocity and acceleration start from their stationary spread (not diffuse: a gap at the take's start must not
+    # be extrapolated backwards through an unbounded velocity)
+    q0 = np.asarray(model.q, dtype=float) * (1.0 if model.gain is None else float(np.median(model.gain)))
+    var_a = q0 / max(1.0 - model.rho ** 2, 1e-9)
+    P[:, 2, 2] = var_a
+    P[:, 1, 1] = var_a / max(1.0 - model.rho, 1e-9) ** 2
     P[:, 3, 3] = 1.0
     mf = np.empty((T, S, N_STATE, 3))
     Pf = np.empty((T, S, N_STATE, N_STATE))

@@ -52,7 +52,7 @@ class ModelConfig:
     #: Observed frames on either side of a gap where the spatial model's error is measured for the smoother.
     edge_frames: int = 3
     #: Correlation time of the spatial prediction's error (the old edge bridge's 30 frames at 120 Hz).
-    bias_seconds: float = 0.25
+    bias_seconds: float = 1.0
     #: Share of the spatial prediction's variance that is white from frame to frame (the rest is correlated).
     white_share: float = 0.2
     #: The jerk density learnt from the observed third differences is multiplied by this (a fill may follow the
@@ -147,13 +147,14 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     if refine and bones is not False:
         from ..bones.boneset import resolve_bones
         boneset = resolve_bones(positions, bones, units=units, labels=labels)
-        if len(boneset):
+        if len(boneset) and np.isfinite(pred_sd).any():
             pred = bone_stage(positions, pred, pred_sd, boneset, config, mm)
     info["bones"] = 0 if boneset is None else int(len(boneset))
     model = motion_model(positions, missing, config, mm, rate)
     fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate)
     for _ in range(config.impute_passes):
-        pred, pred_sd, edge, edge_sd = impute_stage(positions, fill, config, mm, reference_frames=reference_frames)
+        pred, pred_sd, edge, edge_sd = impute_stage(positions, fill, sd, config, mm,
+                                                       reference_frames=reference_frames)
         if boneset is not None and len(boneset):
             pred = bone_stage(positions, pred, pred_sd, boneset, config, mm)
         fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate)
@@ -183,21 +184,21 @@ def spatial_stage(positions: np.ndarray, config: ModelConfig, mm: float, *,
     return pred, sd, info["edge_estimate"][:n], info["edge_std"][:n], info
 
 
-def impute_stage(positions: np.ndarray, completed: np.ndarray, config: ModelConfig, mm: float, *,
+def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, config: ModelConfig, mm: float, *,
                  reference_frames: np.ndarray | None = None):
     """Stage 4: the spatial model fitted again with the neighbours taken from the completed take.
 
-    positions (n_frames, n_markers, 3) the input (NaN = missing); completed the same with every missing sample
-    filled (stage 3).  For each marker with gaps, its training frames are all frames where it is observed and its
-    predictors are all its near markers (their missing samples from ``completed``).  Same returns as
-    :func:`spatial_stage` (without info).
+    positions (n_frames, n_markers, 3) the input (NaN = missing); completed the same filled by stage 3, sd
+    (n_frames, n_markers) its posterior sd (0 observed).  One model per marker with gaps, trained on every frame
+    where it is observed, every near marker a predictor (:func:`mocapfill.engines.local_pca.reconstruct_completed`;
+    a filled neighbour's sd is propagated into the prediction's).  Returns pred, sd, edge, edge_sd as
+    :func:`spatial_stage`.
     """
-    from ..engines.local_pca import impute_local
+    from ..engines.local_pca import reconstruct_completed
 
-    pred, sd, edge, edge_sd = impute_local(positions, completed, scales=tuple(np.asarray(config.scales_mm) * mm),
-                                           align_scale=config.align_mm * mm, knn=config.knn,
-                                           edge_frames=config.edge_frames, reference=reference_frames)
-    return pred, sd, edge, edge_sd
+    return reconstruct_completed(positions, completed, sd, scales=tuple(np.asarray(config.scales_mm) * mm),
+                                 align_scale=config.align_mm * mm, knn=config.knn, edge_frames=config.edge_frames,
+                                 reference=reference_frames)
 
 
 def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset, config: ModelConfig, mm: float
