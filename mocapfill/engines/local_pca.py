@@ -444,6 +444,7 @@ def reconstruct_completed(
     reach: float = 3.0,
     edge_frames: int = 0,
     reference: np.ndarray | None = None,
+    leverage_weight: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The local model refitted on a completed take (one EM-style imputation step).
 
@@ -456,6 +457,7 @@ def reconstruct_completed(
     added to the training frames where the marker and its predictors are finite.  Returns estimate (n_frames,
     n_markers, 3) and std (n_frames, n_markers) at the missing samples (NaN elsewhere and where no model could be
     fitted), and the reconstruction / std at up to ``edge_frames`` observed frames either side of each gap.
+    ``leverage_weight`` scales how much a frame's leverage grows its std (1: as :func:`reconstruct_local`).
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
@@ -492,13 +494,14 @@ def reconstruct_completed(
         with np.errstate(invalid="ignore"):
             spread = var[group][:, near] @ sens[near]  # propagated predictor variance (n_group,)
         estimate[group, m] = est_all[n_train:]
-        std[group, m] = np.sqrt(rms_mix ** 2 * (1.0 + leverage[n_train:]) + spread)
+        std[group, m] = np.sqrt(rms_mix ** 2 * (1.0 + leverage_weight * leverage[n_train:]) + spread)
         if edge_frames:
             own = train < n_frames
             with np.errstate(invalid="ignore"):
                 spread_t = var[train[own]][:, near] @ sens[near]
             _edge_samples(info, m, group, train[own], est_all[:n_train][own],
-                          np.sqrt(rms_mix ** 2 * (1.0 + leverage[:n_train][own]) + spread_t), edge_frames)
+                          np.sqrt(rms_mix ** 2 * (1.0 + leverage_weight * leverage[:n_train][own]) + spread_t),
+                          edge_frames)
     return estimate, std, info["edge_estimate"], info["edge_std"]
 
 

@@ -26,6 +26,7 @@ The model (equations in ``ARCHITECTURE.md``, "The default's model"), each stage 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 from typing import Any, Sequence
 
 import numpy as np
@@ -34,6 +35,7 @@ from ..engines.local_pca import reconstruct_local
 from ..engines.motion_smoother import MotionModel, jerk_density, jerk_gain, smooth
 from ..errors import MethodError
 from ..gaps import find_gaps
+from ..guards.windows import DEFAULT_WINDOW, fill_in_windows
 from ..runtime.blas import single_blas_thread
 from ..units import length_factor
 from .base import FillResult, finish
@@ -45,10 +47,17 @@ class ModelConfig:
 
     #: Widths of the spatial model's distance weights, one reconstruction each, averaged by inverse CV variance.
     scales_mm: tuple[float, ...] = (150.0, 200.0, 300.0)
+    #: The first pass only seeds the refit on the completed take (stage 4), which makes the prediction: one width and
+    #: no nearest-pose correction there (a third of the cost on captures with gaps everywhere).
+    seed_scales_mm: tuple[float, ...] = (200.0,)
+    seed_knn: int = 0
     #: Width of the weights of the local frame's alignment (Kabsch) on the neighbours.
     align_mm: float = 200.0
     #: Nearest training poses whose mean residual corrects the linear reconstruction (0: none).
     knn: int = 10
+    #: How much a frame's leverage grows the spatial std the smoother weighs (85_02 one-marker, 10 trials: median
+    #: 13.6 mm with 1, 11.4 with 0: a high-leverage pose is not a worse prediction there, the dynamics were).
+    leverage_weight: float = 0.0
     #: Observed frames on either side of a gap where the spatial model's error is measured for the smoother.
     edge_frames: int = 3
     #: Correlation time of the spatial prediction's error (the old edge bridge's 30 frames at 120 Hz).
@@ -98,6 +107,7 @@ def fill_auto_next(
     refine: bool = True,
     reference_frames: np.ndarray | None = None,
     config: ModelConfig = DEFAULT_CONFIG,
+    jobs: int | None = None,
 ) -> FillResult:
     """Fill gaps with the default's model (see the module docstring).
 
@@ -113,6 +123,8 @@ def fill_auto_next(
     reference_frames : ndarray (n, n_markers, 3) or None: frames of other takes of the same marker set, added to
         the spatial model's training frames (NaN allowed).
     config : ModelConfig
+    jobs : worker processes for the windows of a take longer than :data:`~mocapfill.guards.windows.DEFAULT_WINDOW`
+        frames (None: 1; the output does not depend on it).
 
     Returns
     -------
@@ -130,9 +142,12 @@ def fill_auto_next(
         if reference_frames.ndim != 3 or reference_frames.shape[1:] != positions.shape[1:]:
             raise MethodError(f"reference_frames must have shape (n, {positions.shape[1]}, 3), got "
                               f"{reference_frames.shape}")
+    core = partial(model_fill, units=units, labels=labels, rate=rate, bones=bones, refine=refine,
+                   reference_frames=reference_frames, config=config)
     with single_blas_thread():
-        return model_fill(positions, units=units, labels=labels, rate=rate, bones=bones, refine=refine,
-                          reference_frames=reference_frames, config=config)
+        if positions.shape[0] > DEFAULT_WINDOW:  # long takes: overlapping windows, time linear in frames
+            return fill_in_windows(positions, core, jobs=1 if jobs is None else max(1, int(jobs)))
+        return core(positions)
 
 
 def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine: bool,
@@ -174,8 +189,10 @@ def spatial_stage(positions: np.ndarray, config: ModelConfig, mm: float, *,
     """
     n = len(positions)
     data = positions if reference_frames is None else np.concatenate([positions, reference_frames])
-    pred, sd, info = reconstruct_local(data, scales=tuple(np.asarray(config.scales_mm) * mm),
-                                       align_scale=config.align_mm * mm, knn=config.knn, edge=None,
+    scales, knn = (config.scales_mm, config.knn) if config.impute_passes == 0 else (config.seed_scales_mm,
+                                                                                     config.seed_knn)
+    pred, sd, info = reconstruct_local(data, scales=tuple(np.asarray(scales) * mm),
+                                       align_scale=config.align_mm * mm, knn=knn, edge=None,
                                        edge_frames=config.edge_frames)
     missing = np.isnan(positions).any(axis=2)
     pred, sd = pred[:n], sd[:n]
@@ -198,7 +215,7 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
 
     return reconstruct_completed(positions, completed, sd, scales=tuple(np.asarray(config.scales_mm) * mm),
                                  align_scale=config.align_mm * mm, knn=config.knn, edge_frames=config.edge_frames,
-                                 reference=reference_frames)
+                                 reference=reference_frames, leverage_weight=config.leverage_weight)
 
 
 def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset, config: ModelConfig, mm: float
