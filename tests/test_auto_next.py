@@ -153,3 +153,11 @@ def test_reference_frames_hook():
     assert np.isfinite(res.positions[missing]).all()
     with pytest.raises(MethodError):
         fill_auto_next(gapped, reference_frames=ref[:, :3])
+
+
+def test_fragments_are_short_observed_runs_between_gaps():
+    from mocapfill.methods.auto_next import fragments
+
+    missing = np.array([[0, 1, 0, 1, 1, 0, 0, 1, 0, 0, 0, 1, 0]], bool).T
+    frag = fragments(missing, 2)[:, 0]
+    assert list(np.flatnonzero(frag)) == [2, 5, 6]  # not the run at the start, nor the 3-frame run

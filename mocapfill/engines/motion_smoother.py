@@ -131,6 +131,7 @@ def smooth(
     model: MotionModel,
     *,
     init: np.ndarray | None = None,
+    obs_var: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Posterior mean and standard deviation of the position, given every measurement (RTS smoother).
 
@@ -145,6 +146,8 @@ def smooth(
     bias_sd : ndarray (n_frames, n_series)
         Scale s_t of the correlated part (total variance spatial_sd^2 + bias_sd^2).
     model : MotionModel
+    obs_var : ndarray (n_frames, n_series) or None
+        Variance of each observed sample (default ``model.r_obs`` everywhere).
     init : ndarray (n_series, 3) or None
         Prior mean of the first position (default: the first measurement of each series); the prior's variance is
         diffuse (1e6 x the largest squared measurement spread).
@@ -191,7 +194,8 @@ def smooth(
             P = F @ P @ F.T + _noise(Q, model.gain, t - 1)
         # observation: H = e_x
         if has_obs[t].any():
-            m, P = _update(m, P, _unit_x(S), y_obs[t], np.where(has_obs[t], model.r_obs, np.inf))
+            r = model.r_obs if obs_var is None else obs_var[t]
+            m, P = _update(m, P, _unit_x(S), y_obs[t], np.where(has_obs[t], r, np.inf))
         if has_sp[t].any():
             H[:] = 0.0
             H[:, 0] = 1.0

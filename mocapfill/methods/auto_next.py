@@ -75,6 +75,11 @@ class ModelConfig:
     rest_seconds: float = 0.5
     #: Standard deviation of an observed sample (mm): sub-millimetre camera noise.
     obs_sd_mm: float = 0.5
+    #: Standard deviation of a sample in an observed fragment of at most ``fragment_frames`` frames between missing
+    #: ones (mm): such flickering samples are often the worst of a take (the output keeps them; the fill need not
+    #: pass through them).
+    fragment_sd_mm: float = 20.0
+    fragment_frames: int = 2
     #: Smallest jerk density (mm^2 / frame^5): a marker that never moved must not pin its fill.
     jerk_floor_mm2: float = 1e-6
     #: A spatial prediction more than this many standard deviations off the smoothed path is down-weighted.
@@ -267,9 +272,11 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
     white = sp_sd * np.sqrt(config.white_share)
     bias = sp_sd * np.sqrt(1.0 - config.white_share)
     sub = model._replace(q=model.q[todo])
+    obs_var = np.where(fragments(missing[:, todo], config.fragment_frames), (config.fragment_sd_mm * mm) ** 2,
+                       model.r_obs)
     inflate = np.ones_like(sp_sd)
     for attempt in range(config.reweight_passes + 1):
-        mean, sd = smooth(obs, sp, white * np.sqrt(inflate), bias, sub)
+        mean, sd = smooth(obs, sp, white * np.sqrt(inflate), bias, sub, obs_var=obs_var)
         if attempt == config.reweight_passes:
             break
         with np.errstate(invalid="ignore"):
@@ -282,6 +289,20 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
     fill[:, todo] = np.where(missing[:, todo, None], mean, positions[:, todo])
     sd_out[:, todo] = np.where(missing[:, todo], sd, 0.0)
     return fill, sd_out, outliers
+
+
+def fragments(missing: np.ndarray, longest: int) -> np.ndarray:
+    """(n_frames, n_markers) bool: observed samples in runs of at most ``longest`` frames with a missing sample on
+    both sides; missing (n_frames, n_markers)."""
+    from ..gaps import runs
+
+    out = np.zeros_like(missing)
+    n = len(missing)
+    for m in np.flatnonzero(missing.any(axis=0)):
+        for start, length in runs(~missing[:, m]):
+            if length <= longest and start > 0 and start + length < n:
+                out[start:start + length, m] = True
+    return out
 
 
 def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outliers: np.ndarray,
