@@ -7,14 +7,15 @@ on.  The rule, per marker (only on the columns handed in: the capture's markers)
 - **held run**: the marker repeats its exact previous position (all three coordinates bit-identical) so that one
   value stands for at least :data:`MIN_HELD_FRAMES` consecutive frames, **while the body moves**: over the run, the
   :data:`NEIGHBOURS` markers that move most rigidly with it (least spread of their distance to it), each over its
-  own samples that
-  are not repeats, move by a median of more than :data:`BODY_MOTION_MM` (or :data:`BODY_MOTION_QUANTA` storage
-  quanta when the file stores integers) from where they were when the run began.  The first frame of the run is a
-  real sample; the repeats after it are held.  A marker that truly rests repeats nothing in float data (noise), and
-  where quantised values do repeat (a slow marker in an integer C3D), its neighbours rest or creep too; a static
-  trial has no moving body.
-- **edge run**: a held run that touches the first or the last frame repeats the nearest observed value, which is how
-  many tools (this one's ``--edges hold`` included) fill edges: reported, never rejected.
+  own samples that are not repeats, move by a median of more than :data:`BODY_MOTION_MM` (or
+  :data:`BODY_MOTION_QUANTA` storage quanta when the file stores integers) from where they were when the run
+  began; and the marker's next observed sample after the run lies farther than that from the held value (it jumps
+  to where it really is).  The first frame of the run is a real sample; the repeats after it are held.  A marker
+  that truly rests repeats nothing in float data (noise), and where its values do repeat (quantised storage, an
+  exact reference point) it never jumps; a slow marker's neighbours creep with it; a static trial has no moving
+  body.
+- **edge run**: a run that touches the first or the last frame while the body moves repeats the nearest observed
+  value, which is how many tools fill edges: reported, never rejected.
 - **zero run**: a coordinate exactly 0 for at least :data:`MIN_HELD_FRAMES` consecutive frames, reached or left by
   a jump of more than :data:`ZERO_JUMP_MM` in one frame (a lost marker written as 0, not a marker on the floor or
   one crossing 0 slowly).  Rejected at the edges too: a jump to 0 holds no observed value.
@@ -150,6 +151,10 @@ def find_held(positions: np.ndarray, *, units: str = "mm", quantum: float | None
                 motions.append(float(np.sqrt(((path - path[0]) ** 2).sum(axis=1)).max()))
             if len(motions) < 2 or np.median(motions) <= threshold:
                 continue  # the body rests too (or cannot be judged): a marker at rest, not a held value
+            if not at_edge:
+                after = np.flatnonzero(observed[stop:, k])
+                if after.size == 0 or np.linalg.norm(positions[stop + after[0], k] - positions[first, k]) <= threshold:
+                    continue  # the marker does not jump to where it really is: it rested (or cannot be judged)
             kind = "edge" if at_edge else "held"
             (edge if at_edge else held)[first + 1:stop, k] = True
             found.append({"marker": k, "start": first + 1, "length": length - 1, "kind": kind})
