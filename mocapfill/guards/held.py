@@ -14,8 +14,9 @@ on.  The rule, per marker (only on the columns handed in: the capture's markers)
   that truly rests repeats nothing in float data (noise), and where its values do repeat (quantised storage, an
   exact reference point) it never jumps; a slow marker's neighbours creep with it; a static trial has no moving
   body.
-- **edge run**: a run that touches the first or the last frame while the body moves repeats the nearest observed
-  value, which is how many tools fill edges: reported, never rejected.
+- **edge run**: a run that touches the first or the last frame, under the same rule (a run to the last frame: the
+  marker moved that far over as many frames before it), repeats the nearest observed value, which is how many
+  tools fill edges: reported, never rejected.  One value throughout the capture is a point that never moves.
 - **zero run**: a coordinate exactly 0 for at least :data:`MIN_HELD_FRAMES` consecutive frames, reached or left by
   a jump of more than :data:`ZERO_JUMP_MM` in one frame (a lost marker written as 0, not a marker on the floor or
   one crossing 0 slowly).  Rejected at the edges too: a jump to 0 holds no observed value.
@@ -151,10 +152,17 @@ def find_held(positions: np.ndarray, *, units: str = "mm", quantum: float | None
                 motions.append(float(np.sqrt(((path - path[0]) ** 2).sum(axis=1)).max()))
             if len(motions) < 2 or np.median(motions) <= threshold:
                 continue  # the body rests too (or cannot be judged): a marker at rest, not a held value
-            if not at_edge:
+            if first == 0 and stop == n_frames:
+                continue  # one value throughout: a point that never moves
+            if stop < n_frames:  # the marker must jump to where it really is after the run
                 after = np.flatnonzero(observed[stop:, k])
                 if after.size == 0 or np.linalg.norm(positions[stop + after[0], k] - positions[first, k]) <= threshold:
-                    continue  # the marker does not jump to where it really is: it rested (or cannot be judged)
+                    continue  # it rested (or cannot be judged)
+            else:  # a run to the last frame: the marker must have moved before it, over as many frames
+                before = positions[max(0, first - length):first, k]
+                before = before[np.isfinite(before).all(axis=1)]
+                if before.size == 0 or np.sqrt(((before - positions[first, k]) ** 2).sum(axis=1)).max() <= threshold:
+                    continue
             kind = "edge" if at_edge else "held"
             (edge if at_edge else held)[first + 1:stop, k] = True
             found.append({"marker": k, "start": first + 1, "length": length - 1, "kind": kind})
