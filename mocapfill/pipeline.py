@@ -124,8 +124,9 @@ def subset(data: MarkerData, columns: np.ndarray) -> MarkerData:
                       [data.kinds[k] for k in columns])
 
 
-def _widen(result: FillResult, columns: np.ndarray, positions: np.ndarray, labels: list[str]) -> FillResult:
-    """A fill of ``positions[:, columns]`` as a result over every column (the others as they were, not filled)."""
+def widen_result(result: FillResult, columns: np.ndarray, positions: np.ndarray, labels: list[str]) -> FillResult:
+    """A fill of ``positions[:, columns]`` as a result over every column of ``positions`` (n_frames, n_points, 3):
+    the other columns as they were, not filled; per-gap records name their marker by label."""
     full = positions.copy()
     full[:, columns] = result.positions
     filled = np.zeros(positions.shape[:2], dtype=bool)
@@ -238,7 +239,7 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
     if not every:
         full_work = data.positions.copy()
         full_work[:, columns] = work.positions
-        result = _widen(result, columns, data.positions, data.labels)
+        result = widen_result(result, columns, data.positions, data.labels)
         if bones is not None:
             bones = dataclasses.replace(bones, pairs=columns[np.asarray(bones.pairs, dtype=np.int64)])
         work = data.with_positions(full_work)

@@ -189,3 +189,15 @@ def test_c3d_modeled_markers_parameter_and_points_seen_by_no_camera():
     assert any("seen by no camera" in n for n in notes)
     kinds, _ = c3d_kinds(f, labels, labels, positions, np.zeros((10, 5)))  # no camera data: nothing to judge
     assert kinds == ["marker", "marker", "marker", "marker", "model"]
+
+
+def test_python_fill_and_evaluate_leave_model_points_and_ghosts_alone(tmp_path):
+    path = tmp_path / "pig.c3d"
+    mocapfill.write(_pig_like(), path)
+    data = mocapfill.read(path)
+    result = mocapfill.fill(data, method="spline")
+    assert result.positions.shape == data.positions.shape
+    assert np.isfinite(result.positions[30:40, 0]).all() and np.isnan(result.positions[:20, -1]).all()
+    assert np.array_equal(result.positions[:, 5:], data.positions[:, 5:], equal_nan=True)
+    scores = mocapfill.evaluate(data, methods=["linear"], trials=2, seed=0)
+    assert scores.data.labels == ["LASI", "RASI", "LPSI", "RPSI", "LFOO"]
