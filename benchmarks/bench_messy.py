@@ -35,6 +35,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
@@ -210,7 +211,9 @@ def plausibility_scan(only: str = "", all_points: bool = False) -> None:
         except (MocapfillError, OSError, ValueError):
             continue
         kept = 0
-        if not all_points:  # what `fill` fills: the markers (model points and unlabelled trajectories kept aside)
+        if all_points:  # every point a marker: fill model points and unlabelled trajectories too (the old default)
+            data = dataclasses.replace(data, kinds=["marker"] * data.n_markers)
+        else:  # what `fill` fills: the markers (model points and unlabelled trajectories kept aside)
             columns = fill_columns(data)
             kept = data.n_markers - columns.size
             if kept:
