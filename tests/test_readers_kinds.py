@@ -201,3 +201,20 @@ def test_python_fill_and_evaluate_leave_model_points_and_ghosts_alone(tmp_path):
     assert np.array_equal(result.positions[:, 5:], data.positions[:, 5:], equal_nan=True)
     scores = mocapfill.evaluate(data, methods=["linear"], trials=2, seed=0)
     assert scores.data.labels == ["LASI", "RASI", "LPSI", "RPSI", "LFOO"]
+
+
+def test_motive_unlabeled_and_qtm_unnamed_trajectories(tmp_path):
+    motive = ("Format Version,1.23,Export Frame Rate,100,Length Units,Millimeters\n\n"
+              ",,Marker,Marker,Marker,Marker,Marker,Marker\n"
+              ",,Hand:M1,Hand:M1,Hand:M1,Unlabeled 1000,Unlabeled 1000,Unlabeled 1000\n"
+              ",,Position,Position,Position,Position,Position,Position\n"
+              "Frame,Time (Seconds),X,Y,Z,X,Y,Z\n0,0,1,2,3,4,5,6\n1,0.01,1,2,3,,,\n")
+    path = tmp_path / "m.csv"
+    path.write_text(motive)
+    data = mocapfill.read(path)
+    assert data.labels == ["Hand:M1", "Unlabeled 1000"] and data.kinds == ["marker", "unlabelled"]
+    tsv = "NO_OF_FRAMES\t2\nNO_OF_MARKERS\t2\nFREQUENCY\t100\nMARKER_NAMES\t\tB\n1\t0\t1\t2\t3\t4\t5\t6\n2\t0.01\t1\t2\t3\t4\t5\t7\n"
+    path = tmp_path / "q.tsv"
+    path.write_text(tsv)
+    data = mocapfill.read(path)  # QTM lists an unidentified trajectory without a name
+    assert data.labels == ["M001", "B"] and data.kinds == ["unlabelled", "marker"]
