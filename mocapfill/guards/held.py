@@ -135,11 +135,26 @@ def find_held(positions: np.ndarray, *, units: str = "mm", quantum: float | None
             if length + 1 >= min_frames:
                 candidates.append((int(k), first, length + 1))
     if candidates:
-        neighbours = _neighbours(positions, NEIGHBOURS)
-        moving = np.where(repeat, np.nan, 0.0)[:, :, None] + positions  # repeats do not count as motion
+        index = np.where(observed, np.arange(n_frames)[:, None], n_frames)
+        next_observed = np.minimum.accumulate(index[::-1], axis=0)[::-1]  # first observed frame >= t, per marker
+        neighbours = moving = None  # computed for the first run that passes the marker's own test
         for k, first, length in candidates:
             stop = first + length
             at_edge = first == 0 or stop == n_frames
+            if first == 0 and stop == n_frames:
+                continue  # one value throughout: a point that never moves
+            if stop < n_frames:  # the marker must jump to where it really is after the run
+                t = next_observed[stop, k]
+                if t >= n_frames or np.linalg.norm(positions[t, k] - positions[first, k]) <= threshold:
+                    continue  # it rested (or cannot be judged)
+            else:  # a run to the last frame: the marker must have moved before it, over as many frames
+                before = positions[max(0, first - length):first, k]
+                before = before[np.isfinite(before).all(axis=1)]
+                if before.size == 0 or np.sqrt(((before - positions[first, k]) ** 2).sum(axis=1)).max() <= threshold:
+                    continue
+            if neighbours is None:
+                neighbours = _neighbours(positions, NEIGHBOURS)
+                moving = np.where(repeat, np.nan, 0.0)[:, :, None] + positions  # repeats do not count as motion
             motions = []
             for j in neighbours[k]:
                 if j < 0:
@@ -152,17 +167,6 @@ def find_held(positions: np.ndarray, *, units: str = "mm", quantum: float | None
                 motions.append(float(np.sqrt(((path - path[0]) ** 2).sum(axis=1)).max()))
             if len(motions) < 2 or np.median(motions) <= threshold:
                 continue  # the body rests too (or cannot be judged): a marker at rest, not a held value
-            if first == 0 and stop == n_frames:
-                continue  # one value throughout: a point that never moves
-            if stop < n_frames:  # the marker must jump to where it really is after the run
-                after = np.flatnonzero(observed[stop:, k])
-                if after.size == 0 or np.linalg.norm(positions[stop + after[0], k] - positions[first, k]) <= threshold:
-                    continue  # it rested (or cannot be judged)
-            else:  # a run to the last frame: the marker must have moved before it, over as many frames
-                before = positions[max(0, first - length):first, k]
-                before = before[np.isfinite(before).all(axis=1)]
-                if before.size == 0 or np.sqrt(((before - positions[first, k]) ** 2).sum(axis=1)).max() <= threshold:
-                    continue
             kind = "edge" if at_edge else "held"
             (edge if at_edge else held)[first + 1:stop, k] = True
             found.append({"marker": k, "start": first + 1, "length": length - 1, "kind": kind})
