@@ -11,7 +11,7 @@ from typing import Callable, NamedTuple
 import click
 from rich.console import Console
 
-from ..errors import ConvergenceWarning, DataWarning, MethodError
+from ..errors import ConvergenceWarning, DataWarning, MethodError, one_line
 
 from ..io import READ_FORMATS, WRITE_FORMATS
 
@@ -96,6 +96,9 @@ def fill_options(func: Callable) -> Callable:
         click.option("--reference", "reference", type=str, default=None,
                      help="A clean capture of the same marker set giving the distance ranges for --reject-outliers "
                           "(default: the file itself)."),
+        click.option("--keep-held", is_flag=True,
+                     help="Keep held and frozen samples (a marker repeating its exact position while the body moves, "
+                          "a coordinate stuck at exactly 0) as observed; by default they become gaps and are filled."),
         click.option("--smooth", is_flag=True,
                      help="Savitzky-Golay smoothing of the output (off by default: it changes observed samples)."),
         click.option("--smooth-window", type=click.IntRange(min=1), default=None,
@@ -165,10 +168,6 @@ def read_input(path: str, reading: ReadOptions = ReadOptions(), *, quiet: bool =
 _PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def _one_line(message: object) -> str:
-    return " ".join(str(message).split())
-
-
 def _ours(item: warnings.WarningMessage) -> bool:
     """Warnings meant for the user: mocapfill's own categories, or any warning raised from mocapfill's code."""
     if issubclass(item.category, (ConvergenceWarning, DataWarning)):
@@ -183,7 +182,7 @@ def show_warnings(caught: list[warnings.WarningMessage], quiet: bool) -> None:
     for item in caught:
         if not _ours(item):
             continue
-        text = f"{item.category.__name__}: {_one_line(item.message)}"
+        text = f"{item.category.__name__}: {one_line(item.message)}"
         if text in seen:
             continue
         seen.add(text)

@@ -49,8 +49,10 @@ FILL_EPILOG = "\b\nMethods:\n" + "\n".join(f"  {spec.name:<10} {spec.summary}" f
 @format_options
 @quiet_option
 @click.option("--force", is_flag=True, help="Allow OUT to be the same file as IN (it is replaced atomically).")
+@click.option("-j", "--jobs", type=click.IntRange(min=0), default=1, show_default=True,
+              help="Worker processes for a long take's windows (0 = every core); the output does not depend on it.")
 def fill_command(input_path: str, output_path: str, fill_settings: FillSettings, report_path: str | None,
-                 output_format: str | None, reading: ReadOptions, quiet: bool, force: bool) -> None:
+                 output_format: str | None, reading: ReadOptions, quiet: bool, force: bool, jobs: int) -> None:
     """Fill the gaps of IN and write the result to OUT ("-" = stdin / stdout).
 
     Observed samples are written back unchanged (unless --smooth).  Progress, warnings and a summary go to
@@ -78,7 +80,8 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
             reference = read_input(settings.reference, reading._replace(format=None), quiet=quiet)
 
         with _ProgressBar(method, quiet) as bar:
-            outcome = fill_capture(data, settings, reference=reference, progress=bar if bar.enabled else None)
+            outcome = fill_capture(data, settings, reference=reference, progress=bar if bar.enabled else None,
+                                   jobs=jobs)
 
         out_data = outcome.output
         if force:
@@ -91,8 +94,30 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
                               smoothed=settings.smooth)
 
     show_warnings(caught, quiet)
-    _summary(data, outcome.work, outcome.result, method, outcome.seconds, outcome.rejected, settings.smooth,
-             report_path, quiet)
+    columns = outcome.columns
+    work, result, rejected = outcome.work, outcome.result, outcome.rejected
+    if columns is not None and columns.size != data.n_markers:  # counts of the markers filled, not the points kept
+        from ..pipeline import subset
+
+        data, work = subset(data, columns), subset(work, columns)
+        result = dataclasses.replace(result, positions=result.positions[:, columns], filled=result.filled[:, columns])
+        rejected = None if rejected is None else rejected[:, columns]
+    _summary(data, work, result, method, outcome.seconds, rejected, settings.smooth, report_path, quiet)
+    _found(outcome, quiet)
+
+
+def _found(outcome, quiet: bool) -> None:
+    """One line each on what the reader and the held-sample guard found (only when there is something)."""
+    from ..pipeline import held_report, points_line
+
+    out = console(quiet)
+    if any(kind != "marker" for kind in outcome.data.kinds):
+        out.print(f"points: {points_line(outcome.data)}", markup=False, highlight=False)
+    if outcome.held_summary is not None:
+        line = held_report(outcome.held_summary, kept=outcome.held is None)["line"]
+        if line != "none":
+            out.print(f"held samples: {line}" + ("" if outcome.held is None else " (made gaps and filled)"),
+                      markup=False, highlight=False)
 
 
 def _summary(data, work, result, method: str, seconds: float, rejected, smoothed: bool, report_path, quiet: bool
