@@ -98,9 +98,9 @@ def test_temporal_stage_down_weights_a_jumping_prediction():
     pred[130, 0] += 500.0  # one prediction half a metre off
     sd = np.where(missing, 3.0, np.nan)
     none = np.full_like(pos, np.nan)
-    mdl = motion_model(gapped, missing, DEFAULT_CONFIG, 1.0, 100.0)
-    fill, post, outliers = temporal_stage(gapped, pred, sd, none, np.full_like(sd, np.nan), mdl, DEFAULT_CONFIG,
-                                          1.0, 100.0)
+    config = ModelConfig(reweight_passes=2)
+    mdl = motion_model(gapped, missing, config, 1.0, 100.0)
+    fill, post, outliers = temporal_stage(gapped, pred, sd, none, np.full_like(sd, np.nan), mdl, config, 1.0, 100.0)
     assert outliers[130, 0]
     assert np.linalg.norm(fill[130, 0] - pos[130, 0]) < 30.0
     assert np.array_equal(fill[~missing], gapped[~missing])
