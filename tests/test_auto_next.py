@@ -8,26 +8,10 @@ import pytest
 from mocapfill.engines.motion_smoother import (JERK_GAIN, MotionModel, jerk_density, jerk_gain, smooth,
                                                transition)
 from mocapfill.errors import MethodError
+from test_auto import tumbling_body  # the tests folder is on sys.path (no package)
 from mocapfill.methods import get_method
 from mocapfill.methods.auto_next import (DEFAULT_CONFIG, ModelConfig, fill_auto_next, gap_records, motion_model,
                                          spatial_stage, temporal_stage)
-
-
-def tumbling_body(n_frames: int = 300, n_markers: int = 9, seed: int = 2) -> np.ndarray:
-    """A rigid marker cloud (mm) turning about two axes while it travels, (n_frames, n_markers, 3)."""
-    rng = np.random.default_rng(seed)
-    body = rng.normal(scale=120.0, size=(n_markers, 3))
-    t = np.arange(n_frames) / 100.0
-    a, b = 2 * np.pi * 0.4 * t, 2 * np.pi * 0.25 * t
-    rz = np.zeros((n_frames, 3, 3))
-    rz[:, 0, 0] = rz[:, 1, 1] = np.cos(a)
-    rz[:, 0, 1], rz[:, 1, 0] = -np.sin(a), np.sin(a)
-    rz[:, 2, 2] = 1
-    rx = np.zeros((n_frames, 3, 3))
-    rx[:, 1, 1] = rx[:, 2, 2] = np.cos(b)
-    rx[:, 1, 2], rx[:, 2, 1] = -np.sin(b), np.sin(b)
-    rx[:, 0, 0] = 1
-    return np.einsum("fij,mj->fmi", rx @ rz, body) + np.stack([300 * t, 0 * t, 1000 + 0 * t], axis=1)[:, None, :]
 
 
 def model(n_series: int, q: float = 1e-3, gain=None) -> MotionModel:

@@ -259,6 +259,18 @@ def _edge_samples(info: dict, m: int, group: np.ndarray, train: np.ndarray, est_
     info["edge_std"][train[keep], m] = std_train[keep]
 
 
+def marker_weights(dist: np.ndarray, m: int, scales: tuple[float, ...], align_scale: float, missing_weight: float
+                   ) -> tuple[list[np.ndarray], np.ndarray]:
+    """Gaussian weights (n_markers,) of every marker for target ``m``, one array per width in ``scales`` (the target
+    itself weighs ``missing_weight``), and the alignment weights; dist (n_markers,) mean distances to ``m``."""
+    weights = []
+    for width in scales:
+        w = gaussian_weights(dist, width)
+        w[m] = missing_weight
+        weights.append(w)
+    return weights, gaussian_weights(dist, align_scale)
+
+
 def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np.ndarray, train: np.ndarray,
                 weights: list[np.ndarray], align_weight: np.ndarray, dist: np.ndarray, scales: tuple[float, ...], *,
                 reach: float, normalise: bool, folds: int, knn: int):
@@ -391,12 +403,7 @@ def reconstruct_local(
             src, miss = context.copy(), ctx_missing.copy()
             src[:, m], miss[:, m] = positions[:, m], missing[:, m]
         dist = mean_distances(src, m)
-        weights = []
-        for width in scales:
-            w = gaussian_weights(dist, width)
-            w[m] = missing_weight
-            weights.append(w)
-        align_weight = gaussian_weights(dist, align_scale)
+        weights, align_weight = marker_weights(dist, m, scales, align_scale, missing_weight)
         others = np.ones(n_markers, dtype=bool)
         others[m] = False
         other_idx = np.flatnonzero(others)
@@ -474,12 +481,7 @@ def reconstruct_completed(
     for m in np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0)):
         group = np.flatnonzero(missing[:, m])
         dist = mean_distances(np.where(known[..., None], data, np.nan), m)
-        weights = []
-        for width in scales:
-            w = gaussian_weights(dist, width)
-            w[m] = missing_weight
-            weights.append(w)
-        align_weight = gaussian_weights(dist, align_scale)
+        weights, align_weight = marker_weights(dist, m, scales, align_scale, missing_weight)
         others = np.flatnonzero(np.arange(n_markers) != m)
         near = others[np.isfinite(dist[others]) & (dist[others] <= reach * max(scales))
                       & finite[group][:, others].all(axis=0)]

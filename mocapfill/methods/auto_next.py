@@ -38,7 +38,7 @@ from ..gaps import find_gaps
 from ..guards.windows import DEFAULT_WINDOW, fill_in_windows
 from ..runtime.blas import single_blas_thread
 from ..units import length_factor
-from .base import FillResult, finish
+from .base import FillResult, check_positions, finish
 
 
 @dataclass(frozen=True)
@@ -139,9 +139,7 @@ def fill_auto_next(
     gap (``marker``, ``marker_index``, ``start``, ``length``, ``method``, ``reason``, ``review``, ``max_std``).
     """
     del seed
-    positions = np.asarray(positions, dtype=np.float64)
-    if positions.ndim != 3 or positions.shape[2] != 3:
-        raise MethodError(f"positions must have shape (n_frames, n_markers, 3), got {positions.shape}")
+    positions = check_positions(positions)
     if labels is not None and len(labels) != positions.shape[1]:
         raise MethodError(f"{len(labels)} labels for {positions.shape[1]} markers")
     if reference_frames is not None:
