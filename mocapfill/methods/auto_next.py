@@ -12,13 +12,18 @@ The model (equations in ``ARCHITECTURE.md``, "The default's model"), each stage 
 3. :func:`temporal_stage`: per marker, a damped white-jerk state-space model with the spatial prediction's
    correlated error in its state (:mod:`mocapfill.engines.motion_smoother`); the observations and the spatial
    predictions are its measurements; one Rauch-Tung-Striebel smoother gives the fill (posterior mean) and its
-   standard deviation (posterior sd).  The jerk density is learnt from the capture's observed third differences.
-   Spatial predictions the smoothed path disagrees with by more than :attr:`ModelConfig.outlier` standard
-   deviations are down-weighted and the smoother runs again (robust to a prediction that jumps).  Where the spatial
-   model has nothing, the dynamics bridge the gap and the standard deviation grows.
+   standard deviation (posterior sd).  The jerk density is learnt from the capture's observed third differences,
+   scaled at each frame by how fast the body moves then.  Samples of observed fragments of 1-2 frames between
+   gaps count as noisy measurements (the output keeps them).  Where the spatial model has nothing, the dynamics
+   bridge the gap and the standard deviation grows.  (Optionally, ``reweight_passes``: predictions far off the
+   smoothed path are down-weighted and the smoother runs again; off by default, as measured.)
 4. :func:`impute_stage` (EM-style): the spatial model is fitted again on the take completed by step 3 (every frame
-   where the marker is observed is a training frame, its neighbours taken from the completed take), and step 3
-   runs again on its predictions.
+   where the marker is observed is a training frame, its neighbours taken from the completed take, their posterior
+   variance propagated into the prediction's), and step 3 runs again on its predictions.  (The first pass then only
+   seeds it: one weight width, no nearest-pose correction.)
+
+Status (issue 21): registered as ``auto-next`` beside ``auto``; ``auto`` stays the default until ``auto-next``
+holds every floor (see the branch report / ``benchmarks/README.md``).
 5. :func:`gap_records`: one record per gap, what filled it and whether a person should review it (its largest
    posterior standard deviation above :attr:`ModelConfig.review_sd_mm`), the reason text formatted from the config.
 """
