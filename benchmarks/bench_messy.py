@@ -266,12 +266,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--dump", default="", help="directory: save each clip's dense errors there (npz)")
     parser.add_argument("--merge", default="", help="directory: dense tables from the errors --dump runs saved")
     parser.add_argument("--skip", default="", help="comma-separated sections to skip: dense,segment,plausibility")
+    parser.add_argument("--without-auto", action="store_true",
+                        help="run only the named methods (auto is otherwise added first, as the reference)")
     parser.add_argument("--only", default="", help="plausibility: comma-separated substrings of the captures to scan")
     parser.add_argument("--all-points", action="store_true",
                         help="plausibility: fill model points and unlabelled trajectories too (as before issue 23)")
     args = parser.parse_args(argv)
     methods = list(METHODS) if args.methods == "all" else args.methods.split(",")
-    methods = ["auto"] + [m for m in methods if m != "auto"]
+    if not args.without_auto:
+        methods = ["auto"] + [m for m in methods if m != "auto"]
     skip = set(filter(None, args.skip.split(",")))
     print(f"# bench_messy ({machine()})", file=sys.stderr)
     clips = _clips()
