@@ -41,8 +41,6 @@ import time  # noqa: E402
 import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-import numpy as np  # noqa: E402
-
 import mocapfill  # noqa: E402
 from mocapfill.evaluation import make_occlusions  # noqa: E402
 from mocapfill.runtime.malloc import KEEP_ENV  # noqa: E402

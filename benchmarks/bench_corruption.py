@@ -156,7 +156,8 @@ def main() -> None:
             med, mean = row["rmse"]["median"] * to_mm, row["rmse"]["mean"] * to_mm
             best[method] = med
             line = f"  {method:10s} {med:12.1f} {mean:10.1f}"
-            detail = [name, f"`{method}`", round(med, 1), round(mean, 1), None, None, round(row["seconds"]["median"], 2)]
+            detail = [name, f"`{method}`", round(med, 1), round(mean, 1), None, None,
+                      round(row["seconds"]["median"], 2)]
             cell = f"{med:.1f}"
             results.figure(f"{name}/{method}/median_rmse", round(med, 1), "mm")
             if oracle is not None:
@@ -173,8 +174,9 @@ def main() -> None:
             ok = best["auto"] <= 50 and best["auto"] < best["bolero-sc"]
             print(f"  target (auto median <= 50 mm and below bolero-sc): {'met' if ok else 'NOT met'} "
                   f"({best['auto']:.1f} vs {best['bolero-sc']:.1f})")
-    results.table("summary", f"{args.trials} trials of `evaluate -p random --reject-outliers self` per clip: up to 10 % "
-                  "of every marker hidden and up to 10 % displaced by up to 50 cm per axis, in stretches of 0.05-0.5 s; "
+    results.table("summary", f"{args.trials} trials of `evaluate -p random --reject-outliers self` per clip: up to "
+                  "10 % of every marker hidden and up to 10 % displaced by up to 50 cm per axis, in stretches of "
+                  "0.05-0.5 s; "
                   "displaced samples caught (median over trials); median trial RMSE (mm) over the hidden and displaced "
                   "samples, in brackets with a perfect detector",
                   ["clip", "displaced samples caught %", *(f"`{m}`" for m in methods)], summary_rows)

@@ -150,7 +150,6 @@ def corrupt(positions, seed: int, kind: str, scale: float, rate: float):
 def outlier_trials(n_seeds: int, results: harness.Results) -> None:
     """reject_outliers (self-reference) on the complete sample captures: clean, and four corruptions x seeds."""
     import time
-    from pathlib import Path
 
     import numpy as np
 

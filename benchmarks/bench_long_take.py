@@ -125,7 +125,8 @@ def main() -> None:
         cmd = [sys.executable, __file__, "--worker", mode, "--frames", str(args.frames), "--part", str(args.part),
                "--missing", str(args.missing), "--seed", str(args.seed), "--window", str(args.window),
                "--overlap", str(args.overlap)]
-        out = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(harness.REPO)})
+        out = subprocess.run(cmd, capture_output=True, text=True,
+                             env={**os.environ, "PYTHONPATH": str(harness.REPO)})
         if out.returncode:
             print(f"{mode}: failed\n{out.stderr[-2000:]}")
             continue
@@ -159,9 +160,9 @@ def main() -> None:
         print(f"# {mode}: time {row['seconds']:.1f} s <= 60 s {ok(row['seconds'] <= 60)}; {ratio_t:.1f}x the part "
               f"<= 16x {ok(ratio_t <= 16)}; peak {peak:.0f} MB (all processes) <= 1536 MB {ok(peak <= 1536)}; "
               f"median error {ratio_e:.2f}x the part's <= 1.5x {ok(ratio_e <= 1.5)}")
-    results.table("modes", f"{CLIP.name} forwards and backwards to {args.frames} frames x 41 markers, {args.missing:.0%} "
-                  f"missing (dense protocol, seed {args.seed}); part = its first {args.part} frames; peak RSS over all "
-                  "processes; errors over the hidden samples",
+    results.table("modes", f"{CLIP.name} forwards and backwards to {args.frames} frames x 41 markers, "
+                  f"{args.missing:.0%} missing (dense protocol, seed {args.seed}); part = its first {args.part} "
+                  "frames; peak RSS over all processes; errors over the hidden samples",
                   ["mode", "frames", "windows", "seconds", "x the part's time", "peak MB", "median mm", "RMSE mm",
                    "median x the part's"], table)
     results.write()

@@ -125,7 +125,8 @@ def main() -> None:
         results.figure(f"{r['name']}/fill_report", table[-1][4], "MB")
         results.figure(f"{r['name']}/info_report", table[-1][8], "MB")
     results.table("reports", "HTML report size and build time (the fill not counted): the fill report "
-                  "(`write_fill_report`: bones, JSON record, plots, player) and the raw capture's page (`info --report`)",
+                  "(`write_fill_report`: bones, JSON record, plots, player) and the raw capture's page "
+                  "(`info --report`)",
                   ["capture", "frames x markers", "missing %", "fill report s", "fill report MB", "of it the player MB",
                    "frames shown", "info report s", "info report MB"], table)
     results.write()

@@ -357,10 +357,11 @@ def main(argv=None) -> int:
     print(f"{'all':<12} {sum(c.values()):>6} {c['ok']:>6} {c['rejected']:>9} {c['crash']:>6} {c['hang']:>5}")
     print(f"crashes: {c['crash']}, hangs: {c['hang']}")
     results = harness.Results(__file__, argv, args.results)
+    OUTCOMES = ("ok", "rejected", "crash", "hang")  # noqa: N806
     results.table("outcomes", f"{sum(c.values())} mutated files (seed {args.seed}), read, filled with `linear` and "
                   f"written in every writable format; {args.timeout:g} s a case at most",
                   ["format", "cases", "ok", "rejected", "crash", "hang"],
-                  [[fmt, sum(by_format[fmt].values()), *(by_format[fmt][k] for k in ("ok", "rejected", "crash", "hang"))]
+                  [[fmt, sum(by_format[fmt].values()), *(by_format[fmt][k] for k in OUTCOMES)]
                    for fmt in sorted(by_format)] + [["all", sum(c.values()), c["ok"], c["rejected"], c["crash"],
                                                      c["hang"]]])
     results.figure("crashes", c["crash"], "cases")
