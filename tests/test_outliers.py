@@ -8,6 +8,7 @@ import pytest
 import mocapfill
 from mocapfill.errors import MocapfillError
 from mocapfill.guards.outliers import reject_outliers, shifted_runs
+from synthetic import moving_body, rot_x, rot_z
 
 
 @pytest.fixture(scope="module")
@@ -175,15 +176,9 @@ def test_units_scale_only_the_margin_floor(cmu):
 
 def _rigid_cloud(seed: int, n_frames: int = 200, n_markers: int = 6) -> np.ndarray:
     """One rigid body tumbling and translating, 0.2 mm noise; (n_frames, n_markers, 3) in mm."""
-    rng = np.random.default_rng(seed)
-    body = rng.normal(0, 80, (n_markers, 3))
-    out = np.empty((n_frames, n_markers, 3))
-    for t in range(n_frames):
-        a, b = 0.05 * t, 0.03 * t
-        rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
-        rx = np.array([[1, 0, 0], [0, np.cos(b), -np.sin(b)], [0, np.sin(b), np.cos(b)]])
-        out[t] = body @ (rz @ rx).T + [2.0 * t, 0, 1000]
-    return out + rng.normal(0, 0.2, out.shape)
+    return moving_body(n_frames, n_markers, seed=seed, spread=80.0, rate=1.0, noise=0.2,
+                       rotation=lambda t: rot_z(0.05 * t) @ rot_x(0.03 * t),
+                       path=lambda t: np.stack([2.0 * t, 0 * t, 1000 + 0 * t], axis=1))
 
 
 def test_the_thrown_marker_goes_not_its_partners():

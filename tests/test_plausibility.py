@@ -19,6 +19,7 @@ from mocapfill.methods.auto import MIN_SPEED_MM, fill_auto, mix_by_uncertainty
 from mocapfill.guards.plausibility import (body_centre, implausible, observed_speed, plausibility,
                                             project_plausible)
 from mocapfill.units import length_factor
+from synthetic import moving_body
 
 GAPPY = [("sample_data", "kinematics_tennis_serve_nan.c3d"), ("sample_data", "markers_analogs.c3d"),
          ("test_data", "ADemo1_rewrite_c3d_pc_float.c3d"), ("test_data", "kinematics_racing_full.c3d")]
@@ -71,9 +72,9 @@ def test_dense_gaps_learn_from_incomplete_frames(sample_data):
 
 def _circling(n_markers: int = 9, n_frames: int = 300) -> np.ndarray:
     """Markers on a line circling a point: (n_frames, n_markers, 3), 5 mm per frame."""
-    t = np.arange(n_frames)[:, None]
-    k = np.arange(n_markers)[None, :] - n_markers // 2
-    return np.stack([np.sin(t / 20) * 100 + k * 20, np.cos(t / 20) * 100 + 0 * k, 0.0 * t + k], axis=2)
+    k = np.arange(n_markers) - n_markers // 2
+    return moving_body(n_frames, body=np.stack([k * 20, 0 * k, k], axis=1), rate=1.0,
+                       path=lambda t: np.stack([np.sin(t / 20) * 100, np.cos(t / 20) * 100, 0 * t], axis=1))
 
 
 def test_projection_keeps_the_bounds_and_moves_little():
