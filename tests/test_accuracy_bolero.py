@@ -29,6 +29,9 @@ from mocapfill.io import read  # noqa: E402
 from mocapfill.methods.bolero import fill_bolero_hc, fill_bolero_sc  # noqa: E402
 from mocapfill.methods.dynammo import fill_dynammo  # noqa: E402
 
+#: Accuracy thresholds on real captures: not in a bare `pytest`; `pytest -m accuracy` (and .ci/run) runs them.
+pytestmark = pytest.mark.accuracy
+
 TRIAL = 1
 HC_MAX_ITER = 40
 CASES = [(name, protocol, TRIAL) for name in ("85_02.c3d", "kinematics_tennis_serve.c3d")

@@ -55,6 +55,7 @@ def test_plausibility_measures_extent_and_speed():
     assert ratios["extent"] > 2.0 and ratios["speed"] > 10.0
 
 
+@pytest.mark.accuracy
 def test_dense_gaps_learn_from_incomplete_frames(sample_data):
     # 20 % of the CMU clip's samples hidden in 0.25-2 s single-marker gaps leaves 2 % of the frames complete; the
     # local models then keep the nearest observed neighbours (measured: median / RMSE 9.6 / 26 mm; 169 / 331 mm
