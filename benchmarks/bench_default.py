@@ -39,7 +39,7 @@ import numpy as np  # noqa: E402
 
 from mocapfill import api  # noqa: E402
 from mocapfill.bones import estimate_bones  # noqa: E402
-from mocapfill.evaluation import evaluate, make_occlusions, score  # noqa: E402
+from mocapfill.evaluation import evaluate, score  # noqa: E402
 from mocapfill.io import read  # noqa: E402
 from mocapfill.engines.local_pca import fill_local_pca  # noqa: E402
 
@@ -134,8 +134,7 @@ def ablation(trials: int, seed: int, results: harness.Results) -> None:
         for protocol in ("marker", "limb"):
             errs = {name: [] for name in steps}
             bone = {name: [] for name in steps}
-            for trial in make_occlusions(data, protocol, trials=trials, seed=seed, **GAPS):
-                y, hidden, _ = trial.apply(data.positions)
+            for _, y, hidden in harness.occluded_trials(data, protocol, trials=trials, seed=seed, **GAPS):
                 bones = estimate_bones(y, units=data.units)
                 for name, fn in steps.items():
                     with warnings.catch_warnings():
@@ -161,8 +160,7 @@ def speed(results: harness.Results, repeats: int = 3) -> None:
                "gaps in most markers": ("random", {"shift_rate": 0.0})}
     rows = []
     for name, (protocol, opts) in layouts.items():
-        trial = make_occlusions(big, protocol, trials=1, seed=3, **opts)[0]
-        y, hidden, _ = trial.apply(pos)
+        _, y, hidden = next(harness.occluded_trials(big, protocol, trials=1, seed=3, **opts))
         gappy = int(np.isnan(y).any(axis=2).any(axis=0).sum())
         line = f"  {name:22s} ({gappy:2d} markers with gaps, {100 * np.isnan(y).any(axis=2).mean():4.1f} % missing):"
         row = [name, gappy, round(100 * float(np.isnan(y).any(axis=2).mean()), 1)]
