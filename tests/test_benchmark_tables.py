@@ -96,3 +96,13 @@ def test_a_partial_run_keeps_the_other_tables(tmp_path):
     assert doc["tables"]["a"]["rows"] == [[3]] and doc["tables"]["a"]["command"].endswith("--skip b")
     assert doc["tables"]["b"]["rows"] == [[2]] and doc["tables"]["b"]["command"].endswith("--all")
     assert doc["figures"]["f"]["value"] == 1.0
+
+
+def test_scripts_share_the_harness_and_import_no_other_script():
+    for path in sorted(BENCHMARKS.glob("*.py")):
+        text = path.read_text()
+        assert "sys.path.insert" not in text or path.name == "harness.py", path.name
+        assert not any(line.lstrip().startswith(("import bench_", "from bench_", "import fuzz_readers"))
+                       for line in text.splitlines()), path.name
+        if path.stem.startswith("bench_") or path.stem == "fuzz_readers":
+            assert "import harness" in text and "harness.Results(" in text, path.name
