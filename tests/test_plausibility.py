@@ -25,6 +25,7 @@ GAPPY = [("sample_data", "kinematics_tennis_serve_nan.c3d"), ("sample_data", "ma
          ("test_data", "ADemo1_rewrite_c3d_pc_float.c3d"), ("test_data", "kinematics_racing_full.c3d")]
 
 
+@pytest.mark.accuracy
 @pytest.mark.parametrize("where,name", GAPPY)
 def test_default_fills_of_real_gaps_are_plausible(where, name, request):
     data = mocapfill.read(request.getfixturevalue(where) / name)
