@@ -16,24 +16,23 @@ import numpy as np
 OfTime = Callable[[np.ndarray], np.ndarray]
 
 
-def rot_z(angle: np.ndarray) -> np.ndarray:
-    """Rotations about the vertical axis z by ``angle`` (n_frames,) radians: (n_frames, 3, 3)."""
+def plane_rotations(angle: np.ndarray, i: int, j: int) -> np.ndarray:
+    """Rotations by ``angle`` (n_frames,) radians from axis ``i`` towards axis ``j``: (n_frames, 3, 3)."""
     c, s = np.cos(angle), np.sin(angle)
-    out = np.zeros((len(angle), 3, 3))
-    out[:, 0, 0] = out[:, 1, 1] = c
-    out[:, 0, 1], out[:, 1, 0] = -s, s
-    out[:, 2, 2] = 1.0
+    out = np.repeat(np.eye(3)[None], len(angle), axis=0)
+    out[:, i, i] = out[:, j, j] = c
+    out[:, i, j], out[:, j, i] = -s, s
     return out
+
+
+def rot_z(angle: np.ndarray) -> np.ndarray:
+    """Rotations about the vertical axis z: (n_frames, 3, 3)."""
+    return plane_rotations(angle, 0, 1)
 
 
 def rot_x(angle: np.ndarray) -> np.ndarray:
-    """Rotations about the x axis by ``angle`` (n_frames,) radians: (n_frames, 3, 3)."""
-    c, s = np.cos(angle), np.sin(angle)
-    out = np.zeros((len(angle), 3, 3))
-    out[:, 1, 1] = out[:, 2, 2] = c
-    out[:, 1, 2], out[:, 2, 1] = -s, s
-    out[:, 0, 0] = 1.0
-    return out
+    """Rotations about the x axis: (n_frames, 3, 3)."""
+    return plane_rotations(angle, 1, 2)
 
 
 def walk(t: np.ndarray) -> np.ndarray:
