@@ -197,10 +197,24 @@ class Results:
                "figures": {**old.get("figures", {}), **self.figures}}
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(doc, indent=1) + "\n")
+        tmp.write_text(dumps(doc))
         tmp.replace(path)
         print(f"# results: {path.relative_to(REPO) if path.is_relative_to(REPO) else path}", file=sys.stderr)
         return path
+
+
+def dumps(doc: dict) -> str:
+    """JSON with one line per table row and per figure (readable diffs of results files)."""
+    def compact(value, depth):
+        if isinstance(value, dict) and (depth < 2 or "rows" in value):
+            inner = ",\n".join(f"{' ' * (depth + 1)}{json.dumps(k)}: {compact(v, depth + 1)}" for k, v in value.items())
+            return "{\n" + inner + "\n" + " " * depth + "}" if value else "{}"
+        if isinstance(value, list) and value and all(isinstance(row, list) for row in value):
+            rows = ",\n".join(" " * (depth + 1) + json.dumps(row) for row in value)
+            return "[\n" + rows + "\n" + " " * depth + "]"
+        return json.dumps(value)
+
+    return compact(doc, 0) + "\n"
 
 
 def add_results_argument(parser) -> None:
