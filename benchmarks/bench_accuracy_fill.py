@@ -133,7 +133,7 @@ def main() -> None:
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
 
     harness.banner(__file__)
-    results = harness.Results(__file__, path=args.results)
+    results = harness.Results(__file__, path=args.results, note=args.note)
     medians = single_gaps(methods, args.trials, args.seed, results)
     nan = tennis_nan(methods, args.seed, results)
     order = sorted(methods, key=lambda m: medians["cmu-85_02"].get(m, float("inf")))

@@ -121,7 +121,7 @@ def main(argv=None) -> int:
           "of the authors' seconds / ours per trial")
     print(f"{'method':10s} {'protocol':8s} {'n':>3s} {'ours':>8s} {'authors':>8s} {'wins':>6s} {'speed':>8s} "
           f"{'min':>6s} {'our s':>7s}")
-    results = harness.Results(__file__, argv, args.results)
+    results = harness.Results(__file__, argv, args.results, note=args.note)
     table = []
     for m in methods:
         for p in sorted(protocols) + ["all"]:

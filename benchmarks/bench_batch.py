@@ -249,7 +249,7 @@ def main() -> int:
         tn = best["LocalCluster, malloc fix off"][0]
         print(f"LocalCluster with the workers' own malloc thresholds: {t2 / tn:.2f}x the throughput of 2 processes")
     print(f"re-run: {100 * tr / t1:.1f} % of the first run's time (target <= 10 %)")
-    results = harness.Results(__file__, path=args.results)
+    results = harness.Results(__file__, path=args.results, note=args.note)
     results.table("runs", f"{len(rows1)} inputs, method {args.method}; best of {max(1, args.repeat)} rounds per run",
                   ["run", "seconds", "files per second"],
                   [[label, round(seconds, 2), round(len(rows) / seconds, 2)] for label, (seconds, rows) in best.items()]

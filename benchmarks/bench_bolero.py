@@ -122,7 +122,8 @@ def main(argv=None) -> int:
                 print(" | ".join(line), flush=True)
 
     print("\n# summary (units of each file; RMSE and bone error are per-trial values)")
-    results = harness.Results(__file__, argv, args.results if not (args.sweep_penalty or args.sweep_start) else "-")
+    sweep = args.sweep_penalty or args.sweep_start
+    results = harness.Results(__file__, argv, "-" if sweep else args.results, note=args.note)
     base = rows.get("dynammo")
     table = []
     for name, r in rows.items():

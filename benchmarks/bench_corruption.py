@@ -105,7 +105,7 @@ def main() -> None:
     args = parser.parse_args()
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     harness.banner(__file__)
-    results = harness.Results(__file__, path=args.results)
+    results = harness.Results(__file__, path=args.results, note=args.note)
     summary_rows, detail_rows = [], []
     print(f"# protocol random (Holden's corruption with stretches), {args.trials} trials, seed {args.seed}; "
           f"reject_outliers self-referenced, then the fill; errors in mm over hidden + displaced samples")

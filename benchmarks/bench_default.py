@@ -194,7 +194,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     skip = set(filter(None, args.skip.split(",")))
     harness.banner(__file__)
-    results = harness.Results(__file__, argv, args.results)
+    results = harness.Results(__file__, argv, args.results, note=args.note)
     if "accuracy" not in skip:
         accuracy(args.trials, args.seed, [m for m in args.methods.split(",") if m], results)
     if "ablation" not in skip:

@@ -73,7 +73,7 @@ def main() -> None:
     harness.banner(__file__)
     import numpy
 
-    results = harness.Results(__file__, path=args.results)
+    results = harness.Results(__file__, path=args.results, note=args.note)
     if args.outliers_only:
         outlier_trials(max(1, args.outliers), results)
         results.write()

@@ -116,7 +116,7 @@ def main() -> None:
         return
 
     harness.banner(__file__)
-    results = harness.Results(__file__, path=args.results)
+    results = harness.Results(__file__, path=args.results, note=args.note)
     print(f"# take: {CLIP.name} forwards and backwards to {args.frames} frames; dense protocol, {args.missing:.0%} "
           f"missing, seed {args.seed}; part = frames 0-{args.part - 1}; windows {args.window} / overlap "
           f"{args.overlap}")

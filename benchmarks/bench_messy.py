@@ -291,7 +291,7 @@ def main(argv: list[str] | None = None) -> None:
     methods = ["auto"] + [m for m in methods if m != "auto"]
     skip = set(filter(None, args.skip.split(",")))
     harness.banner(__file__, file=sys.stderr)
-    results = harness.Results(__file__, argv, args.results if not args.dump else "-")
+    results = harness.Results(__file__, argv, "-" if args.dump else args.results, note=args.note)
     clips = _clips()
     if args.clips:
         clips = {k: v for k, v in clips.items() if k in args.clips.split(",")}

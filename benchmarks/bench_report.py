@@ -115,7 +115,7 @@ def main() -> None:
               f"{r['info_mb']:.2f} |")
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"\nload average {load:.1f} (1 min) at the end")
-    results = harness.Results(__file__, path=args.results)
+    results = harness.Results(__file__, path=args.results, note=args.note)
     table = []
     for r in rows:
         shown = "all" if r["stride"] == "1" else f"every {r['stride']}th"

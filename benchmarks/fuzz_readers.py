@@ -356,7 +356,7 @@ def main(argv=None) -> int:
     c = counts
     print(f"{'all':<12} {sum(c.values()):>6} {c['ok']:>6} {c['rejected']:>9} {c['crash']:>6} {c['hang']:>5}")
     print(f"crashes: {c['crash']}, hangs: {c['hang']}")
-    results = harness.Results(__file__, argv, args.results)
+    results = harness.Results(__file__, argv, args.results, note=args.note)
     OUTCOMES = ("ok", "rejected", "crash", "hang")  # noqa: N806
     results.table("outcomes", f"{sum(c.values())} mutated files (seed {args.seed}), read, filled with `linear` and "
                   f"written in every writable format; {args.timeout:g} s a case at most",

@@ -164,7 +164,8 @@ class Results:
     command and date of the run that produced them.
     """
 
-    def __init__(self, script: str, argv: Sequence[str] | None = None, path: str | Path | None = None):
+    def __init__(self, script: str, argv: Sequence[str] | None = None, path: str | Path | None = None,
+                 note: str | None = None):
         self.path = None if path == "-" else Path(path) if path else RESULTS / f"{Path(script).stem}.json"
         self.script = Path(script).name
         self.stem = Path(script).stem
@@ -174,10 +175,11 @@ class Results:
         self.machine = machine()
         self.tables: dict[str, dict] = {}
         self.figures: dict[str, dict] = {}
+        self.note = note
 
     def table(self, name: str, title: str, columns: Sequence[str], rows: Sequence[Sequence[Any]]) -> None:
         self.tables[name] = {"title": title, "columns": list(columns), "rows": [list(map(plain, r)) for r in rows],
-                             "command": self.command, "date": self.date}
+                             "command": self.command, "date": self.date, **({"note": self.note} if self.note else {})}
 
     def figure(self, name: str, value: float, unit: str, better: str = "lower") -> None:
         """A headline figure; ``better`` is "lower" or "higher" (what ``compare.py`` checks)."""
@@ -221,6 +223,8 @@ def add_results_argument(parser) -> None:
     """``--results PATH`` on a script's parser: where :class:`Results` writes (``-``: nowhere)."""
     parser.add_argument("--results", default=None, metavar="PATH",
                         help="results JSON to write (default: benchmarks/results/<script>.json; '-': none)")
+    parser.add_argument("--note", default=None, help="a note for every table of this run (e.g. how busy the machine "
+                        "was), shown under the table")
 
 
 def plain(value: Any) -> Any:
