@@ -507,6 +507,55 @@ def reconstruct_completed(
     return estimate, std, info["edge_estimate"], info["edge_std"]
 
 
+def rigid_prediction(positions: np.ndarray, todo: np.ndarray, *, nearest: int = 3, align_scale: float,
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """The body's answer where the local PCA has none: each wanted sample rigidly attached to its nearest markers
+    observed at that frame.
+
+    positions (n_frames, n_markers, 3), NaN = missing; todo (n_frames, n_markers) bool: the missing samples wanted.
+    Per marker and per set of its ``nearest`` nearest (mean distance) markers observed at a wanted frame, the
+    marker's mean position in their weighted local frame (:func:`local_frames`, Gaussian weights of width
+    ``align_scale``) over the frames where all are observed is carried to the wanted frames; its standard deviation
+    per coordinate is the RMS scatter of that local position there (how far the marker moves relative to them: a
+    foot relative to its shank is honest about the ankle's angle), times sqrt(1 + 1 / n_train).  Returns estimate
+    (n_frames, n_markers, 3) and std (n_frames, n_markers), NaN where not wanted or fewer than
+    ``MIN_TRAINING_FRAMES`` frames saw the marker with its anchors.
+    """
+    n_frames, n_markers, _ = positions.shape
+    missing = np.isnan(positions).any(axis=2)
+    estimate = np.full((n_frames, n_markers, 3), np.nan)
+    std = np.full((n_frames, n_markers), np.nan)
+    for m in np.flatnonzero(todo.any(axis=0) & ~missing.all(axis=0)):
+        dist = mean_distances(positions, m)
+        dist[m] = np.nan
+        order = np.flatnonzero(np.isfinite(dist))
+        order = order[np.argsort(dist[order], kind="stable")]
+        frames = np.flatnonzero(todo[:, m])
+        seen = ~missing[np.ix_(frames, order)]
+        rank = np.cumsum(seen, axis=1)
+        pattern = seen & (rank <= nearest)
+        uniq, inverse = np.unique(pattern, axis=0, return_inverse=True)
+        inverse = np.asarray(inverse).ravel()
+        for p in range(len(uniq)):
+            anchors = order[uniq[p]]
+            if len(anchors) < 3:
+                continue
+            group = frames[inverse == p]
+            train = _training(missing, m, anchors)
+            if len(train) < MIN_TRAINING_FRAMES:
+                continue
+            weights = gaussian_weights(dist[anchors], align_scale) + 1e-6
+            used = np.concatenate([train, group])
+            centre, rot = local_frames(positions, used, anchors, weights, np.arange(len(train)))
+            local = np.einsum("tc,tcd->td", positions[train, m] - centre[:len(train)], rot[:len(train)])
+            mu = local.mean(axis=0)
+            sigma = np.sqrt(np.mean(np.sum((local - mu) ** 2, axis=1)) / 3.0 * (1.0 + 1.0 / len(train)))
+            n = len(train)
+            estimate[group, m] = centre[n:] + np.einsum("d,tcd->tc", mu, rot[n:])
+            std[group, m] = sigma
+    return estimate, std
+
+
 def fill_local_pca(
     positions: np.ndarray,
     *,

@@ -63,6 +63,10 @@ class ModelConfig:
     #: How much a frame's leverage grows the spatial std the smoother weighs (85_02 one-marker, 10 trials: median
     #: 13.6 mm with 1, 11.4 with 0: a high-leverage pose is not a worse prediction there, the dynamics were).
     leverage_weight: float = 0.0
+    #: Where the local PCA has no prediction (a marker's neighbourhood vanished with it), the marker rides rigidly on
+    #: this many of its nearest markers observed at that frame, with the scatter of its position relative to them
+    #: as the standard deviation (85_02, 30 % dense: a whole foot gone, the motion model alone drifted 1-2 m).
+    rigid_nearest: int = 3
     #: Observed frames on either side of a gap where the spatial model's error is measured for the smoother.
     edge_frames: int = 3
     #: Correlation time of the spatial prediction's error (the old edge bridge's 30 frames at 120 Hz).
@@ -208,7 +212,24 @@ def spatial_stage(positions: np.ndarray, config: ModelConfig, mm: float, *,
     pred, sd = pred[:n], sd[:n]
     sd = np.where(missing, sd, np.nan)
     pred = np.where(np.isfinite(sd)[..., None], pred, np.nan)
+    pred, sd = body_stage(positions, pred, sd, config, mm)
     return pred, sd, info["edge_estimate"][:n], info["edge_std"][:n], info
+
+
+def body_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, config: ModelConfig, mm: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Stage 1b: missing samples without a spatial prediction (NaN sd) get the rigid one of
+    :func:`mocapfill.engines.local_pca.rigid_prediction` (the marker on its nearest markers seen at that frame, its
+    scatter relative to them as the sd).  positions / pred (n_frames, n_markers, 3), sd (n_frames, n_markers);
+    returns pred, sd with those samples filled where the body allows."""
+    from ..engines.local_pca import rigid_prediction
+
+    todo = np.isnan(positions).any(axis=2) & ~np.isfinite(sd)
+    if not config.rigid_nearest or not todo.any():
+        return pred, sd
+    est, est_sd = rigid_prediction(positions, todo, nearest=config.rigid_nearest, align_scale=config.align_mm * mm)
+    use = todo & np.isfinite(est_sd)
+    return np.where(use[..., None], est, pred), np.where(use, est_sd, sd)
 
 
 def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, config: ModelConfig, mm: float, *,
@@ -223,9 +244,12 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
     """
     from ..engines.local_pca import reconstruct_completed
 
-    return reconstruct_completed(positions, completed, sd, scales=tuple(np.asarray(config.scales_mm) * mm),
-                                 align_scale=config.align_mm * mm, knn=config.knn, edge_frames=config.edge_frames,
-                                 reference=reference_frames, leverage_weight=config.leverage_weight)
+    pred, pred_sd, edge, edge_sd = reconstruct_completed(
+        positions, completed, sd, scales=tuple(np.asarray(config.scales_mm) * mm), align_scale=config.align_mm * mm,
+        knn=config.knn, edge_frames=config.edge_frames, reference=reference_frames,
+        leverage_weight=config.leverage_weight)
+    pred, pred_sd = body_stage(positions, pred, pred_sd, config, mm)
+    return pred, pred_sd, edge, edge_sd
 
 
 def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset, config: ModelConfig, mm: float
