@@ -466,9 +466,9 @@ def reconstruct_completed(
     n_markers, 3) and std (n_frames, n_markers) at the missing samples (NaN elsewhere and where no model could be
     fitted), and the reconstruction / std at up to ``edge_frames`` observed frames either side of each gap.
     ``leverage_weight`` scales how much a frame's leverage grows its std (1: as :func:`reconstruct_local`).
-    ``trust`` (data units) or None: when given, each neighbour's weights (PCA and alignment) are multiplied by
-    trust^2 / (trust^2 + its mean completed variance over the marker's gap frames), so a neighbour that vanished
-    with the marker (filled, uncertain) hardly steers its prediction.
+    ``trust`` (data units) or None: when given, only neighbours whose RMS completed std over the marker's gap frames
+    is at most ``trust`` are predictors: a neighbour that vanished with the marker (filled, uncertain) does not steer
+    its prediction, and the cross-validated error is that of the markers still known there.
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
@@ -486,18 +486,15 @@ def reconstruct_completed(
         group = np.flatnonzero(missing[:, m])
         dist = mean_distances(np.where(known[..., None], data, np.nan), m)
         weights, align_weight = marker_weights(dist, m, scales, align_scale, missing_weight)
+        sure = np.ones(n_markers, dtype=bool)
         if trust is not None:
-            # a neighbour filled with little certainty during this marker's gaps (it vanished with it) counts
-            # less: its weight times trust^2 / (trust^2 + its mean filled variance over the gap frames)
+            # a neighbour filled with little certainty during this marker's gaps (it vanished with it) is no
+            # predictor: the model and its cross-validated error are those of the markers still known there
             with np.errstate(invalid="ignore"):
-                mean_var = np.nan_to_num(var[group].mean(axis=0), nan=np.inf, posinf=np.inf)
-            factor = trust ** 2 / (trust ** 2 + mean_var)
-            factor[m] = 1.0
-            weights = [w * factor for w in weights]
-            align_weight = align_weight * factor
+                sure = np.nan_to_num(var[group].mean(axis=0), nan=np.inf) <= trust ** 2
         others = np.flatnonzero(np.arange(n_markers) != m)
         near = others[np.isfinite(dist[others]) & (dist[others] <= reach * max(scales))
-                      & finite[group][:, others].all(axis=0)]
+                      & finite[group][:, others].all(axis=0) & sure[others]]
         near = near[np.argsort(dist[near], kind="stable")]
         train = np.flatnonzero(known[:, m] & finite[:, near].all(axis=1)) if len(near) else np.zeros(0, int)
         if len(near) < 3 or len(train) < MIN_TRAINING_FRAMES:

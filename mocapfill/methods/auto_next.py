@@ -97,9 +97,9 @@ class ModelConfig:
     #: a wrist gap: 124 mm largest error without, 171 with outlier 8, 803 with 3: fast true motion looked like
     #: outlying predictions to the jerk prior).
     reweight_passes: int = 0
-    #: In the refit on the completed take, a neighbour's weights are multiplied by t^2 / (t^2 + its mean filled
-    #: variance during the marker's gaps), t this (mm; 0: off): a neighbour that vanished with the marker hardly
-    #: steers it (segment protocol: the refit on vanished neighbours' fills made tennis 37.9 mm against 18.2 without).
+    #: In the refit on the completed take, a neighbour is a predictor only if its RMS filled std during the marker's
+    #: gaps is at most this (mm; 0: every neighbour): one that vanished with the marker does not steer it (segment
+    #: protocol: the refit on vanished neighbours' fills made tennis 37.9 mm against 18.2 without the refit).
     impute_trust_mm: float = 10.0
     #: Fit the spatial model again on the completed take (EM-style imputation) this many times.
     impute_passes: int = 1
