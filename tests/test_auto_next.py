@@ -106,7 +106,9 @@ def test_rigid_prediction_carries_a_marker_on_its_nearest_seen_markers():
     gapped = pos.copy()
     gapped[100:160, :2] = np.nan  # marker 0 and one neighbour vanish together
     todo = np.isnan(gapped).any(axis=2)
-    est, sd = rigid_prediction(gapped, todo, nearest=3, align_scale=200.0)
+    est, sd, edge, edge_sd = rigid_prediction(gapped, todo, nearest=3, align_scale=200.0, edge_frames=2)
+    assert np.isfinite(edge_sd[[98, 99, 160, 161], 0]).all() and np.isnan(edge_sd[[97, 162], 0]).all()
+    assert np.abs(edge[98, 0] - pos[98, 0]).max() < 1.0
     assert np.abs(est[100:160, 0] - pos[100:160, 0]).max() < 1.0  # a rigid body: exact up to round-off
     assert np.isfinite(sd[100:160, :2]).all() and np.isnan(sd[:100]).all() and sd[120, 0] < 1.0
 
@@ -118,11 +120,13 @@ def test_body_stage_fills_only_samples_without_a_spatial_prediction():
     pred = np.full_like(pos, np.nan)
     sd = np.full(pos.shape[:2], np.nan)
     pred[100:130, 0], sd[100:130, 0] = 7.0, 3.0  # the local PCA's (kept) and none for frames 130-159
-    out, out_sd = body_stage(gapped, pred, sd, DEFAULT_CONFIG, 1.0)
+    none = np.full_like(pos, np.nan)
+    out, out_sd, edge, edge_sd = body_stage(gapped, pred, sd, none, sd * np.nan, DEFAULT_CONFIG, 1.0)
     assert np.all(out[100:130, 0] == 7.0) and np.all(out_sd[100:130, 0] == 3.0)
     assert np.abs(out[130:160, 0] - pos[130:160, 0]).max() < 1.0 and np.isfinite(out_sd[130:160, 0]).all()
     assert np.isnan(out_sd[:100]).all()
-    off, _ = body_stage(gapped, pred, sd, ModelConfig(rigid_nearest=0), 1.0)
+    assert np.isfinite(edge_sd[160, 0]) and np.isnan(edge_sd[:97]).all()
+    off = body_stage(gapped, pred, sd, none, sd * np.nan, ModelConfig(rigid_nearest=0), 1.0)[0]
     assert np.isnan(off[130:160, 0]).all()
 
 

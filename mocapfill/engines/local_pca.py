@@ -518,7 +518,7 @@ def reconstruct_completed(
 
 
 def rigid_prediction(positions: np.ndarray, todo: np.ndarray, *, nearest: int = 3, align_scale: float,
-                     ) -> tuple[np.ndarray, np.ndarray]:
+                     edge_frames: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The body's answer where the local PCA has none: each wanted sample rigidly attached to its nearest markers
     observed at that frame.
 
@@ -527,14 +527,18 @@ def rigid_prediction(positions: np.ndarray, todo: np.ndarray, *, nearest: int = 
     marker's mean position in their weighted local frame (:func:`local_frames`, Gaussian weights of width
     ``align_scale``) over the frames where all are observed is carried to the wanted frames; its standard deviation
     per coordinate is the RMS scatter of that local position there (how far the marker moves relative to them: a
-    foot relative to its shank is honest about the ankle's angle), times sqrt(1 + 1 / n_train).  Returns estimate
-    (n_frames, n_markers, 3) and std (n_frames, n_markers), NaN where not wanted or fewer than
-    ``MIN_TRAINING_FRAMES`` frames saw the marker with its anchors.
+    foot relative to its shank is honest about the ankle's angle), times sqrt(1 + 1 / n_train).  A run of wanted
+    frames keeps one anchor set where markers seen throughout it allow.  Returns estimate (n_frames, n_markers, 3)
+    and std (n_frames, n_markers), NaN where not wanted or fewer than ``MIN_TRAINING_FRAMES`` frames saw the
+    marker with its anchors, and the same prediction (and std) at up to ``edge_frames`` observed frames on either
+    side of each run (NaN elsewhere), where a smoother learns its error.
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
     estimate = np.full((n_frames, n_markers, 3), np.nan)
     std = np.full((n_frames, n_markers), np.nan)
+    edges = {"edge_estimate": np.full((n_frames, n_markers, 3), np.nan),
+             "edge_std": np.full((n_frames, n_markers), np.nan)}
     for m in np.flatnonzero(todo.any(axis=0) & ~missing.all(axis=0)):
         dist = mean_distances(positions, m)
         dist[m] = np.nan
@@ -542,6 +546,14 @@ def rigid_prediction(positions: np.ndarray, todo: np.ndarray, *, nearest: int = 
         order = order[np.argsort(dist[order], kind="stable")]
         frames = np.flatnonzero(todo[:, m])
         seen = ~missing[np.ix_(frames, order)]
+        # one anchor set per run of wanted frames where the run allows it (the markers seen throughout it): a set
+        # that changed from frame to frame would make the prediction jump where it changes
+        run_id = np.cumsum(np.diff(frames, prepend=-2) != 1)
+        for r in np.unique(run_id):
+            rows = run_id == r
+            whole = seen[rows].all(axis=0)
+            if whole.sum() >= 3:
+                seen[rows] = whole
         rank = np.cumsum(seen, axis=1)
         pattern = seen & (rank <= nearest)
         uniq, inverse = np.unique(pattern, axis=0, return_inverse=True)
@@ -563,7 +575,10 @@ def rigid_prediction(positions: np.ndarray, todo: np.ndarray, *, nearest: int = 
             n = len(train)
             estimate[group, m] = centre[n:] + np.einsum("d,tcd->tc", mu, rot[n:])
             std[group, m] = sigma
-    return estimate, std
+            if edge_frames:
+                _edge_samples(edges, m, group, train, centre[:n] + np.einsum("d,tcd->tc", mu, rot[:n]),
+                              np.full(n, sigma), edge_frames)
+    return estimate, std, edges["edge_estimate"], edges["edge_std"]
 
 
 def fill_local_pca(

@@ -216,24 +216,28 @@ def spatial_stage(positions: np.ndarray, config: ModelConfig, mm: float, *,
     pred, sd = pred[:n], sd[:n]
     sd = np.where(missing, sd, np.nan)
     pred = np.where(np.isfinite(sd)[..., None], pred, np.nan)
-    pred, sd = body_stage(positions, pred, sd, config, mm)
-    return pred, sd, info["edge_estimate"][:n], info["edge_std"][:n], info
+    return (*body_stage(positions, pred, sd, info["edge_estimate"][:n], info["edge_std"][:n], config, mm), info)
 
 
-def body_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, config: ModelConfig, mm: float
-               ) -> tuple[np.ndarray, np.ndarray]:
+def body_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, edge: np.ndarray, edge_sd: np.ndarray,
+               config: ModelConfig, mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Stage 1b: missing samples without a spatial prediction (NaN sd) get the rigid one of
     :func:`mocapfill.engines.local_pca.rigid_prediction` (the marker on its nearest markers seen at that frame, its
-    scatter relative to them as the sd).  positions / pred (n_frames, n_markers, 3), sd (n_frames, n_markers);
-    returns pred, sd with those samples filled where the body allows."""
+    scatter relative to them as the sd).  positions / pred / edge (n_frames, n_markers, 3), sd / edge_sd (n_frames,
+    n_markers): as :func:`spatial_stage` returns them; returns the four with those samples filled where the body
+    allows, and the rigid prediction at the observed frames next to them where ``edge`` had none (so the smoother
+    learns its error there too and the fill meets the observations without a kink)."""
     from ..engines.local_pca import rigid_prediction
 
     todo = np.isnan(positions).any(axis=2) & ~np.isfinite(sd)
     if not config.rigid_nearest or not todo.any():
-        return pred, sd
-    est, est_sd = rigid_prediction(positions, todo, nearest=config.rigid_nearest, align_scale=config.align_mm * mm)
+        return pred, sd, edge, edge_sd
+    est, est_sd, r_edge, r_edge_sd = rigid_prediction(positions, todo, nearest=config.rigid_nearest,
+                                                      align_scale=config.align_mm * mm, edge_frames=config.edge_frames)
     use = todo & np.isfinite(est_sd)
-    return np.where(use[..., None], est, pred), np.where(use, est_sd, sd)
+    at_edge = ~np.isfinite(edge_sd) & np.isfinite(r_edge_sd)
+    return (np.where(use[..., None], est, pred), np.where(use, est_sd, sd), np.where(at_edge[..., None], r_edge, edge),
+            np.where(at_edge, r_edge_sd, edge_sd))
 
 
 def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, config: ModelConfig, mm: float, *,
@@ -252,8 +256,7 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
         positions, completed, sd, scales=tuple(np.asarray(config.scales_mm) * mm), align_scale=config.align_mm * mm,
         knn=config.knn, edge_frames=config.edge_frames, reference=reference_frames,
         leverage_weight=config.leverage_weight, trust=None if not config.impute_trust_mm else config.impute_trust_mm * mm)
-    pred, pred_sd = body_stage(positions, pred, pred_sd, config, mm)
-    return pred, pred_sd, edge, edge_sd
+    return body_stage(positions, pred, pred_sd, edge, edge_sd, config, mm)
 
 
 def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset, config: ModelConfig, mm: float
