@@ -7,6 +7,9 @@ The model (equations in ``ARCHITECTURE.md``, "The default's model"), each stage 
    from incomplete frames (each model conditions on the markers observed where it predicts).  The same model's
    reconstruction at the observed frames next to each gap is kept: the smoother learns the prediction's error there.
    Frames of other takes of the same marker set (``reference_frames``) join the training frames.
+   :func:`body_stage`: a missing sample the local PCA could not predict (its neighbourhood vanished with it)
+   rides rigidly on its nearest markers seen at that frame, its scatter relative to them as the standard deviation
+   (:func:`mocapfill.engines.local_pca.rigid_prediction`).
 2. :func:`bone_stage` (optional): each frame's predictions move to the most probable positions given their
    standard deviations and the bone lengths' spread (:func:`mocapfill.bones.refinement.refine_bones`).
 3. :func:`temporal_stage`: per marker, a damped white-jerk state-space model with the spatial prediction's
@@ -19,7 +22,8 @@ The model (equations in ``ARCHITECTURE.md``, "The default's model"), each stage 
    smoothed path are down-weighted and the smoother runs again; off by default, as measured.)
 4. :func:`impute_stage` (EM-style): the spatial model is fitted again on the take completed by step 3 (every frame
    where the marker is observed is a training frame, its neighbours taken from the completed take, their posterior
-   variance propagated into the prediction's), and step 3 runs again on its predictions.  (The first pass then only
+   variance propagated into the prediction's; a neighbour filled with an sd above ``impute_trust_mm`` during the
+   marker's gaps is no predictor), and step 3 runs again on its predictions.  (The first pass then only
    seeds it: one weight width, no nearest-pose correction.)
 
 Status (issue 21): registered as ``auto-next`` beside ``auto``; ``auto`` stays the default until ``auto-next``
@@ -255,7 +259,7 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
     pred, pred_sd, edge, edge_sd = reconstruct_completed(
         positions, completed, sd, scales=tuple(np.asarray(config.scales_mm) * mm), align_scale=config.align_mm * mm,
         knn=config.knn, edge_frames=config.edge_frames, reference=reference_frames,
-        leverage_weight=config.leverage_weight, trust=None if not config.impute_trust_mm else config.impute_trust_mm * mm)
+        leverage_weight=config.leverage_weight, trust=config.impute_trust_mm * mm if config.impute_trust_mm else None)
     return body_stage(positions, pred, pred_sd, edge, edge_sd, config, mm)
 
 
