@@ -111,13 +111,20 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=3)
     parser.add_argument("--seed", type=int, default=24)
     parser.add_argument("--jobs", type=int, default=2)
-    parser.add_argument("--frames", type=int, default=150, help="frames of each capture used (from the first)")
+    parser.add_argument("--frames", default="gait2354=150,hamner=100",
+                        help="frames of each capture used, from the first (NAME=N,...)")
     parser.add_argument("--methods", default="all")
     parser.add_argument("--protocols", default=",".join(PROTOCOLS))
     parser.add_argument("--captures", default=",".join(CAPTURES))
     parser.add_argument("--no-timing", action="store_true", help="skip the 1-vs-2 worker wall-time run")
     parser.add_argument("--out", default=str(REPO / "benchmarks" / "results" / "bench_ik.json"))
+    parser.add_argument("--merge", nargs="+", default=None, metavar="JSON",
+                        help="combine the results files of earlier runs (e.g. one capture each) into --out")
     args = parser.parse_args()
+    if args.merge:
+        merge(args.merge, args.out)
+        return
+    frames = {k: int(v) for k, v in (item.split("=") for item in args.frames.split(","))}
     methods = list(METHODS) if args.methods == "all" else args.methods.split(",")
     root = Path(args.models)
     tables_rows, check_rows, kin_rows, time_rows = [], [], [], []
@@ -127,7 +134,7 @@ def main() -> None:
     for name in args.captures.split(","):
         trc, model, setup = (root / p for p in CAPTURES[name])
         full = read(str(trc))
-        n = min(args.frames, full.n_frames)
+        n = min(frames.get(name, full.n_frames), full.n_frames)
         data = MarkerData(full.positions[:n].copy(), list(full.labels), full.rate, full.units, full.first_frame,
                           path=f"{name}:{trc.name}[:{n}]")
         setup_path = setup_copy(setup, model, n, data.rate, tmp)
@@ -172,11 +179,12 @@ def main() -> None:
             ik_times = [s.ik_seconds for s in result.scores if np.isfinite(s.ik_seconds)]
             time_rows.append([name, proto, n, result.ik["truth_seconds"], float(np.median(ik_times)) if ik_times
                               else None, wall])
+            write(args, tables_rows, check_rows, kin_rows, time_rows, figures, raw)  # after each protocol
     if not args.no_timing:
         name = args.captures.split(",")[0]
         trc, model, setup = (root / p for p in CAPTURES[name])
         full = read(str(trc))
-        n = min(args.frames, full.n_frames)
+        n = min(frames.get(name, full.n_frames), full.n_frames)
         data = MarkerData(full.positions[:n].copy(), list(full.labels), full.rate, full.units, full.first_frame)
         setup_path = setup_copy(setup, model, n, data.rate, tmp)
         walls = {}
@@ -192,6 +200,13 @@ def main() -> None:
         figures["wall_1_job_s"] = {"value": walls[1], "unit": "s", "better": "lower"}
         figures["wall_2_jobs_s"] = {"value": walls[2], "unit": "s", "better": "lower"}
         figures["speedup_2_jobs"] = {"value": walls[1] / walls[2], "unit": "x", "better": "higher"}
+    write(args, tables_rows, check_rows, kin_rows, time_rows, figures, raw)
+    print(f"\nwritten {args.out}")
+
+
+def write(args, tables_rows, check_rows, kin_rows, time_rows, figures, raw) -> None:
+    """The results file (benchmarks/results/bench_ik.json layout)."""
+    figures = dict(figures)
     for row in check_rows:
         figures[f"{row[0]}_{row[1]}_auto_angle_median_deg"] = {"value": row[2], "unit": "deg", "better": "lower"}
         figures[f"{row[0]}_{row[1]}_left_missing_angle_median_deg"] = {"value": row[3], "unit": "deg",
@@ -222,7 +237,20 @@ def main() -> None:
     }
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(out, indent=1, allow_nan=False, default=lambda o: None) + "\n")
-    print(f"\nwritten {args.out}")
+
+
+def merge(files: list[str], out_path: str) -> None:
+    """Concatenate the tables (and union the figures and evaluations) of several results files into ``out_path``."""
+    parts = [json.loads(Path(f).read_text()) for f in files]
+    out = parts[0]
+    for part in parts[1:]:
+        for key, table in part["tables"].items():
+            out["tables"][key]["rows"] += table["rows"]
+        out["figures"].update(part["figures"])
+        out["evaluations"].update(part["evaluations"])
+    out["command"] = "; ".join(p["command"] for p in parts) + f"; python benchmarks/bench_ik.py --merge {' '.join(files)}"
+    Path(out_path).write_text(json.dumps(out, indent=1, allow_nan=False) + "\n")
+    print(f"written {out_path}")
 
 
 if __name__ == "__main__":

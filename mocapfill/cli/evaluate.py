@@ -96,7 +96,7 @@ def _show(result, quiet: bool) -> None:
     for head in ("RMSE mean", "RMSE median", "max error", "MSE", "bone error", "seconds") + ("err/std",) * honesty:
         table.add_column(head, justify="right")
     if ik:  # joint angles beside the millimetres: medians over trials of the median and worst coordinate
-        for head in ("angle median \u00b0", "angle worst \u00b0", f"transl. median {units}", f"transl. worst {units}"):
+        for head in ("angle med \u00b0", "angle worst \u00b0", f"transl. med {units}", f"transl. worst {units}"):
             table.add_column(head, justify="right")
     any_problem = any(summary[m]["failures"] or summary[m]["unfilled"] or summary[m]["not_converged"]
                       for m in result.methods)

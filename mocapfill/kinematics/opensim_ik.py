@@ -50,7 +50,11 @@ def require_opensim():
 
 @contextlib.contextmanager
 def quiet(osim) -> Iterator[None]:
-    """Run OpenSim without a log file and without writing to stdout (its model summaries go to ``std::cout``)."""
+    """Run OpenSim without a log file and without writing to stdout (its model summaries go to ``std::cout``).
+
+    The logger's level is restored afterwards; its file sink (``opensim.log`` in the working directory) stays off.
+    """
+    level = osim.Logger.getLevelString()
     osim.Logger.setLevelString("off")
     osim.Logger.removeFileSink()
     sys.stdout.flush()
@@ -65,6 +69,7 @@ def quiet(osim) -> Iterator[None]:
         os.dup2(saved, 1)
         os.close(saved)
         os.close(null)
+        osim.Logger.setLevelString(level)
 
 
 @dataclass(frozen=True)
