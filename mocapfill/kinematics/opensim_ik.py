@@ -65,11 +65,11 @@ def quiet(osim) -> Iterator[None]:
     try:
         yield
     finally:
+        osim.Logger.setLevelString(level)  # OpenSim says so on stdout: while it is still the null device
         libc.fflush(None)
         os.dup2(saved, 1)
         os.close(saved)
         os.close(null)
-        osim.Logger.setLevelString(level)
 
 
 @dataclass(frozen=True)
