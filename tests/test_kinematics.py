@@ -120,7 +120,8 @@ def test_evaluate_scores_joint_angles(leg, tmp_path):
     assert record["ik"]["left_missing"]["angle_median"]["median"] is not None
     assert "angle_worst" in record["trials"][0]["scores"]["linear"]
     assert "left_missing" in record["trials"][0]
-    assert "angle_median" in result.to_csv().splitlines()[0]
+    lines = result.to_csv().splitlines()
+    assert "angle_median" in lines[0] and sum(",left missing," in line for line in lines) == 2
     from mocapfill.report.evaluation_html import render_evaluation_html
 
     page = render_evaluation_html(result)

@@ -177,7 +177,8 @@ class EvaluationResult:
             record = {"trial": t + 1, **trial_spec, "scores": scores}
             if self.ik is not None and t < len(self.left_missing):
                 base = self.left_missing[t]
-                record["left_missing"] = {k: jsonable(getattr(base, k)) for k in IK_METRICS + ("ik_errors", "warnings")}
+                record["left_missing"] = {k: jsonable(getattr(base, k))
+                                          for k in IK_METRICS + ("ik_errors", "warnings")}
             records.append(record)
         return records
 
@@ -223,7 +224,8 @@ class EvaluationResult:
                 where, length = str(first + occ[0].start), str(occ[0].length)
             else:  # several stretches (random protocol): see n_scored, and the JSON output for the details
                 where, length = "", ""
-            for s in self.scores[t * n:(t + 1) * n]:
+            extra = [self.left_missing[t]] if self.ik is not None and t < len(self.left_missing) else []
+            for s in self.scores[t * n:(t + 1) * n] + extra:  # IK's left-missing baseline: angles only
                 row = [t + 1, s.method, markers, where, length, s.n_scored]
                 row += ["" if not math.isfinite(v) else f"{v:.6g}"
                         for v in (s.rmse, s.max_error, s.mse, s.bone_error, s.seconds)]
