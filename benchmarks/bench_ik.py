@@ -9,8 +9,8 @@ Get them with ``git clone --depth 1 https://github.com/opensim-org/opensim-model
   ``Pipelines/Gait10dof18musc/ExperimentalData/subject01_walk.trc`` (and Gait2392's) is byte-identical to it: the
   same capture, so it is not a second trial.
 - ``hamner``: ``Pipelines/Hamner/subject02_running.trc`` (running, another subject and lab, 41 markers, 600
-  frames at 60 Hz), its first ``--frames`` frames (IK of the full-body model costs ~60 ms a frame on the shared
-  machine) with ``outputReference/subject02_registered.osim`` (37 coordinates, 26 rotational unlocked) and
+  frames at 60 Hz), its first 100 frames (``--frames``; IK of the full-body model costs ~60 ms a frame on the
+  shared machine) with ``outputReference/subject02_registered.osim`` (37 coordinates, 26 rotational unlocked) and
   ``Setup_IK.xml``.
 
 Each setup is used with its tasks, weights, constraint weight and accuracy, its model given absolutely, and its time
@@ -23,7 +23,9 @@ processes against 1, and TRC fidelity (IK on the original TRC against IK on moca
 
 Run from the repository root (CPU-heavy; debug with ``--trials 1 --methods linear,opensim-ik --protocols dense10``)::
 
-    python benchmarks/bench_ik.py --models /path/to/opensim-models [--trials 3] [--jobs 2] [--frames 150]
+    python benchmarks/bench_ik.py --models /path/to/opensim-models [--trials 3] [--jobs 2] \
+        [--frames gait2354=150,hamner=100] [--captures gait2354] [--out part.json]
+    python benchmarks/bench_ik.py --merge part1.json part2.json     (one capture per process, then one file)
 
 Writes ``benchmarks/results/bench_ik.json``.
 """
