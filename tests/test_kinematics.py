@@ -151,3 +151,17 @@ def test_evaluate_cli_ik(leg, tmp_path):
     # the kinematic fill without a model: one line naming the option
     res = runner.invoke(cli, ["evaluate", str(trc), "-m", "linear,opensim-ik", "-n", "1"])
     assert res.exit_code == 1 and "--ik-model" in res.stderr and len(res.stderr.strip().splitlines()) == 1
+
+
+def test_ik_runs_when_the_last_marker_is_missing(leg):
+    """OpenSim's TRC reader drops a row's final empty field: the writer must still give it every column."""
+    from mocapfill.kinematics.angles import coordinate_errors
+    from mocapfill.kinematics.opensim_ik import load_setup, run_ik
+
+    data, degrees, model, setup = leg
+    pos = data.positions.copy()
+    pos[5:20, -1] = np.nan  # the last marker of the file, missing: rows end in empty fields
+    ik = load_setup(setup)
+    gappy = run_ik(ik, data.with_positions(pos))
+    errors = coordinate_errors(run_ik(ik, data), gappy)
+    assert max(errors.values()) < 0.01  # the foot's other two markers still hold the ankle angle
