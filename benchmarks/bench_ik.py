@@ -309,7 +309,9 @@ def merge(files: list[str], out_path: str) -> None:
             out["tables"][key]["rows"] += table["rows"]
         out["figures"].update(part["figures"])
         out["evaluations"].update(part["evaluations"])
+        out["rescored_left_missing"] = out.get("rescored_left_missing", []) + part.get("rescored_left_missing", [])
     out["command"] = "; ".join(p["command"] for p in parts) + f"; python benchmarks/bench_ik.py --merge {' '.join(files)}"
+    Path(out_path).parent.mkdir(parents=True, exist_ok=True)
     Path(out_path).write_text(json.dumps(out, indent=1, allow_nan=False) + "\n")
     print(f"written {out_path}")
 
