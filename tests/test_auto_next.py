@@ -121,7 +121,7 @@ def test_body_stage_fills_only_samples_without_a_spatial_prediction():
     sd = np.full(pos.shape[:2], np.nan)
     pred[100:130, 0], sd[100:130, 0] = 7.0, 3.0  # the local PCA's (kept) and none for frames 130-159
     none = np.full_like(pos, np.nan)
-    out, out_sd, edge, edge_sd = body_stage(gapped, pred, sd, none, sd * np.nan, DEFAULT_CONFIG, 1.0)
+    out, out_sd, edge, edge_sd = body_stage(gapped, pred, sd, none, sd * np.nan, ModelConfig(rigid_nearest=3), 1.0)
     assert np.all(out[100:130, 0] == 7.0) and np.all(out_sd[100:130, 0] == 3.0)
     assert np.abs(out[130:160, 0] - pos[130:160, 0]).max() < 1.0 and np.isfinite(out_sd[130:160, 0]).all()
     assert np.isnan(out_sd[:100]).all()
