@@ -437,6 +437,14 @@ def reconstruct_local(
     return estimate, std, info
 
 
+def empty_estimates(n_frames: int, n_markers: int) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """NaN estimate (n_frames, n_markers, 3), std (n_frames, n_markers) and ``{"edge_estimate", "edge_std"}`` of
+    the same shapes, for the reconstructions that fill them marker by marker."""
+    return (np.full((n_frames, n_markers, 3), np.nan), np.full((n_frames, n_markers), np.nan),
+            {"edge_estimate": np.full((n_frames, n_markers, 3), np.nan),
+             "edge_std": np.full((n_frames, n_markers), np.nan)})
+
+
 def reconstruct_completed(
     positions: np.ndarray,
     completed: np.ndarray,
@@ -478,10 +486,7 @@ def reconstruct_completed(
         var = np.concatenate([var, np.zeros(reference.shape[:2])])
     known = np.concatenate([~missing, np.isfinite(reference).all(axis=2)]) if reference is not None else ~missing
     finite = np.isfinite(data).all(axis=2)
-    estimate = np.full((n_frames, n_markers, 3), np.nan)
-    std = np.full((n_frames, n_markers), np.nan)
-    info = {"edge_estimate": np.full((n_frames, n_markers, 3), np.nan),
-            "edge_std": np.full((n_frames, n_markers), np.nan)}
+    estimate, std, info = empty_estimates(n_frames, n_markers)
     for m in np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0)):
         group = np.flatnonzero(missing[:, m])
         dist = mean_distances(np.where(known[..., None], data, np.nan), m)
@@ -535,10 +540,7 @@ def rigid_prediction(positions: np.ndarray, todo: np.ndarray, *, nearest: int = 
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
-    estimate = np.full((n_frames, n_markers, 3), np.nan)
-    std = np.full((n_frames, n_markers), np.nan)
-    edges = {"edge_estimate": np.full((n_frames, n_markers, 3), np.nan),
-             "edge_std": np.full((n_frames, n_markers), np.nan)}
+    estimate, std, edges = empty_estimates(n_frames, n_markers)
     for m in np.flatnonzero(todo.any(axis=0) & ~missing.all(axis=0)):
         dist = mean_distances(positions, m)
         dist[m] = np.nan
