@@ -1,0 +1,188 @@
+"""The suites' fills (``woltring``, ``pattern``, ``rigid``): each reproduces its textbook rule on a hand-made case,
+and declines (leaves missing, reports) the gaps its rule cannot fill."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import mocapfill
+from mocapfill.errors import MethodError
+from mocapfill.methods import METHODS
+from mocapfill.methods.suite import declined_gaps, parse_donors
+
+
+def _rotation(angle: float, axis: np.ndarray) -> np.ndarray:
+    axis = axis / np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+def rigid_body(n_frames: int = 120, seed: int = 0) -> np.ndarray:
+    """Six markers of one rigid body moved by a known rotation and translation per frame, mm: (n_frames, 6, 3)."""
+    rng = np.random.default_rng(seed)
+    body = rng.normal(scale=80.0, size=(6, 3))
+    t = np.arange(n_frames) / 100.0
+    out = np.empty((n_frames, 6, 3))
+    for f, s in enumerate(t):
+        rot = _rotation(2.5 * np.sin(1.3 * s) + s, np.array([np.sin(s), 1.0, 0.3 + np.cos(2 * s)]))
+        shift = np.array([900 * s, 200 * np.sin(3 * s), 1000 + 50 * np.cos(5 * s)])
+        out[f] = body @ rot.T + shift
+    return out
+
+
+def test_the_suite_methods_are_registered_and_may_decline():
+    for name in ("woltring", "pattern", "rigid"):
+        assert METHODS[name].may_decline
+    assert not METHODS["auto"].may_decline and not METHODS["linear"].may_decline
+
+
+@pytest.mark.parametrize("donors", [None, ["M1", "M2", "M3"], "M0=M5,M4,M3,M2"])
+def test_rigid_recovers_a_rigid_body_exactly(donors):
+    truth = rigid_body()
+    labels = [f"M{i}" for i in range(6)]
+    positions = truth.copy()
+    positions[30:75, 0] = np.nan  # interior
+    positions[:12, 4] = np.nan  # at the start: one end only
+    result = mocapfill.fill(positions, "rigid", donors=donors, labels=labels)
+    assert result.info["declined"] == []
+    span = np.ptp(truth, axis=0).max()
+    assert np.abs(result.positions - truth).max() < 1e-9 * span
+    used = {rec["marker"]: rec["donors"] for rec in result.info["gap_methods"]}
+    if isinstance(donors, list):
+        assert used["M0"] == donors
+    elif isinstance(donors, str):
+        assert used["M0"] == ["M5", "M4", "M3", "M2"]
+    else:
+        assert len(used["M0"]) == 3
+
+
+def test_pattern_fill_of_a_translated_donor_is_exact():
+    rng = np.random.default_rng(1)
+    n = 200
+    donor = np.cumsum(rng.normal(scale=5.0, size=(n, 3)), axis=0) + 500.0  # any trajectory
+    other = donor + rng.normal(scale=30.0, size=(n, 3))  # a poor donor: its offset jitters
+    marker = donor + np.array([40.0, -25.0, 110.0])
+    truth = np.stack([marker, other, donor], axis=1)
+    positions = truth.copy()
+    positions[50:120, 0] = np.nan
+    positions[185:, 0] = np.nan  # at the end: the offset of the one end is carried
+    result = mocapfill.fill(positions, "pattern", labels=["RKNE", "X", "RTHI"])
+    assert np.abs(result.positions - truth).max() < 1e-9
+    assert [rec["donors"] for rec in result.info["gap_methods"]] == [["RTHI"], ["RTHI"]]  # chosen: steadiest distance
+
+
+def test_pattern_bridges_a_changing_offset_linearly():
+    n = 100
+    t = np.arange(n, dtype=float)
+    donor = np.stack([100 * np.sin(t / 9), 3 * t, 50 + 0 * t], axis=1)
+    offset = np.stack([10 + 0.5 * t, -2 + 0 * t, 0.25 * t], axis=1)  # linear in time: the bridge is exact
+    truth = np.stack([donor + offset, donor], axis=1)
+    positions = truth.copy()
+    positions[20:70, 0] = np.nan
+    result = mocapfill.fill(positions, "pattern", donors=["D"], labels=["M", "D"])
+    np.testing.assert_allclose(result.positions, truth, rtol=0, atol=1e-9)
+
+
+def test_woltring_reproduces_a_quintic_to_1e6_of_its_range():
+    n = 160
+    u = np.linspace(-1.0, 1.0, n)
+    coeffs = np.random.default_rng(2).normal(size=(6, 3))
+    quintic = np.stack([np.polyval(coeffs[:, k], u) for k in range(3)], axis=1) * 400.0 + 1000.0
+    truth = np.stack([quintic, quintic[::-1]], axis=1)
+    positions = truth.copy()
+    positions[50:110, 0] = np.nan  # 60 frames: 35 on each side
+    positions[20:24, 1] = np.nan
+    positions[30:31, 1] = np.nan  # frames on a side need not be consecutive
+    result = mocapfill.fill(positions, "woltring")
+    assert result.info["declined"] == []
+    span = np.ptp(truth, axis=0)
+    err = np.abs(result.positions - truth) / span
+    assert err.max() < 1e-6
+
+
+def test_woltring_declines_gaps_with_fewer_than_five_frames_on_a_side():
+    n = 60
+    t = np.arange(n, dtype=float)
+    truth = np.stack([np.stack([t, t ** 2 / 50, np.sin(t / 7)], axis=1)] * 2, axis=1)
+    positions = truth.copy()
+    positions[4:20, 0] = np.nan  # 4 valid frames before
+    positions[30:40, 0] = np.nan  # interior, fine
+    positions[:3, 1] = np.nan  # at the start: none before
+    positions[56:, 1] = np.nan  # at the end
+    result = mocapfill.fill(positions, "woltring", labels=["A", "B"])
+    assert sorted(declined_gaps(result.info)) == [(0, 4, 16), (1, 0, 3), (1, 56, 4)]
+    reasons = {(r["marker"], r["start"]): r["reason"] for r in result.info["declined"]}
+    assert reasons[("A", 4)] == "4 valid frames before the gap, fewer than 5"
+    assert reasons[("B", 56)] == "0 valid frames after the gap, fewer than 5"
+    assert np.isnan(result.positions[4:20, 0]).all() and np.isnan(result.positions[:3, 1]).all()
+    assert np.isfinite(result.positions[30:40, 0]).all()
+    declined = [g for g in result.info["gap_methods"] if g["method"] == "declined"]
+    assert len(declined) == 3
+
+
+def test_pattern_declines_when_its_donor_is_missing_in_the_gap_or_at_its_ends():
+    truth = rigid_body(n_frames=80)
+    labels = [f"M{i}" for i in range(6)]
+    positions = truth.copy()
+    positions[20:40, 0] = np.nan
+    positions[40, 1] = np.nan  # the donor is missing at the gap's end frame
+    positions[50:60, 2] = np.nan
+    positions[55, 3] = np.nan  # ... and here inside the gap
+    result = mocapfill.fill(positions, "pattern", donors="M0=M1;M2=M3", labels=labels)
+    assert sorted(declined_gaps(result.info))[:2] == [(0, 20, 20), (2, 50, 10)]
+    assert "missing in the gap or at its ends" in result.info["declined"][0]["reason"]
+    assert np.isnan(result.positions[20:40, 0]).all() and np.isnan(result.positions[50:60, 2]).all()
+    # automatic donors find another one for the same gaps
+    auto = mocapfill.fill(positions, "pattern", labels=labels)
+    assert not any(rec["marker"] in ("M0", "M2") for rec in auto.info["declined"])
+
+
+def test_rigid_declines_without_three_donors_seen_throughout():
+    truth = rigid_body(n_frames=80)[:, :4]
+    positions = truth.copy()
+    positions[20:40, 0] = np.nan
+    positions[30, 1] = np.nan  # only two donors seen throughout
+    result = mocapfill.fill(positions, "rigid")
+    assert declined_gaps(result.info) == [(0, 20, 20), (1, 30, 1)]  # marker 1's donors: 2 and 3 only
+    assert "fewer than 3" in result.info["declined"][0]["reason"]
+    assert np.isnan(result.positions[20:40, 0]).all()
+    assert np.isnan(result.positions[30, 1]).all()
+
+
+def test_rigid_declines_donors_in_a_line():
+    n = 50
+    t = np.arange(n, dtype=float)[:, None]
+    line = np.stack([np.array([0.0, 0, 0]), np.array([100.0, 0, 0]), np.array([200.0, 0, 0])])
+    truth = np.concatenate([line[None] + t[:, :, None] * np.array([1.0, 2, 3]),
+                            (np.array([50.0, 80, 0]) + t * np.array([1.0, 2, 3]))[:, None]], axis=1)
+    positions = truth.copy()
+    positions[10:20, 3] = np.nan
+    result = mocapfill.fill(positions, "rigid", donors=[0, 1, 2])
+    assert result.info["declined"][0]["reason"] == "the donors lie nearly in a line"
+
+
+def test_donor_names_match_after_a_subject_prefix_and_unknown_ones_fail_in_one_line():
+    labels = ["Bob:LKNE", "Bob:LTHI", "Bob:LSHN", "Bob:LANK"]
+    table = parse_donors("LKNE=LTHI, LSHN ; LANK", labels, 4)
+    assert table[0] == [1, 2] and table[1] == [3] and table[3] == []
+    assert parse_donors({"Bob:LKNE": "LTHI"}, labels, 4) == {0: [1]}
+    with pytest.raises(MethodError, match=r"unknown donor label 'LTHY'; near: Bob:LTHI"):
+        parse_donors(["LTHY"], labels, 4)
+    with pytest.raises(MethodError, match="unknown marker label"):
+        parse_donors("RKNE=LTHI", labels, 4)
+
+
+def test_rigid_and_pattern_on_a_real_capture(sample_data):
+    data = mocapfill.read(sample_data / "85_02.c3d")
+    truth = data.positions
+    positions = truth.copy()
+    knee = data.labels.index("LKNE") if "LKNE" in data.labels else 10
+    positions[300:360, knee] = np.nan
+    for name in ("rigid", "pattern", "woltring"):
+        result = mocapfill.fill(data.with_positions(positions), name)
+        assert result.info["declined"] == []
+        err = np.linalg.norm(result.positions[300:360, knee] - truth[300:360, knee], axis=1)
+        assert np.isfinite(err).all()
+        observed = ~np.isnan(positions).any(axis=2)
+        assert np.array_equal(result.positions[observed], positions[observed])
