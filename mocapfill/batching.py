@@ -305,7 +305,8 @@ def _fill_file(task: FileTask, row: BatchRow) -> None:
                 write(outcome.output, task.output, format=task.output_format)
                 if task.report is not None:
                     write_fill_report(outcome, task.report, method=task.settings.method, input_path=task.input,
-                                      output_path=task.output, smoothed=task.settings.smooth)
+                                      output_path=task.output,
+                                      smoothed=task.settings.smooth or task.settings.lowpass is not None)
                     row.report = task.report
                 row.status = "filled"
             finally:
@@ -470,7 +471,8 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
         ``progress(done, total, row)``, called once with ``(0, total, None)`` and after every file.
     **options
         The fill options of :class:`mocapfill.pipeline.FillSettings` (``hidden``, ``max_iter``, ``tol``, ``seed``,
-        ``bones``, ``reject_outliers``, ``delta``, ``reference``, ``smooth``, ``smooth_window``, ``smooth_order``).
+        ``bones``, ``reject_outliers``, ``delta``, ``reference``, ``smooth``, ``smooth_window``, ``smooth_order``,
+        ``donors``, ``lowpass``).
 
     Returns
     -------

@@ -26,7 +26,10 @@ class FillSettings:
     """What to do to a capture; ``None`` = the method's or step's own default.
 
     ``bones`` and ``reference`` are paths: a bones file (from ``estimate-bones``) and a clean capture giving the
-    distance ranges for outlier rejection.
+    distance ranges for outlier rejection.  ``donors``: the donors of ``pattern`` / ``rigid`` as ``--donors`` writes
+    them (``"MARKER=D1,D2;D3,D4"``, see :mod:`mocapfill.methods.suite`; a list of labels is joined).  ``lowpass``:
+    a Butterworth low-pass after the fill, a cutoff in Hz, ``"auto"`` or ``"auto-marker"``
+    (:mod:`mocapfill.guards.lowpass`).
     """
 
     method: str = DEFAULT_METHOD
@@ -41,6 +44,12 @@ class FillSettings:
     smooth: bool = False
     smooth_window: int | None = None
     smooth_order: int | None = None
+    donors: str | None = None
+    lowpass: str | float | None = None
+
+    def __post_init__(self) -> None:
+        if self.donors is not None and not isinstance(self.donors, str):
+            object.__setattr__(self, "donors", ",".join(str(d) for d in self.donors))
 
     def check(self, *, name: Callable[[str], str] = str) -> "FillSettings":
         """Raise MethodError for an unknown method or an option whose step is off; return self.
@@ -52,6 +61,12 @@ class FillSettings:
                               (("smooth_window", "smooth_order"), "smooth")):
             if any(getattr(self, option) is not None for option in options) and not getattr(self, step):
                 raise MethodError(f"{name(options[0])} and {name(options[1])} only apply with {name(step)}")
+        if self.donors is not None and "donors" not in get_method(self.method).parameters():
+            raise MethodError(f"{name('donors')} applies to the methods pattern and rigid, not {self.method}")
+        if self.lowpass is not None:
+            from .guards.lowpass import parse_cutoff
+
+            parse_cutoff(self.lowpass)
         return self
 
     def as_dict(self) -> dict[str, Any]:
@@ -80,6 +95,8 @@ class FillOutcome:
         The options used, as the report records them.
     seconds : float
         Wall-clock time of the fill step alone.
+    smoothed : ndarray of bool (n_frames, n_markers) or None
+        Observed samples changed by ``--smooth`` or ``--lowpass`` (status ``SMOOTHED``); None when neither ran.
     """
 
     data: MarkerData
@@ -90,6 +107,7 @@ class FillOutcome:
     bones: Any
     settings: dict[str, Any]
     seconds: float
+    smoothed: np.ndarray | None = None
 
 
 def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerData | None = None,
@@ -137,6 +155,9 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
     record.update({k: v for k, v in options.items() if k != "bones"})
     if settings.bones is not None:
         record["bones"] = settings.bones
+    if settings.donors is not None:
+        options["donors"] = settings.donors
+        record["donors"] = settings.donors
     if progress is not None and "progress" in accepted:
         options["progress"] = progress
 
@@ -157,13 +178,27 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
             smooth_options["order"] = settings.smooth_order
         positions = savgol_smooth(positions, **smooth_options)
         record["smooth"] = {"window": settings.smooth_window, "order": settings.smooth_order}
+    if settings.lowpass is not None:
+        from .guards.lowpass import describe, lowpass, parse_cutoff
+
+        cutoff, per = parse_cutoff(settings.lowpass)
+        filtered = lowpass(positions, data.rate, cutoff, per=per, observed=~work.missing)
+        positions = filtered.positions
+        record["lowpass"] = {"asked": str(settings.lowpass), "cutoff_hz": filtered.cutoff, "per": per,
+                             "used": describe(filtered.cutoff),
+                             "filter": "Butterworth, 2nd order run forward and backward (zero lag, 4th-order "
+                                       "response, gain 0.5 at the cutoff)"}
+    smoothed = None
+    if settings.smooth or settings.lowpass is not None:
+        observed = ~work.missing
+        smoothed = observed & (positions != result.positions).any(axis=2)
 
     output = data.with_positions(positions)
     if rejected is not None:  # a rejected sample filled again is written as filled, not with its old residual
         from .io.c3d import mark_refilled
 
         output = mark_refilled(output, rejected)
-    return FillOutcome(data, work, result, output, rejected, bones, record, seconds)
+    return FillOutcome(data, work, result, output, rejected, bones, record, seconds, smoothed)
 
 
 def write_fill_report(outcome: FillOutcome, path: str, *, method: str, input_path: str | None,

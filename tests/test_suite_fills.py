@@ -3,6 +3,8 @@ and declines (leaves missing, reports) the gaps its rule cannot fill."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -186,3 +188,75 @@ def test_rigid_and_pattern_on_a_real_capture(sample_data):
         assert np.isfinite(err).all()
         observed = ~np.isnan(positions).any(axis=2)
         assert np.array_equal(result.positions[observed], positions[observed])
+
+
+# --- through the CLI and the pipeline --------------------------------------------------------------------------
+
+def _cli(args):
+    from click.testing import CliRunner
+
+    from mocapfill.cli import cli
+
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+def test_fill_command_with_named_donors_and_a_declined_gap(sample_data, tmp_path):
+    data = mocapfill.read(sample_data / "kinematics_tennis_serve.c3d")
+    positions = data.positions.copy()
+    positions[200:260, 5] = np.nan
+    positions[400:420, 7] = np.nan
+    positions[410, 8] = np.nan  # the named donor of marker 7 is missing inside its gap: declined
+    gappy = tmp_path / "gappy.c3d"
+    mocapfill.write(data.with_positions(positions), gappy)
+    labels = data.labels
+    donors = [f"{labels[5]}={labels[4]},{labels[6]},{labels[3]}", f"{labels[7]}={labels[8]}"]
+    out, report = tmp_path / "out.c3d", tmp_path / "out.json"
+    result = _cli(["fill", gappy, out, "-m", "pattern", "--donors", donors[0], "--donors", donors[1],
+                   "--report", report])
+    assert result.exit_code == 0, result.output
+    assert "pattern declined 1 gaps" in result.stderr and "missing in the gap or at its ends" in result.stderr
+    written = mocapfill.read(out)
+    assert np.isnan(written.positions[400:420, 7]).all() and np.isfinite(written.positions[200:260, 5]).all()
+    doc = json.loads(report.read_text())
+    assert doc["summary"]["settings"]["donors"] == ";".join(donors)
+    gaps = {(g["marker"], g["first_frame"] - data.first_frame): g for g in doc["gaps"]}
+    assert gaps[(labels[5], 200)]["reason"] == f"donors {labels[4]}"
+    assert gaps[(labels[7], 400)]["status"] == "unfilled" and gaps[(labels[7], 400)]["method"] == "declined"
+
+
+def test_donors_need_a_donor_method_and_known_labels(sample_data, tmp_path):
+    gappy = sample_data / "kinematics_tennis_serve_nan.c3d"
+    result = _cli(["fill", gappy, tmp_path / "o.c3d", "--donors", "A,B"])
+    assert result.exit_code == 2 and "--donors applies to the methods pattern and rigid" in result.stderr
+    result = _cli(["fill", gappy, tmp_path / "o.c3d", "-m", "rigid", "--donors", "NOPE"])
+    assert result.exit_code == 1 and result.stderr.startswith("Error: unknown donor label 'NOPE'")
+
+
+@pytest.mark.parametrize("lowpass", ["6", "auto", "auto-marker"])
+def test_fill_command_lowpass_reports_its_cutoff(sample_data, tmp_path, lowpass):
+    gappy = sample_data / "kinematics_tennis_serve_nan.c3d"
+    out, report = tmp_path / "out.c3d", tmp_path / "out.json"
+    result = _cli(["fill", gappy, out, "-m", "linear", "--lowpass", lowpass, "--report", report])
+    assert result.exit_code == 0, result.output
+    doc = json.loads(report.read_text())
+    used = doc["summary"]["settings"]["lowpass"]
+    assert f"low-passed at {used['used']}" in result.stderr and doc["summary"]["smoothed"]
+    if lowpass == "6":
+        assert used["cutoff_hz"] == 6.0
+    elif lowpass == "auto":
+        assert 2.0 < used["cutoff_hz"] < 25.0
+    else:
+        assert len(used["cutoff_hz"]) == 39
+
+
+def test_pipeline_marks_the_observed_samples_the_lowpass_changed(sample_data):
+    from mocapfill.pipeline import FillSettings, fill_capture
+
+    data = mocapfill.read(sample_data / "kinematics_tennis_serve_nan.c3d")
+    outcome = fill_capture(data, FillSettings(method="linear", lowpass=6.0).check())
+    assert outcome.smoothed.shape == data.missing.shape
+    assert outcome.smoothed[~data.missing].mean() > 0.99 and not outcome.smoothed[data.missing].any()
+    plain = fill_capture(data, FillSettings(method="linear"))
+    assert plain.smoothed is None
+    with pytest.raises(MethodError, match="'auto' or 'auto-marker'"):
+        FillSettings(lowpass="fast").check()

@@ -102,6 +102,15 @@ def fill_options(func: Callable) -> Callable:
                      help="Smoothing window in frames, odd (default about 1/15 s)."),
         click.option("--smooth-order", type=click.IntRange(min=0), default=None,
                      help="Smoothing polynomial order (3)."),
+        click.option("--donors", multiple=True, metavar="[MARKER=]D1,D2,...",
+                     callback=lambda ctx, param, value: ";".join(value) if value else None,
+                     help="Donor markers of --method pattern / rigid, by label: MARKER=D1,D2 for one marker "
+                          "(repeatable), D1,D2 for every marker (default: per gap, the markers whose distance to "
+                          "the gapped one varies least)."),
+        click.option("--lowpass", type=str, default=None, metavar="HZ|auto|auto-marker",
+                     help="Zero-lag 4th-order Butterworth low-pass after the fill (gain 0.5 at HZ), each continuous "
+                          "stretch alone; 'auto' picks the cutoff by Winter's residual analysis for the take, "
+                          "'auto-marker' per marker.  Changes observed samples; the report gives the cutoff."),
     ]
     for option in reversed(options):
         wrapper = option(wrapper)

@@ -88,15 +88,15 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
 
         if report_path is not None:
             write_fill_report(outcome, report_path, method=method, input_path=input_path, output_path=output_path,
-                              smoothed=settings.smooth)
+                              smoothed=settings.smooth or settings.lowpass is not None)
 
     show_warnings(caught, quiet)
     _summary(data, outcome.work, outcome.result, method, outcome.seconds, outcome.rejected, settings.smooth,
-             report_path, quiet)
+             report_path, quiet, lowpass=outcome.settings.get("lowpass"))
 
 
-def _summary(data, work, result, method: str, seconds: float, rejected, smoothed: bool, report_path, quiet: bool
-             ) -> None:
+def _summary(data, work, result, method: str, seconds: float, rejected, smoothed: bool, report_path, quiet: bool,
+             lowpass: dict | None = None) -> None:
     """A few lines on stderr: method, filled samples, gaps left, time, convergence."""
     from ..gaps import all_missing_markers, find_gaps
 
@@ -115,9 +115,18 @@ def _summary(data, work, result, method: str, seconds: float, rejected, smoothed
         parts.append(f"{int(rejected.sum())} outlier samples rejected")
     if smoothed:
         parts.append("output smoothed")
+    if lowpass:
+        parts.append(f"low-passed at {lowpass['used']}")
     if report_path:
         parts.append(f"report {report_path}")
     out.print(", ".join(parts), highlight=False, soft_wrap=True)
+    declined = result.info.get("declined") or []
+    if declined:
+        shown_gaps = ", ".join(f"{rec['marker']} at frame {data.first_frame + rec['start']} ({rec['length']} frames: "
+                               f"{rec['reason']})" for rec in declined[:5])
+        more = f" and {len(declined) - 5} more (see --report)" if len(declined) > 5 else ""
+        out.print(f"{method} declined {len(declined)} gaps, left missing: {shown_gaps}{more}", markup=False,
+                  highlight=False, soft_wrap=True)
     dead = [data.labels[m] for m in all_missing_markers(missing)]
     if dead:
         out.print(f"never observed, left empty: {', '.join(dead)}", markup=False, highlight=False)

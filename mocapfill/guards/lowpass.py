@@ -198,6 +198,35 @@ def residual_cutoff(positions: np.ndarray, rate: float, *, observed: np.ndarray 
     return out
 
 
+def parse_cutoff(value: float | str) -> tuple[float | str, str]:
+    """``--lowpass``'s value as ``(cutoff, per)``: a number of Hz, ``"auto"`` (one cutoff for the take) or
+    ``"auto-marker"`` (one per marker).  Raises MethodError otherwise."""
+    text = str(value).strip().lower()
+    if text in ("auto", "auto-take"):
+        return "auto", "take"
+    if text == "auto-marker":
+        return "auto", "marker"
+    try:
+        cutoff = float(text.removesuffix("hz"))
+    except ValueError:
+        raise MethodError(f"low-pass cutoff must be a frequency in Hz, 'auto' or 'auto-marker', not {value!r}"
+                          ) from None
+    if not (cutoff > 0 and np.isfinite(cutoff)):
+        raise MethodError(f"low-pass cutoff must be a positive frequency in Hz, not {value!r}")
+    return cutoff, "take"
+
+
+def describe(cutoff: float | np.ndarray) -> str:
+    """The cutoff used, for people: "6 Hz", or the range of per-marker cutoffs."""
+    values = np.atleast_1d(np.asarray(cutoff, dtype=float))
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return "no cutoff (nothing filtered)"
+    if values.size == 1 or np.ptp(values) == 0:
+        return f"{values[0]:.3g} Hz"
+    return f"{values.min():.3g} to {values.max():.3g} Hz (median {np.median(values):.3g}) per marker"
+
+
 def lowpass(positions: np.ndarray, rate: float, cutoff: float | str = "auto", *, per: str = "take",
             observed: np.ndarray | None = None) -> LowpassResult:
     """Low-pass every continuous stretch after a fill: a given cutoff, or ``"auto"`` (residual analysis).
