@@ -86,18 +86,18 @@ def real_clip(sample_data):
 def declined_mask(original: np.ndarray, result, name: str) -> np.ndarray:
     """(n_frames, n_markers) the samples of the gaps ``result`` declined; checks each is a whole gap, left missing."""
     from mocapfill.gaps import find_gaps
+    from mocapfill.methods.base import declined_mask as mask_of
 
-    mask = np.zeros(original.shape[:2], dtype=bool)
     declined = result.info.get("declined", [])
     if not METHODS[name].may_decline:
         assert not declined, f"{name} declined gaps but is not registered as may_decline"
-        return mask
+        return np.zeros(original.shape[:2], dtype=bool)
     gaps = {(g.marker, g.start, g.length) for g in find_gaps(np.isnan(original).any(axis=2))}
     for rec in declined:
         key = (rec["marker_index"], rec["start"], rec["length"])
         assert key in gaps, f"{name} declined {key}, which is not a gap"
         assert isinstance(rec["reason"], str) and rec["reason"]
-        mask[rec["start"]:rec["start"] + rec["length"], rec["marker_index"]] = True
+    mask = mask_of(result.info, original.shape[:2])
     assert np.isnan(result.positions[mask]).all(), f"{name} filled part of a gap it declined"
     return mask
 

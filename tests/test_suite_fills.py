@@ -11,7 +11,12 @@ import pytest
 import mocapfill
 from mocapfill.errors import MethodError
 from mocapfill.methods import METHODS
-from mocapfill.methods.suite import declined_gaps, parse_donors
+from mocapfill.methods.base import declined_mask
+from mocapfill.methods.suite import parse_donors
+
+
+def declined_gaps(info: dict) -> list[tuple[int, int, int]]:
+    return [(rec["marker_index"], rec["start"], rec["length"]) for rec in info["declined"]]
 
 
 def _rotation(angle: float, axis: np.ndarray) -> np.ndarray:
@@ -121,6 +126,8 @@ def test_woltring_declines_gaps_with_fewer_than_five_frames_on_a_side():
     assert np.isfinite(result.positions[30:40, 0]).all()
     declined = [g for g in result.info["gap_methods"] if g["method"] == "declined"]
     assert len(declined) == 3
+    mask = declined_mask(result.info, (n, 2))
+    assert mask.sum() == 16 + 3 + 4 and mask[4:20, 0].all() and not mask[30:40, 0].any()
 
 
 def test_pattern_declines_when_its_donor_is_missing_in_the_gap_or_at_its_ends():

@@ -12,7 +12,8 @@ A technician who knows Vicon Nexus or Qualisys QTM can predict these fills, whic
 
 Each method **declines** a gap it cannot fill by its rule (too few valid frames, a donor not seen, fewer than three
 donors): the gap is left missing (NaN), never filled by something else, and listed in ``info["declined"]`` (one
-record per gap: ``marker`` label, ``marker_index``, ``start`` (0-based frame), ``length``, ``reason``).  Every gap
+record per gap: ``marker`` label, ``marker_index``, ``start`` (0-based frame), ``length``, ``reason``;
+:func:`mocapfill.methods.base.declined_mask` turns it into a mask).  Every gap
 also gets a record in ``info["gap_methods"]`` (what filled it, with which donors, or ``"declined"`` and why).  The
 registry marks these methods ``may_decline``.
 
@@ -234,12 +235,6 @@ def _run(positions: np.ndarray, name: str, fill_gap, labels) -> FillResult:
         gap_methods.append(_record(gap, labels, name, reason, donors))
     info = {"all_missing": sorted(dead), "declined": declined, "gap_methods": gap_methods}
     return finish(positions, estimate, info=info)
-
-
-def declined_gaps(info: dict) -> list[tuple[int, int, int]]:
-    """(marker index, start, length) of every gap a method declined, from ``info["declined"]``."""
-    return [(int(rec["marker_index"]), int(rec["start"]), int(rec["length"]))
-            for rec in (info or {}).get("declined", []) if isinstance(rec, dict)]
 
 
 # ---------------------------------------------------------------------------------------------------------------
