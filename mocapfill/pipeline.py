@@ -95,8 +95,6 @@ class FillOutcome:
         The options used, as the report records them.
     seconds : float
         Wall-clock time of the fill step alone.
-    smoothed : ndarray of bool (n_frames, n_markers) or None
-        Observed samples changed by ``--smooth`` or ``--lowpass`` (status ``SMOOTHED``); None when neither ran.
     """
 
     data: MarkerData
@@ -107,7 +105,6 @@ class FillOutcome:
     bones: Any
     settings: dict[str, Any]
     seconds: float
-    smoothed: np.ndarray | None = None
 
 
 def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerData | None = None,
@@ -188,17 +185,13 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
                              "used": describe(filtered.cutoff),
                              "filter": "Butterworth, 2nd order run forward and backward (zero lag, 4th-order "
                                        "response, gain 0.5 at the cutoff)"}
-    smoothed = None
-    if settings.smooth or settings.lowpass is not None:
-        observed = ~work.missing
-        smoothed = observed & (positions != result.positions).any(axis=2)
 
     output = data.with_positions(positions)
     if rejected is not None:  # a rejected sample filled again is written as filled, not with its old residual
         from .io.c3d import mark_refilled
 
         output = mark_refilled(output, rejected)
-    return FillOutcome(data, work, result, output, rejected, bones, record, seconds, smoothed)
+    return FillOutcome(data, work, result, output, rejected, bones, record, seconds)
 
 
 def write_fill_report(outcome: FillOutcome, path: str, *, method: str, input_path: str | None,

@@ -256,14 +256,16 @@ def test_fill_command_lowpass_reports_its_cutoff(sample_data, tmp_path, lowpass)
         assert len(used["cutoff_hz"]) == 39
 
 
-def test_pipeline_marks_the_observed_samples_the_lowpass_changed(sample_data):
+def test_pipeline_lowpass_changes_observed_samples_and_records_the_cutoff(sample_data):
     from mocapfill.pipeline import FillSettings, fill_capture
 
     data = mocapfill.read(sample_data / "kinematics_tennis_serve_nan.c3d")
     outcome = fill_capture(data, FillSettings(method="linear", lowpass=6.0).check())
-    assert outcome.smoothed.shape == data.missing.shape
-    assert outcome.smoothed[~data.missing].mean() > 0.99 and not outcome.smoothed[data.missing].any()
+    seen = ~data.missing
+    changed = (outcome.output.positions != data.positions).any(axis=2) & seen
+    assert changed[seen].mean() > 0.99
+    assert outcome.settings["lowpass"]["cutoff_hz"] == 6.0 and outcome.settings["lowpass"]["used"] == "6 Hz"
     plain = fill_capture(data, FillSettings(method="linear"))
-    assert plain.smoothed is None
+    assert np.array_equal(plain.output.positions[seen], data.positions[seen])
     with pytest.raises(MethodError, match="'auto' or 'auto-marker'"):
         FillSettings(lowpass="fast").check()
