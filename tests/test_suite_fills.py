@@ -221,7 +221,7 @@ def test_fill_command_with_named_donors_and_a_declined_gap(sample_data, tmp_path
     result = _cli(["fill", gappy, out, "-m", "pattern", "--donors", donors[0], "--donors", donors[1],
                    "--report", report])
     assert result.exit_code == 0, result.output
-    assert "pattern declined 1 gaps" in result.stderr and "missing in the gap or at its ends" in result.stderr
+    assert "pattern declined 1 gap, left missing" in result.stderr and "missing in the gap or at its ends" in result.stderr
     written = mocapfill.read(out)
     assert np.isnan(written.positions[400:420, 7]).all() and np.isfinite(written.positions[200:260, 5]).all()
     doc = json.loads(report.read_text())

@@ -350,6 +350,8 @@ def fill_pattern(positions: np.ndarray, *, donors: Any = None, labels: Sequence[
     def fill_gap(gap: Gap):
         candidates, named = pool.seen_through(gap)
         if not candidates:
+            if named and not pool.named[gap.marker]:
+                return "no donor named besides the marker itself"
             if named:
                 names = ", ".join(str(_label(labels, d)) for d in pool.named[gap.marker])
                 return f"donor ({names}) missing in the gap or at its ends"
