@@ -177,9 +177,10 @@ def distance_spread(positions: np.ndarray, markers: Sequence[int]) -> np.ndarray
 class _Donors:
     """Donor candidates per gap: the named ones, else every marker ranked by distance spread."""
 
-    def __init__(self, positions: np.ndarray, missing: np.ndarray, gaps: list[Gap], donors: Any,
-                 labels: Sequence[str] | None) -> None:
+    def __init__(self, positions: np.ndarray, donors: Any, labels: Sequence[str] | None) -> None:
         n_markers = positions.shape[1]
+        missing = missing_mask(positions)
+        gaps = find_gaps(missing)
         self.named = parse_donors(donors, labels, n_markers)
         self.missing = missing
         auto = sorted({g.marker for g in gaps if g.marker not in self.named})
@@ -343,9 +344,7 @@ def fill_pattern(positions: np.ndarray, *, donors: Any = None, labels: Sequence[
         ``all_missing``.
     """
     positions = np.asarray(positions, dtype=np.float64)
-    missing = missing_mask(positions)
-    gaps = find_gaps(missing)
-    pool = _Donors(positions, missing, gaps, donors, labels)
+    pool = _Donors(positions, donors, labels)
 
     def fill_gap(gap: Gap):
         candidates, named = pool.seen_through(gap)
@@ -431,20 +430,16 @@ def fill_rigid(positions: np.ndarray, *, donors: Any = None, labels: Sequence[st
         None: per gap, the ``RIGID_AUTO_DONORS`` markers seen throughout it whose distances to the gapped marker vary
         least (skipping one that would leave them in a line).  Named donors (see the module docstring): all of them
         seen throughout the gap, at least three.
-    labels : sequence of str, optional
-        Marker labels (n_markers,): how donors are named and how ``info`` names markers.
-    seed : ignored (deterministic).
+    labels, seed
+        As :func:`fill_pattern`.
 
     Returns
     -------
     FillResult
-        ``positions`` (n_frames, n_markers, 3); ``info``: ``declined``, ``gap_methods`` (with ``donors`` per gap),
-        ``all_missing``.
+        As :func:`fill_pattern`'s.
     """
     positions = np.asarray(positions, dtype=np.float64)
-    missing = missing_mask(positions)
-    gaps = find_gaps(missing)
-    pool = _Donors(positions, missing, gaps, donors, labels)
+    pool = _Donors(positions, donors, labels)
 
     def fill_gap(gap: Gap):
         candidates, named = pool.seen_through(gap)
