@@ -269,3 +269,20 @@ def test_pipeline_lowpass_changes_observed_samples_and_records_the_cutoff(sample
     assert np.array_equal(plain.output.positions[seen], data.positions[seen])
     with pytest.raises(MethodError, match="'auto' or 'auto-marker'"):
         FillSettings(lowpass="fast").check()
+
+
+def test_declined_records_name_the_whole_captures_column_when_model_points_are_kept_out():
+    from mocapfill.markers import MarkerData
+
+    n = 60
+    t = np.arange(n, dtype=float)
+    track = np.stack([t, t ** 2 / 50, np.sin(t / 7)], axis=1)
+    positions = np.stack([track + 5, track, track + 1], axis=1)
+    positions[2:20, 2] = np.nan  # 2 valid frames before: declined
+    positions[30:35, 0] = np.nan  # a model point's gap: not filled, not declined
+    data = MarkerData(positions, ["PELVIS_ANGLE", "A", "B"], 100.0, "mm", kinds=["model", "marker", "marker"])
+    result = mocapfill.fill(data, "woltring")
+    assert [(r["marker"], r["marker_index"]) for r in result.info["declined"]] == [("B", 2)]
+    mask = declined_mask(result.info, (n, 3))
+    assert mask[2:20, 2].all() and mask.sum() == 18
+    assert np.isnan(result.positions[30:35, 0]).all()
