@@ -18,7 +18,9 @@ difference between the data and the data filtered at ``fc`` (over observed sampl
 measurement noise).  At high cutoffs what is removed is noise alone and ``R`` falls on a straight line; that line,
 fitted over ``FIT_RANGE`` (fractions of the frame rate) and projected back to ``fc = 0``, meets the axis at the
 noise's RMS ``a``; the chosen cutoff is where ``R`` first comes down to ``a`` (linear interpolation on the grid):
-below it the filter would remove signal as well as noise.  Per take (one cutoff) or per marker.
+below it the filter would remove signal as well as noise.  A capture without a white-noise floor (already smoothed,
+or simulated) may never come down to ``a``: the cutoff is then the lowest of the fit range (20 % of the rate), which
+leaves it nearly as it is.  Per take (one cutoff) or per marker.
 
 Shapes: ``positions`` (n_frames, n_markers, 3) float64, NaN = missing; masks (n_frames, n_markers) bool.
 """
