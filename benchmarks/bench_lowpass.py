@@ -17,8 +17,6 @@ Writes ``benchmarks/results/bench_lowpass.json`` (the house results format) and 
 
 from __future__ import annotations
 
-import datetime
-import json
 import sys
 import time
 from pathlib import Path
@@ -29,7 +27,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "benchmarks"))
 
-from bench_suite_fills import CLIPS, machine  # noqa: E402
+from bench_suite_fills import CLIPS, write_results  # noqa: E402
 
 from mocapfill.guards.lowpass import lowpass, residual_cutoff  # noqa: E402
 from mocapfill.io import read  # noqa: E402
@@ -41,13 +39,11 @@ SPECTRA = {"falling (100, 50, 25)": (100.0, 50.0, 25.0), "flat (100, 100, 100)":
 
 
 def synthetic(seed: int, amplitudes) -> tuple[np.ndarray, np.ndarray]:
+    """(noisy, clean), each (1000, 4, 3): per marker and coordinate the three sinusoids with random phases."""
     rng = np.random.default_rng(seed)
-    t = np.arange(1000) / RATE
-    clean = np.zeros((len(t), 4, 3))
-    for m in range(4):
-        for c in range(3):
-            phases = rng.uniform(0, 2 * np.pi, 3)
-            clean[:, m, c] = sum(a * np.sin(2 * np.pi * f * t + p) for a, f, p in zip(amplitudes, FREQUENCIES, phases))
+    t = np.arange(1000)[:, None, None, None] / RATE
+    phases = rng.uniform(0, 2 * np.pi, (4, 3, len(FREQUENCIES)))
+    clean = (np.asarray(amplitudes) * np.sin(2 * np.pi * np.asarray(FREQUENCIES) * t + phases)).sum(axis=-1)
     return clean + rng.normal(scale=0.01 * max(amplitudes), size=clean.shape), clean
 
 
@@ -91,25 +87,17 @@ def main() -> None:
                                                      "better": "n/a"}
         figures[f"synthetic_{key}_error_ratio"] = {"value": round(float(np.median(filt) / np.median(raw)), 3),
                                                    "unit": "filtered / raw RMS error", "better": "lower"}
-    doc = {"script": "bench_lowpass.py", "command": "python benchmarks/bench_lowpass.py", "machine": machine(),
-           "date": datetime.date.today().isoformat(),
-           "tables": {
-               "captures": {"title": "Residual-analysis cutoffs (Winter) on real captures, observed samples only",
-                            "columns": ["capture", "frames", "markers", "rate (Hz)", "take cutoff (Hz)",
-                                        "per-marker median (Hz)", "per-marker min", "per-marker max",
-                                        "lowpass auto (s)"],
-                            "rows": captures},
-               "synthetic": {"title": "Synthetic 100 Hz takes: sinusoids at 0.7, 2.3, 4.6 Hz + white noise 1 % of "
-                                      "the largest amplitude, 10 seeds",
-                             "columns": ["amplitudes", "cutoff min (Hz)", "cutoff median", "cutoff max",
-                                         "RMS error raw", "RMS error filtered"],
-                             "rows": synth}},
-           "figures": figures}
-    out = REPO / "benchmarks" / "results" / "bench_lowpass.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(doc, indent=2) + "\n")
-    print(f"wrote {out}", file=sys.stderr)
-
+    tables = {
+        "captures": {"title": "Residual-analysis cutoffs (Winter) on real captures, observed samples only",
+                     "columns": ["capture", "frames", "markers", "rate (Hz)", "take cutoff (Hz)",
+                                 "per-marker median (Hz)", "per-marker min", "per-marker max", "lowpass auto (s)"],
+                     "rows": captures},
+        "synthetic": {"title": "Synthetic 100 Hz takes: sinusoids at 0.7, 2.3, 4.6 Hz + white noise 1 % of the "
+                               "largest amplitude, 10 seeds",
+                      "columns": ["amplitudes", "cutoff min (Hz)", "cutoff median", "cutoff max", "RMS error raw",
+                                  "RMS error filtered"],
+                      "rows": synth}}
+    write_results("bench_lowpass", "python benchmarks/bench_lowpass.py", tables, figures)
 
 if __name__ == "__main__":
     main()

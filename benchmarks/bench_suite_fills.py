@@ -166,17 +166,20 @@ def main(argv: list[str] | None = None) -> None:
             key = f"{r['method']}_{r['clip']}_{r['protocol'].split()[0]}_rmse_common"
             figures[key] = {"value": round(r["rmse_common_mm"], 2), "unit": "mm", "better": "lower"}
     command = "python benchmarks/bench_suite_fills.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    doc = {"script": "bench_suite_fills.py", "command": command.strip(), "machine": machine(),
-           "date": datetime.date.today().isoformat(),
-           "tables": {"suite_fills": {"title": "The suites' fills beside auto and linear, same occlusions "
-                                               f"({args.trials} trials per clip and protocol, seed {args.seed})",
-                                      "columns": columns, "rows": table}},
-           "figures": figures}
-    out = REPO / "benchmarks" / "results" / "bench_suite_fills.json"
+    tables = {"suite_fills": {"title": "The suites' fills beside auto and linear, same occlusions "
+                                       f"({args.trials} trials per clip and protocol, seed {args.seed})",
+                              "columns": columns, "rows": table}}
+    write_results("bench_suite_fills", command.strip(), tables, figures)
+
+
+def write_results(stem: str, command: str, tables: dict, figures: dict) -> None:
+    """``benchmarks/results/<stem>.json`` in the house results format."""
+    doc = {"script": f"{stem}.py", "command": command, "machine": machine(),
+           "date": datetime.date.today().isoformat(), "tables": tables, "figures": figures}
+    out = REPO / "benchmarks" / "results" / f"{stem}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(doc, indent=2) + "\n")
     print(f"wrote {out}", file=sys.stderr)
-
 
 if __name__ == "__main__":
     main()
