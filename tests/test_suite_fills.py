@@ -4,6 +4,7 @@ and declines (leaves missing, reports) the gaps its rule cannot fill."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -221,7 +222,8 @@ def test_fill_command_with_named_donors_and_a_declined_gap(sample_data, tmp_path
     result = _cli(["fill", gappy, out, "-m", "pattern", "--donors", donors[0], "--donors", donors[1],
                    "--report", report])
     assert result.exit_code == 0, result.output
-    assert "pattern declined 1 gap, left missing" in result.stderr and "missing in the gap or at its ends" in result.stderr
+    assert "pattern declined 1 gap, left missing" in result.stderr
+    assert "missing in the gap or at its ends" in result.stderr
     written = mocapfill.read(out)
     assert np.isnan(written.positions[400:420, 7]).all() and np.isfinite(written.positions[200:260, 5]).all()
     doc = json.loads(report.read_text())
@@ -286,3 +288,12 @@ def test_declined_records_name_the_whole_captures_column_when_model_points_are_k
     mask = declined_mask(result.info, (n, 3))
     assert mask[2:20, 2].all() and mask.sum() == 18
     assert np.isnan(result.positions[30:35, 0]).all()
+
+
+def test_batch_takes_donors_and_lowpass(sample_data, tmp_path):
+    rows = mocapfill.batch([str(sample_data / "kinematics_tennis_serve_nan.c3d")], str(tmp_path / "out"),
+                           method="pattern", donors=["RSHO", "LSHO"], lowpass="auto", report="json")
+    assert [row.status for row in rows] == ["filled"], rows
+    doc = json.loads(Path(rows[0].report).read_text())
+    settings = doc["summary"]["settings"]
+    assert settings["donors"] == "RSHO,LSHO" and settings["lowpass"]["per"] == "take"

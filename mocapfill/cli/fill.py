@@ -151,8 +151,9 @@ def _summary(data, work, result, method: str, seconds: float, rejected, smoothed
         shown_gaps = ", ".join(f"{rec['marker']} at frame {data.first_frame + rec['start']} ({rec['length']} frames: "
                                f"{rec['reason']})" for rec in declined[:5])
         more = f" and {len(declined) - 5} more (see --report)" if len(declined) > 5 else ""
-        out.print(f"{method} declined {len(declined)} gap{'s' if len(declined) != 1 else ''}, left missing: {shown_gaps}{more}", markup=False,
-                  highlight=False, soft_wrap=True)
+        gaps = f"{len(declined)} gap" + ("s" if len(declined) != 1 else "")
+        out.print(f"{method} declined {gaps}, left missing: {shown_gaps}{more}", markup=False, highlight=False,
+                  soft_wrap=True)
     dead = [data.labels[m] for m in all_missing_markers(missing)]
     if dead:
         out.print(f"never observed, left empty: {', '.join(dead)}", markup=False, highlight=False)

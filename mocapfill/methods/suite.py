@@ -277,9 +277,10 @@ def fill_woltring(positions: np.ndarray, *, labels: Sequence[str] | None = None,
 
     End conditions: **not-a-knot** (scipy's ``make_interp_spline(k=5)`` default): no knot at the second and third
     fitted frames from each end, so the spline is one quintic over the first three and over the last three intervals
-    between fitted frames (the four conditions a quintic interpolant needs beyond the data); every quintic polynomial (and lower) lies in the spline space and interpolation is unique, so a marker
-    moving as any quintic polynomial of time on both sides of a gap is reproduced exactly (to rounding, tested to
-    1e-6 of its range).  Natural end conditions (zero 3rd and 4th derivatives at the ends) would not reproduce it.
+    between fitted frames (the four conditions a quintic interpolant needs beyond the data); every quintic
+    polynomial (and lower) lies in the spline space and interpolation is unique, so a marker moving as any quintic
+    polynomial of time on both sides of a gap is reproduced exactly (to rounding, tested to 1e-6 of its range).
+    Natural end conditions (zero 3rd and 4th derivatives at the ends) would not reproduce it.
 
     Parameters
     ----------
