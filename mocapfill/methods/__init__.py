@@ -58,6 +58,8 @@ METHODS: dict[str, MethodSpec] = {
                    False, may_decline=True),
         MethodSpec("rigid", "suite:fill_rigid", "3+ donors carried as a rigid body, both ends blended (Nexus)",
                    False, may_decline=True),
+        MethodSpec("auto-next", "auto_next:fill_auto_next", "local weighted PCA fused with a white-jerk motion "
+                   "model by one smoother", True),
     ]
 }
 
