@@ -2,7 +2,7 @@
 
 What it measures:
 
-- per real capture at hand (the complete ones of ``bench_suite_fills.py`` and the gappy ``pyomeca/markers_analogs``,
+- per real capture at hand (``harness.COMPLETE_CLIPS`` and the gappy ``pyomeca/markers_analogs``,
   Vicon Nexus, 100 Hz, whose gaps split the stretches): the cutoff Winter's residual analysis chooses for the take
   and the range of the per-marker cutoffs, and the time of ``lowpass(..., "auto")`` on the whole capture;
 - on synthetic 100 Hz takes (sinusoids at 0.7, 2.3 and 4.6 Hz, white noise of 1 % of the largest amplitude, 10
@@ -17,22 +17,20 @@ Writes ``benchmarks/results/bench_lowpass.json`` (the house results format) and 
 
 from __future__ import annotations
 
-import sys
-import time
-from pathlib import Path
+import harness
 
-import numpy as np
+harness.pin_blas()
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "benchmarks"))
+import argparse  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
 
-from bench_suite_fills import CLIPS, write_results  # noqa: E402
+import numpy as np  # noqa: E402
 
 from mocapfill.guards.lowpass import lowpass, residual_cutoff  # noqa: E402
 from mocapfill.io import read  # noqa: E402
 
-CAPTURES = {**CLIPS, "markers_analogs (gappy)": REPO / "sample_data" / "markers_analogs.c3d"}
+CAPTURES = {**harness.COMPLETE_CLIPS, "markers_analogs (gappy)": harness.SAMPLE_DATA / "markers_analogs.c3d"}
 RATE = 100.0
 FREQUENCIES = (0.7, 2.3, 4.6)
 SPECTRA = {"falling (100, 50, 25)": (100.0, 50.0, 25.0), "flat (100, 100, 100)": (100.0, 100.0, 100.0)}
@@ -47,7 +45,12 @@ def synthetic(seed: int, amplitudes) -> tuple[np.ndarray, np.ndarray]:
     return clean + rng.normal(scale=0.01 * max(amplitudes), size=clean.shape), clean
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    harness.add_results_argument(parser)
+    args = parser.parse_args(argv)
+    harness.banner(__file__, file=sys.stderr)
+    results = harness.Results(__file__, argv, path=args.results, note=args.note)
     captures = []
     for name, path in CAPTURES.items():
         if not path.exists():
@@ -68,7 +71,6 @@ def main() -> None:
 
     rms = lambda e: float(np.sqrt(np.mean(e ** 2)))  # noqa: E731
     synth = []
-    figures = {}
     for label, amplitudes in SPECTRA.items():
         cut, raw, filt = [], [], []
         for seed in range(10):
@@ -82,22 +84,15 @@ def main() -> None:
         print(f"synthetic {label}: cutoff {min(cut):.2f} to {max(cut):.2f} Hz (median {np.median(cut):.2f}), RMS "
               f"error to the clean signal {np.median(raw):.3f} raw -> {np.median(filt):.3f} filtered",
               file=sys.stderr)
-        key = label.split()[0]
-        figures[f"synthetic_{key}_cutoff_median"] = {"value": round(float(np.median(cut)), 2), "unit": "Hz",
-                                                     "better": "n/a"}
-        figures[f"synthetic_{key}_error_ratio"] = {"value": round(float(np.median(filt) / np.median(raw)), 3),
-                                                   "unit": "filtered / raw RMS error", "better": "lower"}
-    tables = {
-        "captures": {"title": "Residual-analysis cutoffs (Winter) on real captures, observed samples only",
-                     "columns": ["capture", "frames", "markers", "rate (Hz)", "take cutoff (Hz)",
-                                 "per-marker median (Hz)", "per-marker min", "per-marker max", "lowpass auto (s)"],
-                     "rows": captures},
-        "synthetic": {"title": "Synthetic 100 Hz takes: sinusoids at 0.7, 2.3, 4.6 Hz + white noise 1 % of the "
-                               "largest amplitude, 10 seeds",
-                      "columns": ["amplitudes", "cutoff min (Hz)", "cutoff median", "cutoff max", "RMS error raw",
-                                  "RMS error filtered"],
-                      "rows": synth}}
-    write_results("bench_lowpass", "python benchmarks/bench_lowpass.py", tables, figures)
+        results.figure(f"synthetic_{label.split()[0]}_error_ratio", round(float(np.median(filt) / np.median(raw)), 3),
+                       "filtered / raw RMS error")
+    results.table("captures", "Residual-analysis cutoffs (Winter) on real captures, observed samples only",
+                  ["capture", "frames", "markers", "rate (Hz)", "take cutoff (Hz)", "per-marker median (Hz)",
+                   "per-marker min", "per-marker max", "lowpass auto (s)"], captures)
+    results.table("synthetic", "Synthetic 100 Hz takes: sinusoids at 0.7, 2.3, 4.6 Hz + white noise 1 % of the "
+                  "largest amplitude, 10 seeds", ["amplitudes", "cutoff min (Hz)", "cutoff median", "cutoff max",
+                                                  "RMS error raw", "RMS error filtered"], synth)
+    results.write()
 
 if __name__ == "__main__":
     main()

@@ -29,58 +29,29 @@ a shared machine is noisy; compare methods within one run.
 
 from __future__ import annotations
 
-import os
+import harness
 
-for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+harness.pin_blas()
 
 import argparse  # noqa: E402
-import datetime  # noqa: E402
-import json  # noqa: E402
-import platform  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
-
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
 
 from mocapfill import api  # noqa: E402
 from mocapfill.evaluation import make_occlusions, point_errors  # noqa: E402
 from mocapfill.io import read  # noqa: E402
 from mocapfill.units import length_factor  # noqa: E402
 
-SHARED = REPO.parent / "shared" / "data"
-if not SHARED.is_dir():
-    SHARED = Path("/work/shared/data")
-CLIPS = {
-    "85_02": REPO / "sample_data" / "85_02.c3d",
-    "tennis": REPO / "sample_data" / "kinematics_tennis_serve.c3d",
-    "pyorerun-example": SHARED / "pyorerun" / "example.c3d",
-    "sprint": SHARED / "btk" / "TRCSamples" / "SprintMotion.trc",
-}
+CLIPS = harness.COMPLETE_CLIPS
 METHODS = ("auto", "linear", "woltring", "pattern", "rigid")
 PROTOCOLS = {
     "dense 10%": {"protocol": "dense", "missing": 0.1},
     "short 10%": {"protocol": "dense", "missing": 0.1, "gap_min": "0.05s", "gap_max": "0.25s"},
     "marker": {"protocol": "marker"},
 }
-
-
-def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return (f"{cpu}, {os.cpu_count()} cores (shared with other jobs), Python {platform.python_version()}, "
-            f"numpy {np.__version__}")
 
 
 def run_clip(name: str, path: Path, trials: int, seed: int) -> list[dict]:
@@ -141,7 +112,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--trials", type=int, default=10)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--clips", default=",".join(CLIPS), help="comma-separated names of " + ", ".join(CLIPS))
+    harness.add_results_argument(parser)
     args = parser.parse_args(argv)
+    harness.banner(__file__, file=sys.stderr)
+    results = harness.Results(__file__, argv, path=args.results, note=args.note)
     rows = []
     for name in args.clips.split(","):
         path = CLIPS[name]
@@ -157,29 +131,16 @@ def main(argv: list[str] | None = None) -> None:
               None if r["rmse_common_mm"] is None else round(r["rmse_common_mm"], 2),
               None if r["auto_better"] is None else round(r["auto_better"], 2),
               round(r["seconds_median"], 4), round(r["seconds_max"], 4)] for r in rows]
-    figures = {}
     for r in rows:
         if r["clip"] == "85_02" and r["protocol"] == "dense 10%" and r["method"] in ("rigid", "pattern"):
-            figures[f"{r['method']}_85_02_dense10_max_seconds"] = {"value": round(r["seconds_max"], 4), "unit": "s",
-                                                                  "better": "lower"}
+            results.figure(f"{r['method']}_85_02_dense10_max_seconds", round(r["seconds_max"], 4), "s")
         if r["method"] in ("rigid", "pattern", "woltring") and r["rmse_common_mm"] is not None:
-            key = f"{r['method']}_{r['clip']}_{r['protocol'].split()[0]}_rmse_common"
-            figures[key] = {"value": round(r["rmse_common_mm"], 2), "unit": "mm", "better": "lower"}
-    command = "python benchmarks/bench_suite_fills.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    tables = {"suite_fills": {"title": "The suites' fills beside auto and linear, same occlusions "
-                                       f"({args.trials} trials per clip and protocol, seed {args.seed})",
-                              "columns": columns, "rows": table}}
-    write_results("bench_suite_fills", command.strip(), tables, figures)
+            results.figure(f"{r['method']}_{r['clip']}_{r['protocol'].split()[0]}_rmse_common",
+                           round(r["rmse_common_mm"], 2), "mm")
+    results.table("suite_fills", "The suites' fills beside auto and linear, same occlusions "
+                  f"({args.trials} trials per clip and protocol, seed {args.seed})", columns, table)
+    results.write()
 
-
-def write_results(stem: str, command: str, tables: dict, figures: dict) -> None:
-    """``benchmarks/results/<stem>.json`` in the house results format."""
-    doc = {"script": f"{stem}.py", "command": command, "machine": machine(),
-           "date": datetime.date.today().isoformat(), "tables": tables, "figures": figures}
-    out = REPO / "benchmarks" / "results" / f"{stem}.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(doc, indent=2) + "\n")
-    print(f"wrote {out}", file=sys.stderr)
 
 if __name__ == "__main__":
     main()
