@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from mocapfill.evaluation.smoothness import (accelerations, short_fragments, smooth_enough, smoothness)
+from mocapfill.evaluation.smoothness import (accelerations, outcome_smoothness, short_fragments, smooth_enough,
+                                              smoothness)
 
 
 def _track(xs) -> np.ndarray:
@@ -129,3 +130,19 @@ def test_scaled_and_dict():
     assert d["max_observed"] == 0.0 and d["ratio_max"] is None  # observed max 0: no ratio
     with pytest.raises(ValueError):
         smoothness(np.zeros((5, 2, 3)), np.zeros((5, 3), dtype=bool))
+
+
+def test_outcome_smoothness_counts_rejected_samples_as_filled_and_measures_markers_only():
+    from types import SimpleNamespace
+
+    xs = [0, 0, 0, 0, 10, 0, 0, 0]
+    pos = np.concatenate([_track(xs), _track(xs)], axis=1)  # the same spike in a marker and a model point
+    data = SimpleNamespace(positions=pos, kinds=["marker", "model"])
+    rejected = np.zeros((8, 2), dtype=bool)
+    rejected[4] = True  # an outlier rejected and filled again: its spike is the fill's
+    outcome = SimpleNamespace(data=data, work=data, output=data, rejected=rejected)
+    s = outcome_smoothness(outcome)
+    assert s.n_filled == 3 and s.max_filled == 20.0 and s.filled_samples == 1
+    outcome.rejected = None  # nothing rejected: the spike is observed
+    s = outcome_smoothness(outcome)
+    assert s.n_filled == 0 and s.max_observed == 20.0 and s.n_observed == 6

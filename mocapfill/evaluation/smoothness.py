@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["SHORT_FRAGMENT", "PERCENTILE", "PERCENTILE_FACTOR", "MIN_FILLED_FOR_PERCENTILE", "Smoothness",
-           "accelerations", "short_fragments", "smoothness", "smooth_enough"]
+__all__ = ["SHORT_FRAGMENT", "PERCENTILE", "PERCENTILE_FACTOR", "MIN_FILLED_FOR_PERCENTILE", "GUARD_MASKS",
+           "Smoothness", "accelerations", "short_fragments", "smoothness", "smooth_enough", "outcome_smoothness"]
 
 #: Observed runs of at most this many frames between missing samples are left out (issue 21: "a fragment of one or
 #: two frames"); such samples are often the worst of the take.
@@ -210,3 +210,26 @@ def smooth_enough(s: Smoothness, *, factor: float = PERCENTILE_FACTOR,
             reasons.append(f"filled {PERCENTILE:g}th percentile {s.p_filled:.3g} > {factor:g} x observed "
                            f"{s.p_observed:.3g}")
     return not reasons, reasons
+
+
+#: The masks a :class:`mocapfill.pipeline.FillOutcome` may carry for observed samples a guard turned into gaps.
+GUARD_MASKS = ("rejected", "held", "fragments", "repaired")
+
+
+def outcome_smoothness(outcome: Any, **options: Any) -> Smoothness:
+    """:func:`smoothness` of a fill as ``mocapfill fill`` makes it (a :class:`mocapfill.pipeline.FillOutcome`).
+
+    Missing: the samples missing in the capture read, or turned into gaps by a guard (the outcome's
+    :data:`GUARD_MASKS` that are set, each (n_frames, n_markers) bool); measured: the points of kind "marker".
+    ``options`` go to :func:`smoothness`.  File units.
+    """
+    data = outcome.data
+    missing = np.isnan(np.asarray(data.positions, dtype=float)).any(axis=2)
+    missing |= np.isnan(np.asarray(outcome.work.positions, dtype=float)).any(axis=2)
+    for name in GUARD_MASKS:
+        mask = getattr(outcome, name, None)
+        if mask is not None:
+            missing |= np.asarray(mask, dtype=bool)
+    kinds = getattr(data, "kinds", None)
+    points = None if kinds is None else np.array([k == "marker" for k in kinds])
+    return smoothness(outcome.output.positions, missing, points=points, **options)
