@@ -455,7 +455,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--protocols", default="all", help=f"comma-separated from {','.join(PROTOCOLS)}, or all")
     parser.add_argument("--draws", type=int, default=4, help="seeded draws per capture and protocol")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--jobs", type=int, default=1, help="worker processes (one draw each at a time)")
+    parser.add_argument("--jobs", type=int, default=1, help="worker processes (one draw each at a time); captures "
+                        "are filled in --captures order, so list the cheap ones first for early whole results")
     parser.add_argument("--default", default="auto", help="the method the checks judge")
     parser.add_argument("--rerun", default="", help="comma-separated methods to fill again though cached")
     parser.add_argument("--cache", default=str(CACHE), help="directory of the per-draw JSON results")
@@ -496,7 +497,9 @@ def main(argv: list[str] | None = None) -> None:
                         cost = size * (share + 0.05) * sum(20 if m.startswith("bolero") else 5 if m == "auto"
                                                            else 1 for m in todo)
                         tasks.append((cost, (c, p, d, args.draws, args.seed, todo, str(cache), commit)))
-        tasks = [t for _, t in sorted(tasks, key=lambda x: -x[0])]
+        # capture by capture in --captures order (so a stopped run leaves whole captures), costliest draws first
+        order = {c: i for i, c in enumerate(captures)}
+        tasks = [t for _, t in sorted(tasks, key=lambda x: (order[x[1][0]], -x[0]))]
         print(f"{len(tasks)} draw(s) to fill ({sum(len(t[5]) for t in tasks)} fills) on {args.jobs} process(es); "
               f"cache {cache}", file=sys.stderr)
         from mocapfill.runtime.workers import run_local
