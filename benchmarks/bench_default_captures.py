@@ -502,23 +502,25 @@ def main(argv: list[str] | None = None) -> None:
         tasks = [t for _, t in sorted(tasks, key=lambda x: (order[x[1][0]], -x[0]))]
         print(f"{len(tasks)} draw(s) to fill ({sum(len(t[5]) for t in tasks)} fills) on {args.jobs} process(es); "
               f"cache {cache}", file=sys.stderr)
-        from mocapfill.runtime.workers import run_local
+        from mocapfill.runtime.executor import make_executor
 
         started = time.perf_counter()
         done = [0]
 
-        def on_result(records: list[dict]) -> None:
+        def on_result(task, records: list[dict] | None) -> None:
             done[0] += 1
+            if records is None:  # the worker was lost (on_failure said so)
+                return
             r0 = records[0]
             line = ", ".join(f"{r['method']} {_fmt(r.get('rmse'))} mm {r['seconds']:.1f} s"
                              + (" FAILED" if r.get("error") else "") for r in records)
             print(f"  [{done[0]}/{len(tasks)} {time.perf_counter() - started:.0f} s] {r0['capture']} "
                   f"{r0['protocol']} draw {r0['draw']}: {line}", file=sys.stderr, flush=True)
 
-        def on_death(task, exitcode):
-            print(f"  worker died ({exitcode}) on {task[0]} {task[1]} draw {task[2]}", file=sys.stderr, flush=True)
+        def on_failure(task, exc: BaseException) -> None:
+            print(f"  worker lost ({exc}) on {task[0]} {task[1]} draw {task[2]}", file=sys.stderr, flush=True)
 
-        run_local(run_draw, tasks, args.jobs, on_result, on_death=on_death)
+        make_executor(args.jobs, n_tasks=max(1, len(tasks))).run(run_draw, tasks, on_result, on_failure=on_failure)
         print(f"filled in {time.perf_counter() - started:.0f} s; load now {os.getloadavg()[0]:.2f}", file=sys.stderr)
     # the tables hold every method the cache has for these cases, not only those filled now
     table_methods = _names(args.table_methods, list(METHODS), "method") if args.table_methods else list(METHODS)

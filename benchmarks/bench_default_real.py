@@ -192,11 +192,13 @@ def main(argv: list[str] | None = None) -> None:
         tasks = [(str(p), d, m, str(cache), commit) for p, d in captures for m in methods
                  if m in rerun or not _cache_file(cache, d, m).exists()]
         print(f"{len(tasks)} fill(s) to run on {args.jobs} process(es)", file=sys.stderr, flush=True)
-        from mocapfill.runtime.workers import run_local
+        from mocapfill.runtime.executor import make_executor
 
         started = time.perf_counter()
 
-        def on_result(r: dict) -> None:
+        def on_result(task, r: dict | None) -> None:
+            if r is None:  # the worker was lost (on_failure said so)
+                return
             if r.get("error"):
                 print(f"  {r['file']} {r['method']}: FAILED {r['error']}", file=sys.stderr, flush=True)
                 return
@@ -204,10 +206,10 @@ def main(argv: list[str] | None = None) -> None:
                   f"({r['seconds'] / r['duration']:.2f}x), filled max {_f(r['smooth']['max_filled'])} / observed "
                   f"{_f(r['smooth']['max_observed'])} mm/frame^2", file=sys.stderr, flush=True)
 
-        def on_death(task, exitcode):
-            print(f"  worker died ({exitcode}) on {task[0]} {task[2]}", file=sys.stderr, flush=True)
+        def on_failure(task, exc: BaseException) -> None:
+            print(f"  worker lost ({exc}) on {task[0]} {task[2]}", file=sys.stderr, flush=True)
 
-        run_local(run_one, tasks, args.jobs, on_result, on_death=on_death)
+        make_executor(args.jobs, n_tasks=max(1, len(tasks))).run(run_one, tasks, on_result, on_failure=on_failure)
     rows, missing = [], []
     fails_fast, fails_cpu, fails_smooth = ({m: [] for m in methods} for _ in range(3))
     worst_ratio = {m: 0.0 for m in methods}
