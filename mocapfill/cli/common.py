@@ -96,12 +96,18 @@ def fill_options(func: Callable) -> Callable:
         click.option("--reference", "reference", type=str, default=None,
                      help="A clean capture of the same marker set giving the distance ranges for --reject-outliers "
                           "(default: the file itself)."),
+        click.option("--keep-held", is_flag=True,
+                     help="Keep held and frozen samples (a marker repeating its exact position while the body moves, "
+                          "a coordinate stuck at exactly 0) as observed; by default they become gaps and are filled."),
         click.option("--smooth", is_flag=True,
                      help="Savitzky-Golay smoothing of the output (off by default: it changes observed samples)."),
         click.option("--smooth-window", type=click.IntRange(min=1), default=None,
                      help="Smoothing window in frames, odd (default about 1/15 s)."),
         click.option("--smooth-order", type=click.IntRange(min=0), default=None,
                      help="Smoothing polynomial order (3)."),
+        click.option("--ik-model", "ik_model", type=str, default=None, metavar="MODEL.osim",
+                     help="Scaled OpenSim model whose markers carry the capture's labels, for --method opensim-ik "
+                          "(the kinematic fill; needs the extra mocapfill[opensim])."),
     ]
     for option in reversed(options):
         wrapper = option(wrapper)
