@@ -37,16 +37,15 @@ selected captures, protocols and draws.
 
 from __future__ import annotations
 
-import os
+import harness
 
-for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+harness.pin_blas()
 
+import os  # noqa: E402
 import argparse  # noqa: E402
 import base64  # noqa: E402
 import datetime  # noqa: E402
 import json  # noqa: E402
-import subprocess  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
@@ -55,11 +54,8 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "benchmarks"))
-
-from bench_default import machine  # noqa: E402
+REPO = harness.REPO
+machine = harness.machine
 from mocapfill import api  # noqa: E402
 from mocapfill.bones.boneset import estimate_bones  # noqa: E402
 from mocapfill.errors import MocapfillError  # noqa: E402
@@ -69,9 +65,7 @@ from mocapfill.markers import MarkerData  # noqa: E402
 from mocapfill.methods import METHODS, get_method  # noqa: E402
 from mocapfill.units import length_factor  # noqa: E402
 
-#: ../shared/data beside the checkout (or beside a folder holding it: worktrees live one level deeper).
-SHARED = next((p / "shared" / "data" for p in REPO.parents if (p / "shared" / "data").is_dir()),
-              REPO.parent / "shared" / "data")
+SHARED = harness.SHARED_DATA
 SCRIPT = Path(__file__).name
 RESULTS = REPO / "benchmarks" / "results" / f"{Path(__file__).stem}.json"
 CACHE = REPO / "benchmarks" / ".cache" / Path(__file__).stem
@@ -121,17 +115,6 @@ PROTOCOLS = {
 #: The peers the default must never be behind (issue 21), and the allowed ratio on a single draw.
 PEERS = ("pca", "bolero-sc")
 DRAW_FACTOR = 1.25
-
-
-def _commit() -> str:
-    try:
-        head = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True,
-                              text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "--", "mocapfill"],
-                               capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-    return head + ("+dirty" if dirty else "")
 
 
 # ---------------------------------------------------------------------------------------------------- one draw
@@ -409,30 +392,26 @@ def report(cache: Path, captures: list[str], protocols: list[str], draws: int, s
                                                    "better": "lower"}
     figures["checks failed"] = {"value": sum(1 for _, ok, _ in results if not ok), "unit": "checks",
                                 "better": "lower"}
-    payload = {
-        "script": SCRIPT, "command": command, "machine": machine(),
-        "date": datetime.date.today().isoformat(),
-        "settings": {"captures": {c: {"path": str(({**CAPTURES, **EXTRA_CAPTURES})[c].path.relative_to(REPO.parent)
-                                                   if REPO.parent in ({**CAPTURES, **EXTRA_CAPTURES})[c].path.parents
-                                                   else ({**CAPTURES, **EXTRA_CAPTURES})[c].path),
-                                      "lab": ({**CAPTURES, **EXTRA_CAPTURES})[c].lab,
-                                      "what": ({**CAPTURES, **EXTRA_CAPTURES})[c].what} for c in captures},
-                     "protocols": {p: {"protocol": PROTOCOLS[p][0], **PROTOCOLS[p][1]} for p in protocols},
-                     "draws": draws, "seed": seed, "default": default, "methods": present,
-                     "commits": {m: sorted({x for k, v in pooled.items() if k[2] == m for x in v["commits"]})
-                                 for m in present}},
-        "tables": {"cases": {"title": "per capture, protocol and method: errors (mm) over the hidden samples",
-                             "columns": ["capture", "protocol", "method", "pooled RMSE", "pooled median",
-                                         "RMSE per draw", "median of draws", "unfilled", "failed", "s per fill",
-                                         "err/std (median)"], "rows": rows},
-                   **{f"compact {c}": t for c, t in compact.items()},
-                   "checks": {"title": "issue 21's checks", "columns": ["check", "result", "failing cases", "cases"],
-                              "rows": check_rows}},
-        "figures": figures,
-    }
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    out_path.write_text(json.dumps(payload, indent=1) + "\n")
-    print(f"\nwrote {out_path}", file=sys.stderr)
+    results = harness.Results(SCRIPT, command.split()[2:], out_path)
+    caps = {**CAPTURES, **EXTRA_CAPTURES}
+    results.table("captures", "the captures (complete; a stretch where frames are given)",
+                  ["capture", "file", "lab", "what"],
+                  [[c, str(caps[c].path.relative_to(SHARED.parent) if SHARED.parent in caps[c].path.parents
+                           else caps[c].path.relative_to(REPO)), caps[c].lab, caps[c].what] for c in captures])
+    results.table("cases", f"per capture, protocol and method: errors (mm) over the hidden samples, {draws} draws, "
+                  f"seed {seed}; code: " + "; ".join(
+                      f"{m} {','.join(sorted({x for k, v in pooled.items() if k[2] == m for x in v['commits']}))}"
+                      for m in present),
+                  ["capture", "protocol", "method", "pooled RMSE", "pooled median", "RMSE per draw",
+                   "median of draws", "unfilled", "failed", "s per fill", "err/std (median)"], rows)
+    for c, t in compact.items():
+        results.table(f"compact {c}", t["title"], t["columns"], t["rows"])
+    results.table("checks", f"issue 21's checks for {default}", ["check", "result", "failing cases", "cases"],
+                  check_rows)
+    for name, f in figures.items():
+        results.figure(name, f["value"], f["unit"], f["better"])
+    results.write()
+
 
 
 # ---------------------------------------------------------------------------------------------------- main
@@ -483,7 +462,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"  {c}: {d.n_frames} x {d.n_markers} @ {d.rate:g} Hz ({d.n_frames / d.rate:.1f} s), {d.units}, "
               f"{miss:.1%} missing", file=sys.stderr)
     if not args.report:
-        commit = _commit()
+        commit = harness.git_commit()
         tasks = []
         for c in captures:
             size = load_capture(c).positions.shape[0] * load_capture(c).positions.shape[1]

@@ -24,11 +24,11 @@ Run from the repository root (a single process measures the fills one at a time;
 
 from __future__ import annotations
 
-import os
+import harness
 
-for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+harness.pin_blas()
 
+import os  # noqa: E402
 import argparse  # noqa: E402
 import datetime  # noqa: E402
 import hashlib  # noqa: E402
@@ -40,12 +40,8 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "benchmarks"))
-
-from bench_default import machine  # noqa: E402
-from bench_default_captures import SHARED, _commit  # noqa: E402
+REPO = harness.REPO
+machine = harness.machine
 from mocapfill.errors import MocapfillError  # noqa: E402
 from mocapfill.evaluation.smoothness import outcome_smoothness, smooth_enough  # noqa: E402
 from mocapfill.io import read  # noqa: E402
@@ -57,6 +53,7 @@ from mocapfill.units import length_factor  # noqa: E402
 SCRIPT = Path(__file__).name
 RESULTS = REPO / "benchmarks" / "results" / f"{Path(__file__).stem}.json"
 CACHE = REPO / "benchmarks" / ".cache" / Path(__file__).stem
+SHARED = harness.SHARED_DATA
 ROOTS = (REPO / "sample_data", REPO / "tests" / "data", SHARED)
 SUFFIXES = (".c3d", ".trc", ".csv", ".tsv")
 #: Issue 21's speed bound: the fill takes at most this share of the capture's duration ...
@@ -188,7 +185,7 @@ def main(argv: list[str] | None = None) -> None:
     print(f"{len(captures)} captures with gaps; skipped: " + "; ".join(skipped), file=sys.stderr)
     cache = Path(args.cache)
     if not args.report:
-        commit = _commit()
+        commit = harness.git_commit()
         tasks = [(str(p), d, m, str(cache), commit) for p, d in captures for m in methods
                  if m in rerun or not _cache_file(cache, d, m).exists()]
         print(f"{len(tasks)} fill(s) to run on {args.jobs} process(es)", file=sys.stderr, flush=True)
@@ -277,19 +274,15 @@ def main(argv: list[str] | None = None) -> None:
                                                    "better": "lower"}
         figures[f"{m} worst max filled / max observed acceleration"] = {"value": round(worst_acc[m], 2), "unit": "x",
                                                                         "better": "lower"}
-    payload = {"script": SCRIPT, "command": command, "machine": machine(), "date": datetime.date.today().isoformat(),
-               "settings": {"methods": methods, "skipped": skipped, "speed_share": SPEED_SHARE,
-                            "speed_floor_s": SPEED_FLOOR_S},
-               "tables": {"captures": {"title": "speed and smoothness per capture and method "
-                                                "(accelerations in mm / frame^2)", "columns": columns, "rows": rows},
-                          "checks": {"title": "issue 21's fast and smooth checks",
-                                     "columns": ["method", "check", "result", "failing", "captures"],
-                                     "rows": check_rows}},
-               "figures": figures}
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(payload, indent=1) + "\n")
-    print(f"\nwrote {out}", file=sys.stderr)
+    results = harness.Results(SCRIPT, command.split()[2:], args.out)
+    results.table("captures", "speed and smoothness per capture and method (accelerations in mm / frame^2); skipped: "
+                  + "; ".join(skipped), columns, rows)
+    results.table("checks", "issue 21's fast and smooth checks", ["method", "check", "result", "failing", "captures"],
+                  check_rows)
+    for name, f in figures.items():
+        results.figure(name, f["value"], f["unit"], f["better"])
+    results.write()
+
 
 
 if __name__ == "__main__":
