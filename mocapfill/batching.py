@@ -223,12 +223,13 @@ def _settings_digest(task: FileTask) -> str:
                            "reading": [task.input_format, task.rate, task.override_rate],
                            "format": task.output_format}
     for name in ("bones", "reference"):
-        path = getattr(task.settings, name)
-        if path is not None:
+        value = getattr(task.settings, name)
+        paths = [value] if isinstance(value, str) else list(value or ())
+        for k, path in enumerate(paths):
             try:
-                doc[f"{name}_sha256"] = file_digest(path)
+                doc[f"{name}_sha256_{k}"] = file_digest(path)
             except OSError:
-                doc[f"{name}_sha256"] = None  # the task will fail and say why
+                doc[f"{name}_sha256_{k}"] = None  # the task will fail and say why
     return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
 
 
@@ -295,9 +296,8 @@ def _fill_file(task: FileTask, row: BatchRow) -> None:
                 data = read(task.input, format=task.input_format, rate=task.rate, override_rate=task.override_rate)
                 notes += [f"note: {note}" for note in data.notes]
                 row.frames, row.markers = data.n_frames, data.n_markers
-                reference = None
-                if task.settings.reject_outliers and task.settings.reference is not None:
-                    reference = read(task.settings.reference, rate=task.rate, override_rate=task.override_rate)
+                reference = [read(path, rate=task.rate if task.rate else data.rate, override_rate=True)
+                             for path in task.settings.reference]
                 outcome = fill_capture(data, task.settings, reference=reference)
                 row.missing_samples = int(outcome.work.missing.sum())  # rejected outliers count as gaps
                 row.filled_samples = int(outcome.result.filled.sum())
@@ -356,7 +356,7 @@ def _absolute(task: FileTask) -> FileTask:
         return None if path is None else os.path.abspath(path)
 
     settings = dataclasses.replace(task.settings, bones=absolute(task.settings.bones),
-                                   reference=absolute(task.settings.reference))
+                                   reference=tuple(absolute(p) for p in task.settings.reference))
     return dataclasses.replace(task, input=absolute(task.input), output=absolute(task.output),
                                report=absolute(task.report), settings=settings)
 
@@ -488,6 +488,12 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
     unknown = sorted(set(options) - known)
     if unknown:
         raise MocapfillError(f"batch: unknown option(s) {', '.join(unknown)} (expected {', '.join(sorted(known))})")
+    if isinstance(options.get("reference"), (str, os.PathLike)):
+        options["reference"] = (os.fspath(options["reference"]),)
+    elif options.get("reference") is not None:
+        options["reference"] = tuple(os.fspath(p) for p in options["reference"])
+    else:
+        options.pop("reference", None)
     settings = FillSettings(method=method, **options).check()
     from .io import WRITE_FORMATS
 

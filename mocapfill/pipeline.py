@@ -25,8 +25,9 @@ from .methods.base import FillResult
 class FillSettings:
     """What to do to a capture; ``None`` = the method's or step's own default.
 
-    ``bones`` and ``reference`` are paths: a bones file (from ``estimate-bones``) and a clean capture giving the
-    distance ranges for outlier rejection.
+    ``bones`` is a path (a bones file from ``estimate-bones``); ``reference`` the paths of reference takes of the
+    same marker set (:mod:`mocapfill.references`): their frames train the fill's body model (methods that take
+    ``reference_frames``) and the moving ones give ``--reject-outliers`` its distance ranges.
     """
 
     method: str = DEFAULT_METHOD
@@ -37,7 +38,7 @@ class FillSettings:
     bones: str | None = None
     reject_outliers: bool = False
     delta: float | None = None
-    reference: str | None = None
+    reference: tuple[str, ...] = ()
     smooth: bool = False
     smooth_window: int | None = None
     smooth_order: int | None = None
@@ -48,8 +49,9 @@ class FillSettings:
         ``name`` spells a field in the message (the CLI gives ``--delta`` for ``delta``).
         """
         get_method(self.method)
-        for options, step in ((("delta", "reference"), "reject_outliers"),
-                              (("smooth_window", "smooth_order"), "smooth")):
+        if self.delta is not None and not self.reject_outliers:
+            raise MethodError(f"{name('delta')} only applies with {name('reject_outliers')}")
+        for options, step in ((("smooth_window", "smooth_order"), "smooth"),):
             if any(getattr(self, option) is not None for option in options) and not getattr(self, step):
                 raise MethodError(f"{name(options[0])} and {name(options[1])} only apply with {name(step)}")
         return self
@@ -80,6 +82,8 @@ class FillOutcome:
         The options used, as the report records them.
     seconds : float
         Wall-clock time of the fill step alone.
+    references : list of Reference
+        The reference takes as matched and weighed (:mod:`mocapfill.references`), each saying which stage used it.
     """
 
     data: MarkerData
@@ -90,9 +94,10 @@ class FillOutcome:
     bones: Any
     settings: dict[str, Any]
     seconds: float
+    references: list = dataclasses.field(default_factory=list)
 
 
-def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerData | None = None,
+def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = None,
                  progress: Callable[[int, int, float], None] | None = None) -> FillOutcome:
     """Reject outliers (optional), fill, smooth (optional) one capture.
 
@@ -101,28 +106,38 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
     data : MarkerData
         positions (n_frames, n_markers, 3), NaN = missing.
     settings : FillSettings
-    reference : MarkerData or None
-        The capture named by ``settings.reference``, already read by the caller (positions (n, n_markers_ref, 3)).
+    reference : MarkerData, list of MarkerData, or None
+        The reference takes named by ``settings.reference``, already read by the caller (positions
+        (n, n_markers_ref, 3) each); matched to ``data`` by label (:func:`mocapfill.references.prepare`).
     progress : callable or None
         ``progress(iteration, n_max, objective)``, handed to methods that report progress.
     """
     work = data
     rejected = None
     record: dict[str, Any] = {}
+    refs = []
+    if reference is not None:
+        from .references import prepare
+
+        refs = prepare(data, reference if isinstance(reference, (list, tuple)) else [reference])
     if settings.reject_outliers:
         from .guards.outliers import reject_outliers
 
         options: dict[str, Any] = {"units": data.units, "labels": list(data.labels), "rate": data.rate}
         if settings.delta is not None:
             options["delta"] = settings.delta
-        if reference is not None:
-            options.update(reference=reference.positions, reference_labels=list(reference.labels),
-                           reference_units=reference.units)
+        if refs:
+            from .references import outlier_frames
+
+            ranges = outlier_frames(refs)  # moving references only: a static trial's ranges would reject motion
+            if ranges is not None:
+                options["reference"] = ranges
         outcome = reject_outliers(data.positions, **options)
         rejected = np.asarray(outcome.rejected, dtype=bool)
         work = data.with_positions(outcome.positions)
         record["reject_outliers"] = {"delta": 0.1 if settings.delta is None else settings.delta,
-                                     "reference": settings.reference, "rejected": int(rejected.sum())}
+                                     "reference": [r.name for r in refs if not r.static] or None,
+                                     "rejected": int(rejected.sum())}
 
     bones = None
     if settings.bones is not None:
@@ -139,12 +154,30 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
         record["bones"] = settings.bones
     if progress is not None and "progress" in accepted:
         options["progress"] = progress
+    if refs:
+        from .references import training_frames
+
+        if "reference_frames" in accepted:
+            frames, weights = training_frames(refs)
+            if frames is not None:
+                options.update(reference_frames=frames, reference_weights=weights)
+        else:
+            for ref in refs:
+                ref.stages["fill"] = f"not used: method {settings.method!r} takes no reference frames"
 
     from .api import fill
 
     started = time.perf_counter()
     result = fill(work, settings.method, **options)
     seconds = time.perf_counter() - started
+    if refs:
+        used = result.info.get("references")
+        if isinstance(used, dict) and used.get("models"):
+            for ref in refs:
+                if ref.stages.get("fill", "").endswith(f"weight {ref.weight:.2f}"):
+                    ref.stages["fill"] += (f"; kept by {used['used']} of {used['models']} local models (the others "
+                                           f"fitted the capture better without references)")
+        record["references"] = [ref.record(data.units) for ref in refs]
 
     positions = result.positions
     if settings.smooth:
@@ -163,7 +196,7 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
         from .io.c3d import mark_refilled
 
         output = mark_refilled(output, rejected)
-    return FillOutcome(data, work, result, output, rejected, bones, record, seconds)
+    return FillOutcome(data, work, result, output, rejected, bones, record, seconds, refs)
 
 
 def write_fill_report(outcome: FillOutcome, path: str, *, method: str, input_path: str | None,

@@ -72,10 +72,10 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         data = read_input(input_path, reading, quiet=quiet)
-        reference = None
-        if settings.reference is not None:
-            check_output_path(output_path, settings.reference)
-            reference = read_input(settings.reference, reading._replace(format=None), quiet=quiet)
+        reference = []
+        for path in settings.reference:
+            check_output_path(output_path, path)
+            reference.append(read_input(path, reading._replace(format=None, override_rate=True), quiet=quiet))
 
         with _ProgressBar(method, quiet) as bar:
             outcome = fill_capture(data, settings, reference=reference, progress=bar if bar.enabled else None)
@@ -91,8 +91,19 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
                               smoothed=settings.smooth)
 
     show_warnings(caught, quiet)
+    _references(outcome.references, data.units, quiet)
     _summary(data, outcome.work, outcome.result, method, outcome.seconds, outcome.rejected, settings.smooth,
              report_path, quiet)
+
+
+def _references(references, units: str, quiet: bool) -> None:
+    """One line per reference take on stderr: frames, weight, and what each stage did with it."""
+    out = console(quiet)
+    for ref in references:
+        stages = "; ".join(f"{stage}: {text}" for stage, text in ref.stages.items())
+        kind = "static trial, " if ref.static else ""
+        out.print(f"reference {ref.name} ({kind}{ref.n_frames} frames, body fit {ref.shape_rms:.3g} {units} RMS, "
+                  f"weight {ref.weight:.2f}): {stages}", markup=False, highlight=False, soft_wrap=True)
 
 
 def _summary(data, work, result, method: str, seconds: float, rejected, smoothed: bool, report_path, quiet: bool

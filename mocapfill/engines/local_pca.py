@@ -39,6 +39,7 @@ from ..units import length_factor
 from .weighted_pca import (
     MIN_TRAINING_FRAMES,
     cv_curve,
+    weighted_sums,
     linear_fallback,
     fit_model,
     gaussian_weights,
@@ -195,23 +196,25 @@ def _training(missing: np.ndarray, m: int, predictors: np.ndarray) -> np.ndarray
     return np.flatnonzero(~missing[:, m] & ~missing[:, predictors].any(axis=1))
 
 
-def nearest_with_training(missing: np.ndarray, m: int, candidates: np.ndarray, wanted: int
-                          ) -> tuple[np.ndarray, np.ndarray]:
+def nearest_with_training(missing: np.ndarray, m: int, candidates: np.ndarray, wanted: int,
+                          row_weight: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The longest nearest-first prefix of ``candidates`` that leaves ``wanted`` training frames for marker ``m``.
 
     candidates (p,) sorted by distance to ``m``; missing (n_frames, n_markers).  Each added predictor can only remove
     training frames (a frame must have all of them observed), so the prefix lengths trade predictors for frames;
-    at least three predictors are kept.  Returns (predictors (k,), training frames (n,)).
+    at least three predictors are kept.  ``row_weight`` (n_frames,): what each frame counts for (reference frames
+    count by their weight; default 1).  Returns (predictors (k,), training frames (n,)).
     """
     ok = ~missing[:, m][:, None] & np.logical_and.accumulate(~missing[:, candidates], axis=1)  # (n_frames, p)
-    counts = ok.sum(axis=0)
+    counts = ok.sum(axis=0) if row_weight is None else row_weight @ ok
     enough = np.flatnonzero(counts >= wanted)
     k = max(int(enough[-1]) + 1 if len(enough) else 0, min(3, len(candidates)))
     return candidates[:k], np.flatnonzero(ok[:, k - 1]) if k else np.flatnonzero(~missing[:, m])
 
 
 def observed_groups(missing: np.ndarray, m: int, frames: np.ndarray, near: np.ndarray, max_patterns: int,
-                    wanted: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+                    wanted: int, row_weight: np.ndarray | None = None
+                    ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Split marker ``m``'s gap ``frames`` into (frames, predictors, training frames) groups.
 
     near (p,) candidate predictors sorted by distance to ``m``; missing (n_frames, n_markers).  First the published
@@ -220,12 +223,13 @@ def observed_groups(missing: np.ndarray, m: int, frames: np.ndarray, near: np.nd
     markers missing at once, few or no complete frames) is split again by which of its nearest observed
     candidates each frame has, and each part keeps the nearest of them that still leave ``wanted`` training
     frames (:func:`nearest_with_training`): the model learns from incomplete frames, conditioning only on markers
-    observed where it predicts.
+    observed where it predicts.  ``row_weight`` (n_frames,): what each frame counts for (default 1).
     """
     out = []
     for group, predictors in pattern_groups(missing, frames, near, max_patterns):
         train = _training(missing, m, predictors)
-        if len(train) >= wanted and len(predictors) >= 3:
+        count = len(train) if row_weight is None else row_weight[train].sum()
+        if count >= wanted and len(predictors) >= 3:
             out.append((group, predictors, train))
             continue
         # per frame, the nearest observed candidates (how many: those a prefix can afford in training frames)
@@ -236,9 +240,38 @@ def observed_groups(missing: np.ndarray, m: int, frames: np.ndarray, near: np.nd
         inverse = np.asarray(inverse).ravel()
         for p in range(len(uniq)):
             part = group[inverse == p]
-            preds, train = nearest_with_training(missing, m, near[uniq[p]], wanted)
+            preds, train = nearest_with_training(missing, m, near[uniq[p]], wanted, row_weight)
             out.append((part, preds, train))
     return out
+
+
+def _cols(markers: np.ndarray) -> list[int]:
+    """Flattened coordinate columns of ``markers`` (3 per marker), as a list."""
+    return (3 * np.asarray(markers, dtype=int)[:, None] + np.arange(3)).ravel().tolist()
+
+
+def _choose_rows(flat: np.ndarray, tr: np.ndarray, own: np.ndarray, rw: np.ndarray | None, target: np.ndarray,
+                 pred: np.ndarray, w: np.ndarray, normalise: bool, folds: int
+                 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Training rows, their weights and the cross-validation curve of one model, with or without reference rows.
+
+    flat (n, 3 n_markers) local coordinates; tr (n_train,) training rows; own (n_train,) bool, the capture's own
+    rows (the others are reference frames, weights ``rw`` (n_train,)).  Without reference rows: every row, the
+    plain curve.  With them: where the capture's own rows allow two held-out blocks, the model with references is
+    scored on those blocks (references always in training) against the model on the capture's rows alone, and the
+    better is kept; otherwise the references stay and every row is held out in turn.
+    """
+    if rw is None or own.all():
+        return tr, None, cv_curve(flat, tr, target, pred, w, normalise=normalise, folds=folds)
+    enough = own.sum() >= 2 * MIN_TRAINING_FRAMES
+    curve = cv_curve(flat, tr, target, pred, w, normalise=normalise, folds=folds, row_weight=rw,
+                     holdout=own if enough else None)
+    if not enough or curve is None:
+        return tr, rw, curve
+    alone = cv_curve(flat, tr[own], target, pred, w, normalise=normalise, folds=folds)
+    if alone is not None and alone[0].min() <= curve[0].min():
+        return tr[own], None, alone
+    return tr, rw, curve
 
 
 def reconstruct_local(
@@ -254,6 +287,8 @@ def reconstruct_local(
     reach: float = 3.0,
     max_patterns: int = 3,
     min_train: int = MIN_TRAIN_WANTED,
+    reference_frames: np.ndarray | None = None,
+    reference_weights: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """Estimate every missing sample with the weighted PCA in each missing marker's local frame.
 
@@ -272,6 +307,14 @@ def reconstruct_local(
     max_patterns : cost bound: a marker's gap frames are split by which predictors are observed there, the
         ``max_patterns - 1`` largest patterns get their own model and the remaining frames share one model whose
         predictors are observed in all of them.
+    reference_frames : ndarray (n_ref_frames, n_markers, 3), optional
+        Frames of reference takes of the same marker set (:mod:`mocapfill.references`), in the capture's units and
+        marker order, NaN where a reference lacks a marker.  They train every model beside the capture's own frames
+        (and count towards ``min_train``), each with its ``reference_weights`` entry (n_ref_frames,) in [0, 1]
+        (default 1) relative to a capture frame.  Per model and width the capture's own frames decide: where at
+        least two blocks of them are observed, the model with the references is kept only if its leave-one-block-
+        out error on the capture's frames (the references always in training) is below that of the model without
+        them; so a reference of another body or motion is dropped where it does not help.
 
     Returns
     -------
@@ -286,9 +329,24 @@ def reconstruct_local(
     std = np.where(missing, np.nan, 0.0)
     info: dict[str, Any] = {"fallback": [], "groups": [], "anchors": np.zeros((n_frames, n_markers), dtype=int)}
     gap_markers = np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0))
+    own_positions = positions
+    row_weight = None
+    if reference_frames is not None and len(reference_frames):
+        reference_frames = np.asarray(reference_frames, dtype=np.float64)
+        if reference_frames.ndim != 3 or reference_frames.shape[1:] != positions.shape[1:]:
+            raise MethodError(f"reference_frames must have shape (n, {n_markers}, 3), got {reference_frames.shape}")
+        ref_w = (np.ones(len(reference_frames)) if reference_weights is None
+                 else np.clip(np.asarray(reference_weights, dtype=np.float64), 0.0, 1.0))
+        if ref_w.shape != (len(reference_frames),):
+            raise MethodError(f"reference_weights must have shape ({len(reference_frames)},), got {ref_w.shape}")
+        keep = ref_w > 0
+        positions = np.concatenate([positions, reference_frames[keep]])
+        row_weight = np.concatenate([np.ones(n_frames), ref_w[keep]])
+        info["references"] = {"frames": int(keep.sum()), "models": 0, "used": 0}
+    all_missing = np.isnan(positions).any(axis=2)
     for m in gap_markers:
         frames = np.flatnonzero(missing[:, m])
-        dist = mean_distances(positions, m)
+        dist = mean_distances(own_positions, m)
         weights = []
         for width in scales:
             w = gaussian_weights(dist, width)
@@ -300,11 +358,12 @@ def reconstruct_local(
         other_idx = np.flatnonzero(others)
         near = other_idx[np.isfinite(dist[other_idx]) & (dist[other_idx] <= reach * max(scales))]
         near = near[np.argsort(dist[near], kind="stable")]
-        for group, predictors, train in observed_groups(missing, m, frames, near, max_patterns, min_train):
+        for group, predictors, train in observed_groups(all_missing, m, frames, near, max_patterns, min_train,
+                                                        row_weight):
             needed = np.concatenate([[m], predictors])
             if len(predictors) < 3 or len(train) < MIN_TRAINING_FRAMES:
                 info["fallback"].append(int(m))
-                estimate[group, m] = linear_fallback(positions[:, m], missing[:, m])[group]
+                estimate[group, m] = linear_fallback(own_positions[:, m], missing[:, m])[group]
                 continue
             anchors = _anchor_set(predictors, align_weight)
             used = np.concatenate([train, group])
@@ -315,22 +374,28 @@ def reconstruct_local(
             flat = local.reshape(len(used), 3 * n_markers)
             tr = np.arange(n_train)
             target = np.array([m])
-            ests, rmss, levs, ks = [], [], [], []
+            ests, rmss, levs, ks, with_refs = [], [], [], [], []
+            own = train < n_frames  # the capture's own training rows (the rest: reference frames)
+            rw = None if row_weight is None else row_weight[train]
             for w, width in zip(weights, scales):
                 # markers beyond ``reach`` widths weigh < 0.012: leaving them out changed no median, only the cost
                 pred = predictors[dist[predictors] <= reach * width]
                 if len(pred) < 3:
                     pred = predictors[np.argsort(dist[predictors])[:3]]
-                curve = cv_curve(flat, tr, target, pred, w, normalise=normalise, folds=folds)
+                rows, row_w, curve = _choose_rows(flat, tr, own, rw, target, pred, w, normalise, folds)
                 if curve is None:
                     k, rms = None, np.nan
                 else:
                     k = int(np.argmin(curve[0])) + 1
                     rms = float(np.sqrt(curve[0, k - 1]))
-                model = fit_model(flat, tr, target, pred, w, normalise=normalise, components=k)
+                gram = weighted_sums(flat[np.ix_(rows, _cols(target) + _cols(pred))], row_w)
+                model = fit_model(flat, rows, target, pred, w, normalise=normalise, components=k, gram=gram)
                 est_local, leverage = predict(model, flat)
                 if knn:
-                    est_local = est_local + knn_correction(model, flat, est_local, n_train, knn)
+                    sel = np.concatenate([rows, np.arange(n_train, len(used))])
+                    correction = knn_correction(model, flat[sel], est_local[sel], len(rows), knn)
+                    est_local[n_train:] += correction[len(rows):]
+                with_refs.append(bool((~own[rows]).any()))
                 ests.append(est_local)
                 rmss.append(rms)
                 levs.append(leverage)
@@ -350,13 +415,19 @@ def reconstruct_local(
             factor = np.ones(len(group))
             if edge is not None:
                 pred = np.full((n_frames, 3), np.nan)
-                pred[used] = est_all
-                est, factor = edge_corrected(positions[:, m], pred, group, tau=edge)
+                mine = used < n_frames
+                pred[used[mine]] = est_all[mine]
+                est, factor = edge_corrected(own_positions[:, m], pred, group, tau=edge)
             estimate[group, m] = est
             std[group, m] = rms_mix * np.sqrt((1.0 + leverage[n_train:]) * factor)
             info["anchors"][group, m] = len(anchors)
-            info["groups"].append({"marker": int(m), "frames": int(len(group)), "components": ks,
-                                   "cv_rms": [float(r) for r in rmss]})
+            record = {"marker": int(m), "frames": int(len(group)), "components": ks,
+                      "cv_rms": [float(r) for r in rmss]}
+            if row_weight is not None:
+                record["references"] = with_refs
+                info["references"]["models"] += len(with_refs)
+                info["references"]["used"] += int(sum(with_refs))
+            info["groups"].append(record)
     info["fallback"] = sorted(set(info["fallback"]))
     return estimate, std, info
 

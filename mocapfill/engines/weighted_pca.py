@@ -258,6 +258,14 @@ def reference_trajectory(positions: np.ndarray, missing: np.ndarray) -> np.ndarr
     return linear_fallback(centre, gone)[:, None, :]
 
 
+def weighted_sums(block: np.ndarray, row_weight: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, float]:
+    """Raw sums of rows (n, q) for :func:`fit_model`'s ``gram``: (sum w x (q,), sum w x x^T (q, q), sum w)."""
+    if row_weight is None:
+        return block.sum(axis=0), block.T @ block, float(len(block))
+    wb = block * row_weight[:, None]
+    return wb.sum(axis=0), block.T @ wb, float(row_weight.sum())
+
+
 def cv_curve(
     flat: np.ndarray,
     train: np.ndarray,
@@ -267,24 +275,33 @@ def cv_curve(
     *,
     normalise: bool = True,
     folds: int = 5,
+    row_weight: np.ndarray | None = None,
+    holdout: np.ndarray | None = None,
 ) -> np.ndarray | None:
     """Leave-one-block-out mean squared error per coordinate of the targets for every number of components.
 
     Same splitting as :func:`cross_validated_rms`; one eigendecomposition per fold serves every truncation because
     the reconstruction with k components is a cumulative sum over components.  Returns (n_targets, q) with
     q = 3 (n_targets + n_predictors) (entry k-1 = error with k components), or None with too few frames.
+
+    ``row_weight`` (n_train,): the weight of each training row in the sums (reference frames beside the capture's
+    own, see :mod:`mocapfill.references`; default 1).  ``holdout`` (n_train,) bool: the rows that are held out in
+    blocks (the capture's own); the others always stay in training.  Default: every row.
     """
     columns = np.concatenate([_columns(targets), _columns(predictors)])
     block_all = flat[np.ix_(train, columns)]
-    s1, s2, n = block_all.sum(axis=0), block_all.T @ block_all, len(train)
-    blocks = _blocks(n, folds)
+    s1, s2, n = weighted_sums(block_all, row_weight)
+    rows_out = np.arange(len(train)) if holdout is None else np.flatnonzero(holdout)
+    blocks = [rows_out[b] for b in _blocks(len(rows_out), folds)]
     if len(blocks) < 2:
         return None
     nt = 3 * len(targets)
     sq = np.zeros((len(columns), nt))
+    count = 0
     for rows in blocks:
         held = block_all[rows]
-        gram = (s1 - held.sum(axis=0), s2 - held.T @ held, n - len(rows))
+        h1, h2, hn = weighted_sums(held, None if row_weight is None else row_weight[rows])
+        gram = (s1 - h1, s2 - h2, n - hn)
         model = fit_model(flat, train, targets, predictors, marker_weight, normalise=normalise, gram=gram,
                           components=len(columns))
         z = (held - model.mean) / model.scale * model.weight
@@ -298,7 +315,8 @@ def cv_curve(
         sq[:k_avail] += err
         if k_avail < len(columns):  # rank-deficient fold: later truncations equal the last
             sq[k_avail:] += err[-1]
-    per = sq / n  # (q, nt)
+        count += len(rows)
+    per = sq / count  # (q, nt)
     return per.reshape(len(columns), len(targets), 3).mean(axis=2).T
 
 
