@@ -21,6 +21,10 @@ from .methods import DEFAULT_METHOD, get_method
 from .methods.base import FillResult
 
 
+#: The report lists at most this many repaired samples (the count is always complete).
+REPAIRED_LISTED = 10000
+
+
 @dataclass(frozen=True)
 class FillSettings:
     """What to do to a capture; ``None`` = the method's or step's own default.
@@ -39,6 +43,8 @@ class FillSettings:
     reject_outliers: bool = False
     delta: float | None = None
     reference: tuple[str, ...] = ()
+    model: str | None = None
+    denoise: bool = False
     smooth: bool = False
     smooth_window: int | None = None
     smooth_order: int | None = None
@@ -49,6 +55,8 @@ class FillSettings:
         ``name`` spells a field in the message (the CLI gives ``--delta`` for ``delta``).
         """
         get_method(self.method)
+        if self.denoise and self.model is None:
+            raise MethodError(f"{name('denoise')} needs {name('model')} (a model from `mocapfill train`)")
         if self.delta is not None and not self.reject_outliers:
             raise MethodError(f"{name('delta')} only applies with {name('reject_outliers')}")
         for options, step in ((("smooth_window", "smooth_order"), "smooth"),):
@@ -84,6 +92,9 @@ class FillOutcome:
         Wall-clock time of the fill step alone.
     references : list of Reference
         The reference takes as matched and weighed (:mod:`mocapfill.references`), each saying which stage used it.
+    repaired : ndarray of bool (n_frames, n_markers) or None
+        Observed samples the learned denoiser judged displaced or swapped (``--denoise``), refilled
+        (``Status.REPAIRED``); None without it.
     """
 
     data: MarkerData
@@ -95,6 +106,7 @@ class FillOutcome:
     settings: dict[str, Any]
     seconds: float
     references: list = dataclasses.field(default_factory=list)
+    repaired: np.ndarray | None = None
 
 
 def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = None,
@@ -120,6 +132,22 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
         from .references import prepare
 
         refs = prepare(data, reference if isinstance(reference, (list, tuple)) else [reference])
+    model = None
+    if settings.model is not None:
+        from .engines.denoiser import load_model
+
+        model = load_model(settings.model)
+    repaired = None
+    if settings.denoise:
+        from .guards.denoise import find_displaced
+
+        repaired = find_displaced(data.positions, model, labels=list(data.labels), units=data.units, rate=data.rate)
+        positions = data.positions.copy()
+        positions[repaired] = np.nan
+        work = data.with_positions(positions)
+        shown = [{"marker": data.labels[m], "frame": int(f) + data.first_frame}
+                 for f, m in zip(*np.nonzero(repaired))][:REPAIRED_LISTED]
+        record["denoise"] = {"model": settings.model, "repaired": int(repaired.sum()), "samples": shown}
     if settings.reject_outliers:
         from .guards.outliers import reject_outliers
 
@@ -132,7 +160,7 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
             ranges = outlier_frames(refs)  # moving references only: a static trial's ranges would reject motion
             if ranges is not None:
                 options["reference"] = ranges
-        outcome = reject_outliers(data.positions, **options)
+        outcome = reject_outliers(work.positions, **options)
         rejected = np.asarray(outcome.rejected, dtype=bool)
         work = data.with_positions(outcome.positions)
         record["reject_outliers"] = {"delta": 0.1 if settings.delta is None else settings.delta,
@@ -154,6 +182,9 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
         record["bones"] = settings.bones
     if progress is not None and "progress" in accepted:
         options["progress"] = progress
+    if model is not None and "model" in accepted:
+        options["model"] = model
+        record["model"] = settings.model
     if refs:
         from .references import training_frames
 
@@ -192,11 +223,12 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
         record["smooth"] = {"window": settings.smooth_window, "order": settings.smooth_order}
 
     output = data.with_positions(positions)
-    if rejected is not None:  # a rejected sample filled again is written as filled, not with its old residual
+    refilled = rejected if repaired is None else (repaired if rejected is None else rejected | repaired)
+    if refilled is not None:  # a rejected sample filled again is written as filled, not with its old residual
         from .io.c3d import mark_refilled
 
-        output = mark_refilled(output, rejected)
-    return FillOutcome(data, work, result, output, rejected, bones, record, seconds, refs)
+        output = mark_refilled(output, refilled)
+    return FillOutcome(data, work, result, output, rejected, bones, record, seconds, refs, repaired)
 
 
 def write_fill_report(outcome: FillOutcome, path: str, *, method: str, input_path: str | None,

@@ -97,6 +97,12 @@ def fill_options(func: Callable) -> Callable:
                      help="A reference take of the same marker set (repeatable: the static trial, other takes of the "
                           "session): its frames train the fill's body model, weighted by how well its body fits; a "
                           "moving one also gives --reject-outliers its distance ranges (default: the file itself)."),
+        click.option("--model", "model", type=str, default=None,
+                     help="A denoiser model of this marker layout (from `mocapfill train`): for --method learned and "
+                          "--denoise."),
+        click.option("--denoise", is_flag=True,
+                     help="Observed samples the --model judges displaced or swapped become gaps and are refilled "
+                          "(reported as repaired)."),
         click.option("--smooth", is_flag=True,
                      help="Savitzky-Golay smoothing of the output (off by default: it changes observed samples)."),
         click.option("--smooth-window", type=click.IntRange(min=1), default=None,

@@ -59,7 +59,8 @@ def _default_methods() -> tuple[list[str], list[str]]:
         except (ImportError, AttributeError):
             missing.append(name)
         else:
-            ok.append(name)
+            if "model" not in spec.parameters():  # the learned method needs a model: `-m learned -o model=F`
+                ok.append(name)
     return ok, missing
 
 
@@ -83,8 +84,11 @@ def _show(result, quiet: bool) -> None:
         gap = f", gaps of {settings['gap_min_frames']}-{settings['gap_max_frames']} frames"
     out.print(f"[bold]{data.path}[/bold]: {data.n_markers} markers, {data.n_frames} frames at {data.rate:g} Hz; "
               f"protocol {result.protocol}, {len(result.trials)} trials{gap}, seed {result.seed}", highlight=False)
+    if settings.get("references"):
+        out.print(f"reference takes: {', '.join(settings['references'])}", highlight=False)
+    oracle = " [ORACLE: outlier ranges from the clean file itself]" if settings.get("oracle") else ""
 
-    table = Table(title=f"errors over the hidden samples, in {units} (MSE in {units}\u00b2, Eq. 13)",
+    table = Table(title=f"errors over the hidden samples, in {units} (MSE in {units}\u00b2, Eq. 13){oracle}",
                   title_justify="left")
     table.add_column("method")
     honesty = any(summary[m]["error_ratio"]["median"] is not None for m in result.methods)
@@ -176,7 +180,10 @@ def _show(result, quiet: bool) -> None:
 @click.option("--reject-outliers", type=click.Choice(["self", "clean"]), default=None,
               help="Run outlier rejection on each corrupted clip before filling (for the random protocol): "
                    "'self' uses the corrupted clip as its own reference (as fill does), 'clean' uses the clean "
-                   "file as Holden's reference take.")
+                   "file as Holden's reference take (an oracle: it has seen the truth; tables say so).")
+@click.option("--reference", "references", type=str, multiple=True,
+              help="A reference take of the same marker set (repeatable; never the clean file itself) for the "
+                   "methods that train on references (auto, pca).")
 @click.option("--json", "as_json", is_flag=True, help="Print every trial as JSON on stdout.")
 @click.option("--csv", "as_csv", is_flag=True, help="Print every trial as CSV on stdout.")
 @input_options
@@ -185,7 +192,7 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
              gap_min: str | None, gap_max: str | None, limb_size: int, missing: float, radius: str | None,
              events: int, occlusions: str | None,
              save_occlusions: str | None, jobs: int, option_pairs: tuple[str, ...], reject_outliers: str | None,
-             as_json: bool, as_csv: bool, reading: ReadOptions, quiet: bool) -> None:
+             references: tuple[str, ...], as_json: bool, as_csv: bool, reading: ReadOptions, quiet: bool) -> None:
     """Score fill methods on CLEAN_FILE: hide samples it has, fill them with each method, compare with the truth.
 
     Metrics per trial and method, over the hidden samples, in the file's units: RMSE and max error of the 3-D
@@ -236,6 +243,8 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
                                     gap_min=gap_min, gap_max=gap_max, jobs=jobs, options=options,
                                     reject_outliers=reject_outliers, progress=progress,
                                     save_occlusions=save_occlusions,
+                                    reference=[read_input(path, reading._replace(format=None, override_rate=True),
+                                                          quiet=quiet) for path in references] or None,
                                     **protocol_options)
     show_warnings(caught, quiet)
     if save_occlusions:

@@ -93,7 +93,7 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
     show_warnings(caught, quiet)
     _references(outcome.references, data.units, quiet)
     _summary(data, outcome.work, outcome.result, method, outcome.seconds, outcome.rejected, settings.smooth,
-             report_path, quiet)
+             report_path, quiet, outcome.repaired)
 
 
 def _references(references, units: str, quiet: bool) -> None:
@@ -106,8 +106,8 @@ def _references(references, units: str, quiet: bool) -> None:
                   f"weight {ref.weight:.2f}): {stages}", markup=False, highlight=False, soft_wrap=True)
 
 
-def _summary(data, work, result, method: str, seconds: float, rejected, smoothed: bool, report_path, quiet: bool
-             ) -> None:
+def _summary(data, work, result, method: str, seconds: float, rejected, smoothed: bool, report_path, quiet: bool,
+             repaired=None) -> None:
     """A few lines on stderr: method, filled samples, gaps left, time, convergence."""
     from ..gaps import all_missing_markers, find_gaps
 
@@ -124,6 +124,8 @@ def _summary(data, work, result, method: str, seconds: float, rejected, smoothed
         parts.append(f"{result.n_iter} iterations" + ("" if result.converged else " (not converged)"))
     if rejected is not None:
         parts.append(f"{int(rejected.sum())} outlier samples rejected")
+    if repaired is not None:
+        parts.append(f"{int(repaired.sum())} displaced samples repaired by the denoiser")
     if smoothed:
         parts.append("output smoothed")
     if report_path:
