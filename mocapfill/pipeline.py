@@ -110,7 +110,7 @@ class FillOutcome:
 
 
 def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = None,
-                 progress: Callable[[int, int, float], None] | None = None) -> FillOutcome:
+                 progress: Callable[[int, int, float], None] | None = None, jobs: int = 1) -> FillOutcome:
     """Reject outliers (optional), fill, smooth (optional) one capture.
 
     Parameters
@@ -123,6 +123,9 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
         (n, n_markers_ref, 3) each); matched to ``data`` by label (:func:`mocapfill.references.prepare`).
     progress : callable or None
         ``progress(iteration, n_max, objective)``, handed to methods that report progress.
+    jobs : int
+        Local worker processes a method may use (a long take's windows; 1: here, 0: every core), handed to methods
+        that take ``jobs``.  Not a setting: the output does not depend on it.
     """
     work = data
     rejected = None
@@ -195,6 +198,8 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
         else:
             for ref in refs:
                 ref.stages["fill"] = f"not used: method {settings.method!r} takes no reference frames"
+    if "jobs" in accepted:
+        options["jobs"] = jobs
 
     from .api import fill
 
