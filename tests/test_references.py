@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 import warnings
 
 import numpy as np
@@ -130,3 +131,19 @@ def test_evaluate_refuses_the_test_capture_and_labels_the_oracle(halves):
     result = mocapfill.evaluate(first, ["pca"], "marker", trials=1, seed=0, reference=[second],
                                 reject_outliers="clean")
     assert result.settings["oracle"] is True and result.settings["references"] == ["second"]
+
+
+def test_batch_hands_references_to_every_file(halves, tmp_path):
+    first, second = halves
+    folder = tmp_path / "session"
+    folder.mkdir()
+    gappy = first.positions.copy()
+    gappy[100:140, 7] = np.nan
+    mocapfill.write(MarkerData(gappy, list(first.labels), 120.0, "mm"), folder / "take.c3d")
+    ref = tmp_path / "static.csv"
+    mocapfill.write(MarkerData(np.repeat(second.positions[:1], 60, axis=0), list(first.labels), 120.0, "mm"), ref)
+    rows = mocapfill.batch(folder, tmp_path / "out", method="pca", reference=[str(ref)], report="json")
+    assert [r.status for r in rows] == ["filled"], rows[0].error
+    doc = json.loads(Path(rows[0].report).read_text())
+    (record,) = doc["summary"]["settings"]["references"]
+    assert record["static"] and record["frames"] == 60
