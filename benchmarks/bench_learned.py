@@ -33,9 +33,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
-import datetime  # noqa: E402
 import json  # noqa: E402
-import platform  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
@@ -49,7 +47,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import mocapfill  # noqa: E402
-from bench_references import layout, load  # noqa: E402
+from bench_references import header, layout, load  # noqa: E402
 from mocapfill.engines.denoiser import save_model  # noqa: E402
 from mocapfill.evaluation.occlusions import make_occlusions  # noqa: E402
 from mocapfill.guards.denoise import find_displaced  # noqa: E402
@@ -158,12 +156,7 @@ def main() -> None:
         log("  " + " ".join(str(x) for x in r))
     log(f"learned fill: {per_1000:.3f} s per 1,000 frames")
     doc = {
-        "script": "bench_learned.py",
-        "command": "python benchmarks/bench_learned.py " + " ".join(sys.argv[1:]),
-        "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores (shared, loaded), python "
-                   f"{platform.python_version()}, numpy {np.__version__}",
-        "date": datetime.date.today().isoformat(),
-        "seconds": round(time.perf_counter() - started, 1),
+        **header("bench_learned.py", started),
         "tables": {
             "training": {"title": f"three nested training sets (no test clip), {args.steps} steps, hidden "
                                   f"{args.hidden}, {args.blocks} blocks",

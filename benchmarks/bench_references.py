@@ -103,6 +103,14 @@ def run_set(name: str, table: dict[str, list[str]], labels: list[str], trials: i
     return rows
 
 
+def header(script: str, started: float) -> dict:
+    """The results file's head (COORDINATION's format): script, command, machine, date, seconds."""
+    return {"script": script, "command": f"python benchmarks/{script} " + " ".join(sys.argv[1:]),
+            "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores (shared, loaded), "
+                       f"python {platform.python_version()}, numpy {np.__version__}",
+            "date": datetime.date.today().isoformat(), "seconds": round(time.perf_counter() - started, 1)}
+
+
 def summarise(rows: list[list]) -> tuple[list[list], dict]:
     out, figures = [], {}
     for name in ("same", "other"):
@@ -146,12 +154,7 @@ def main() -> None:
     for r in summary:
         log(f"{r[0]:6} {r[1]:11} {r[2]:6} {r[3]:8} {r[4]:8} {r[5]:22} {r[6]:12} {r[7]:10}")
     doc = {
-        "script": "bench_references.py",
-        "command": "python benchmarks/bench_references.py " + " ".join(sys.argv[1:]),
-        "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores (shared), python "
-                   f"{platform.python_version()}, numpy {np.__version__}",
-        "date": datetime.date.today().isoformat(),
-        "seconds": round(time.perf_counter() - started, 1),
+        **header("bench_references.py", started),
         "tables": {
             "summary": {"title": "auto with and without reference takes: median over trials of the per-trial RMSE "
                                  "(mm); reduction of the median; ratio with / without per trial (median, max). "

@@ -65,16 +65,10 @@ def fill(data: MarkerData | np.ndarray, method: str = DEFAULT_METHOD, **options:
         kwargs.pop("reference", None)
         if not isinstance(data, MarkerData):
             raise MethodError("reference= needs the capture as a MarkerData (labels and units to match them by)")
-        from .references import prepare, training_frames
+        from .references import method_options, prepare
 
         refs = prepare(data, reference if isinstance(reference, (list, tuple)) else [reference])
-        if "reference_frames" in accepted:
-            frames, weights = training_frames(refs)
-            if frames is not None:
-                kwargs.update(reference_frames=frames, reference_weights=weights)
-        else:
-            for ref in refs:
-                ref.stages["fill"] = f"not used: method {method!r} takes no reference frames"
+        kwargs.update(method_options(refs, method, accepted))
     if ignored:
         warnings.warn(f"method {method!r} ignores option(s): {', '.join(sorted(ignored))}", UserWarning,
                       stacklevel=2)

@@ -189,15 +189,9 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
         options["model"] = model
         record["model"] = settings.model
     if refs:
-        from .references import training_frames
+        from .references import method_options
 
-        if "reference_frames" in accepted:
-            frames, weights = training_frames(refs)
-            if frames is not None:
-                options.update(reference_frames=frames, reference_weights=weights)
-        else:
-            for ref in refs:
-                ref.stages["fill"] = f"not used: method {settings.method!r} takes no reference frames"
+        options.update(method_options(refs, settings.method, accepted))
     if "jobs" in accepted:
         options["jobs"] = jobs
 

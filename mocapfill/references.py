@@ -244,6 +244,18 @@ def training_frames(references: Sequence[Reference]) -> tuple[np.ndarray | None,
     return np.concatenate(frames), np.concatenate(weights)
 
 
+def method_options(references: Sequence[Reference], method: str, accepted: set[str]) -> dict[str, np.ndarray]:
+    """The keyword options that hand the references to a fill method: ``reference_frames`` / ``reference_weights``
+    when the method takes them (its parameter names ``accepted``) and some reference is weighted in; else none, and
+    each reference's ``stages["fill"]`` says why."""
+    if "reference_frames" not in accepted:
+        for ref in references:
+            ref.stages["fill"] = f"not used: method {method!r} takes no reference frames"
+        return {}
+    frames, weights = training_frames(references)
+    return {} if frames is None else {"reference_frames": frames, "reference_weights": weights}
+
+
 def outlier_frames(references: Sequence[Reference]) -> np.ndarray | None:
     """Frames (n, n_markers, 3) of the moving references for ``--reject-outliers``'s distance ranges, or None.
 
