@@ -13,7 +13,9 @@ On the CMU 41-marker layout (clips restricted to 85_02's markers, as in ``bench_
   - ``auto``: the default as it is (displaced samples stay in, and are scored);
   - ``auto --reject-outliers``: Holden's distance-range rule on the capture itself first (``self``);
   - ``learned --denoise``: the model's own detection (:func:`mocapfill.guards.denoise.find_displaced`), then the
-    learned fill; on the marker protocol ``learned`` alone.
+    learned fill; on the marker protocol ``learned`` alone;
+  - ``auto --denoise``: the largest model's detection, then the default (``fill --model M --denoise``), on both
+    protocols (on tidy gaps it shows what false detections cost); and how many samples it judged displaced.
 
   No mode uses the clean test clip (no oracle).
 - **speed**: the learned fill's time per 1,000 frames (the largest model, one test clip).
@@ -34,6 +36,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import re  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
@@ -127,12 +130,20 @@ def main() -> None:
                             work[found] = np.nan
                         out = mocapfill.fill(truth.with_positions(work), "learned", model=models[size])
                         row.append(rmse(out.positions, truth.positions, scored))
+                    # the default after the large model's detection (`fill --model M --denoise`), both protocols
+                    found = find_displaced(corrupted, models["large"], labels=labels, units="mm", rate=truth.rate)
+                    work = corrupted.copy()
+                    work[found] = np.nan
+                    row.append(rmse(mocapfill.fill(truth.with_positions(work), "auto").positions, truth.positions,
+                                    scored))
+                    row.append(float(found.sum()))
                 trial_rows.append([row[0], row[1], row[2]] + [round(v, 2) if np.isfinite(v) else None
                                                               for v in row[3:]])
                 log(f"{clip} {protocol} {k}: " + " ".join(f"{v:7.1f}" for v in row[3:]))
 
     summary = []
-    heads = ["auto", "auto --reject-outliers", "learned small", "learned medium", "learned large"]
+    heads = ["auto", "auto --reject-outliers", "learned small", "learned medium", "learned large",
+             "auto --denoise (large)", "samples judged displaced"]
     for protocol in ("random", "marker"):
         sel = np.array([[np.nan if v is None else v for v in r[3:]] for r in trial_rows if r[1] == protocol],
                        dtype=float)
@@ -174,10 +185,9 @@ def main() -> None:
             "learned_fill_seconds_per_1000_frames": {"value": round(per_1000, 4), "unit": "s", "better": "lower"},
             "training_seconds_large": {"value": size_rows[-1][3], "unit": "s", "better": "lower"},
             "model_kib": {"value": size_rows[-1][4], "unit": "KiB", "better": "lower"},
-            **{f"random_median_{h.replace(' --', '_').replace(' ', '_').replace('-', '_')}":
-               {"value": summary[0][2 + i], "unit": "mm", "better": "lower"} for i, h in enumerate(heads)},
-            **{f"marker_median_{h.replace(' --', '_').replace(' ', '_').replace('-', '_')}":
-               {"value": summary[1][2 + i], "unit": "mm", "better": "lower"} for i, h in enumerate(heads)},
+            **{f"{row[0]}_median_{re.sub('[^a-z]+', '_', h).strip('_')}":
+               {"value": row[2 + i], "unit": "mm", "better": "lower"}
+               for row in summary for i, h in enumerate(heads[:-1])},
         },
     }
     Path(args.output).parent.mkdir(parents=True, exist_ok=True)
