@@ -138,6 +138,9 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=2)
     parser.add_argument("--seed", type=int, default=26)
     parser.add_argument("--sets", default="same,other")
+    parser.add_argument("--force-weight", action="store_true",
+                        help="weight every reference 1 (the body-fit weighting off): what the per-model "
+                             "cross-validation alone keeps out")
     parser.add_argument("--output", default=str(ROOT / "benchmarks" / "results" / "bench_references.json"))
     args = parser.parse_args()
 
@@ -145,6 +148,14 @@ def main() -> None:
         print(text, file=sys.stderr, flush=True)
 
     labels = layout()
+    if args.force_weight:
+        import mocapfill.references as references
+
+        def weigh_all(positions, refs, units):
+            for ref in refs:
+                ref.shape_rms, ref.weight = float("nan"), 1.0
+
+        references.weigh = weigh_all
     rows = []
     started = time.perf_counter()
     for name in args.sets.split(","):
