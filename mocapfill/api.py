@@ -22,7 +22,8 @@ def fill(data: MarkerData | np.ndarray, method: str = DEFAULT_METHOD, **options:
     Parameters
     ----------
     data : MarkerData or ndarray of shape (n_frames, n_markers, 3)
-        The capture; NaN = missing.  For a bare array, pass ``units=`` (default "mm") and ``rate=`` if the method
+        The capture; NaN = missing.  Of a MarkerData only the points of kind "marker" inform the fill and are
+        filled; model points and unlabelled trajectories come back untouched.  For a bare array, pass ``units=`` (default "mm") and ``rate=`` if the method
         uses them.
     method : str
         A name from :data:`mocapfill.methods.METHODS`.
@@ -41,6 +42,17 @@ def fill(data: MarkerData | np.ndarray, method: str = DEFAULT_METHOD, **options:
         ``data`` is a MarkerData, ``result.info["data"]`` is not set; use ``data.with_positions(result.positions)``
         (or :func:`fill_data`) for a writable copy.
     """
+    if isinstance(data, MarkerData) and any(kind != "marker" for kind in data.kinds):
+        # Only the markers inform the fill and are filled; model points and unlabelled trajectories come back as
+        # they were (the pipeline's rule: mocapfill.pipeline.fill_columns).
+        from .pipeline import fill_columns, subset, widen_result
+
+        columns = fill_columns(data)
+        if columns.size == 0:
+            return FillResult(data.positions.copy(), np.zeros(data.positions.shape[:2], dtype=bool),
+                              info={"method": method})
+        result = fill(subset(data, columns), method, **options)
+        return widen_result(result, columns, data.positions, data.labels)
     spec = get_method(method)
     func = spec.load()
     accepted = spec.parameters()

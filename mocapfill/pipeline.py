@@ -31,7 +31,8 @@ class FillSettings:
 
     ``bones`` is a path (a bones file from ``estimate-bones``); ``reference`` the paths of reference takes of the
     same marker set (:mod:`mocapfill.references`): their frames train the fill's body model (methods that take
-    ``reference_frames``) and the moving ones give ``--reject-outliers`` its distance ranges.
+    ``reference_frames``) and the moving ones give ``--reject-outliers`` its distance ranges.  ``model``: a denoiser
+    model (``mocapfill train``) for ``--method learned`` and ``denoise``.
     """
 
     method: str = DEFAULT_METHOD
@@ -48,6 +49,7 @@ class FillSettings:
     smooth: bool = False
     smooth_window: int | None = None
     smooth_order: int | None = None
+    keep_held: bool = False
 
     def check(self, *, name: Callable[[str], str] = str) -> "FillSettings":
         """Raise MethodError for an unknown method or an option whose step is off; return self.
@@ -90,6 +92,13 @@ class FillOutcome:
         The options used, as the report records them.
     seconds : float
         Wall-clock time of the fill step alone.
+    held : ndarray of bool (n_frames, n_markers) or None
+        Samples turned into gaps as held or frozen (:mod:`mocapfill.guards.held`); None with ``keep_held``.
+    columns : ndarray of int or None
+        The point columns the fill saw (:func:`fill_columns`); the others came back untouched.
+    held_summary : dict or None
+        What the held-sample guard found (:func:`mocapfill.guards.held.held_summary`, fill columns only), also with
+        ``keep_held`` (then nothing was rejected).
     references : list of Reference
         The reference takes as matched and weighed (:mod:`mocapfill.references`), each saying which stage used it.
     repaired : ndarray of bool (n_frames, n_markers) or None
@@ -105,13 +114,62 @@ class FillOutcome:
     bones: Any
     settings: dict[str, Any]
     seconds: float
+    held: np.ndarray | None = None
+    columns: np.ndarray | None = None
+    held_summary: dict[str, Any] | None = None
     references: list = dataclasses.field(default_factory=list)
     repaired: np.ndarray | None = None
 
 
+def fill_columns(data: MarkerData, chosen: Any = None) -> np.ndarray:
+    """The point columns that inform the fill and are filled: int array, ascending.
+
+    By default the points of kind ``"marker"``; model points and unlabelled trajectories are kept untouched, out of
+    the fill and its statistics.  ``chosen`` (column indices, or None) replaces that choice: the ``--markers`` /
+    ``--exclude`` selection resolves names to indices and hands them here.
+    """
+    if chosen is not None:
+        return np.unique(np.asarray(chosen, dtype=np.int64).reshape(-1))
+    return np.array([k for k, kind in enumerate(data.kinds) if kind == "marker"], dtype=np.int64)
+
+
+def subset(data: MarkerData, columns: np.ndarray) -> MarkerData:
+    """``data`` restricted to ``columns`` (positions (n_frames, len(columns), 3)); the C3D payload is dropped, so
+    write the full capture, not this view."""
+    columns = np.asarray(columns, dtype=np.int64)
+    return MarkerData(data.positions[:, columns], [data.labels[k] for k in columns], data.rate, data.units,
+                      data.first_frame, data.source_format, None, data.path, list(data.notes),
+                      [data.kinds[k] for k in columns])
+
+
+def widen_result(result: FillResult, columns: np.ndarray, positions: np.ndarray, labels: list[str]) -> FillResult:
+    """A fill of ``positions[:, columns]`` as a result over every column of ``positions`` (n_frames, n_points, 3):
+    the other columns as they were, not filled; per-gap records name their marker by label."""
+    full = positions.copy()
+    full[:, columns] = result.positions
+    filled = np.zeros(positions.shape[:2], dtype=bool)
+    filled[:, columns] = result.filled
+    std = None
+    if result.std is not None:
+        std = np.where(np.isnan(positions).any(axis=2), np.nan, 0.0)
+        std[:, columns] = result.std
+    info = dict(result.info)
+    records = info.get("gap_methods")
+    if isinstance(records, list):  # name each gap's marker: indices would point into the fill's columns
+        sub_labels = [labels[k] for k in columns]
+        info["gap_methods"] = [dict(r, marker=sub_labels[r["marker"]]) if isinstance(r, dict)
+                               and isinstance(r.get("marker"), (int, np.integer))
+                               and 0 <= r["marker"] < len(sub_labels) else r for r in records]
+    return FillResult(full, filled, std, result.n_iter, result.converged, list(result.objective), info)
+
+
 def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = None,
                  progress: Callable[[int, int, float], None] | None = None, jobs: int = 1) -> FillOutcome:
-    """Reject outliers (optional), fill, smooth (optional) one capture.
+    """Find held samples, reject outliers (optional), fill, smooth (optional) one capture.
+
+    Only the columns of :func:`fill_columns` (the markers) go through these steps and inform the fill: the method
+    sees ``positions[:, columns]``; model points and unlabelled trajectories come back untouched.  Held and frozen
+    samples (:mod:`mocapfill.guards.held`) become gaps unless ``settings.keep_held``.
 
     Parameters
     ----------
@@ -120,21 +178,43 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
     settings : FillSettings
     reference : MarkerData, list of MarkerData, or None
         The reference takes named by ``settings.reference``, already read by the caller (positions
-        (n, n_markers_ref, 3) each); matched to ``data`` by label (:func:`mocapfill.references.prepare`).
+        (n, n_markers_ref, 3) each); matched to the filled columns by label (:func:`mocapfill.references.prepare`).
     progress : callable or None
         ``progress(iteration, n_max, objective)``, handed to methods that report progress.
     jobs : int
         Local worker processes a method may use (a long take's windows; 1: here, 0: every core), handed to methods
         that take ``jobs``.  Not a setting: the output does not depend on it.
     """
-    work = data
-    rejected = None
+    columns = fill_columns(data)
+    every = columns.size == data.n_markers
+    view = data if every else subset(data, columns)
     record: dict[str, Any] = {}
+    if not every:
+        record["points_kept"] = {kind: sum(1 for k in data.kinds if k == kind) for kind in ("model", "unlabelled")}
+
+    from .guards.held import find_held, held_summary
+
+    quantum = None
+    extra = data.extra
+    if getattr(getattr(extra, "file", None), "is_float", True) is False:
+        quantum = abs(float(extra.file.scale))
+    found = find_held(view.positions, units=data.units, quantum=quantum)
+    summary = held_summary(found, view.labels, data.first_frame)
+    held = None
+    work = view
+    if not settings.keep_held:
+        held_sub = found.held
+        if held_sub.any():
+            work = view.with_positions(np.where(held_sub[:, :, None], np.nan, view.positions))
+        held = np.zeros((data.n_frames, data.n_markers), dtype=bool)
+        held[:, columns] = held_sub
+        record["held"] = {"rejected": int(held_sub.sum()), "runs": summary["held"] + summary["zero"]}
+
     refs = []
     if reference is not None:
         from .references import prepare
 
-        refs = prepare(data, reference if isinstance(reference, (list, tuple)) else [reference])
+        refs = prepare(view, reference if isinstance(reference, (list, tuple)) else [reference])
     model = None
     if settings.model is not None:
         from .engines.denoiser import load_model
@@ -144,17 +224,20 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
     if settings.denoise:
         from .guards.denoise import find_displaced
 
-        repaired = find_displaced(data.positions, model, labels=list(data.labels), units=data.units, rate=data.rate)
-        positions = data.positions.copy()
-        positions[repaired] = np.nan
-        work = data.with_positions(positions)
-        shown = [{"marker": data.labels[m], "frame": int(f) + data.first_frame}
-                 for f, m in zip(*np.nonzero(repaired))][:REPAIRED_LISTED]
-        record["denoise"] = {"model": settings.model, "repaired": int(repaired.sum()), "samples": shown}
+        repaired_sub = find_displaced(work.positions, model, labels=list(view.labels), units=data.units,
+                                      rate=data.rate)
+        work = work.with_positions(np.where(repaired_sub[:, :, None], np.nan, work.positions))
+        repaired = np.zeros((data.n_frames, data.n_markers), dtype=bool)
+        repaired[:, columns] = repaired_sub
+        shown = [{"marker": view.labels[m], "frame": int(f) + data.first_frame}
+                 for f, m in zip(*np.nonzero(repaired_sub))][:REPAIRED_LISTED]
+        record["denoise"] = {"model": settings.model, "repaired": int(repaired_sub.sum()), "samples": shown}
+
+    rejected = None
     if settings.reject_outliers:
         from .guards.outliers import reject_outliers
 
-        options: dict[str, Any] = {"units": data.units, "labels": list(data.labels), "rate": data.rate}
+        options: dict[str, Any] = {"units": data.units, "labels": list(view.labels), "rate": data.rate}
         if settings.delta is not None:
             options["delta"] = settings.delta
         if refs:
@@ -164,17 +247,20 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
             if ranges is not None:
                 options["reference"] = ranges
         outcome = reject_outliers(work.positions, **options)
-        rejected = np.asarray(outcome.rejected, dtype=bool)
-        work = data.with_positions(outcome.positions)
+        rejected_sub = np.asarray(outcome.rejected, dtype=bool)
+        work = work.with_positions(outcome.positions)
+        rejected = np.zeros((data.n_frames, data.n_markers), dtype=bool)
+        rejected[:, columns] = rejected_sub
         record["reject_outliers"] = {"delta": 0.1 if settings.delta is None else settings.delta,
-                                     "reference": [r.name for r in refs if not r.static] or None,
-                                     "rejected": int(rejected.sum())}
+                                     "reference": [r.name for r in refs if r.stages.get("reject_outliers", "")
+                                                   .endswith("distance ranges")] or None,
+                                     "rejected": int(rejected_sub.sum())}
 
     bones = None
     if settings.bones is not None:
         from .bones.boneset import load_bones
 
-        bones = load_bones(settings.bones, data.labels, units=data.units)
+        bones = load_bones(settings.bones, view.labels, units=data.units)
 
     accepted = get_method(settings.method).parameters()
     options = {key: value for key, value in (("hidden", settings.hidden), ("max_iter", settings.max_iter),
@@ -185,6 +271,8 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
         record["bones"] = settings.bones
     if progress is not None and "progress" in accepted:
         options["progress"] = progress
+    if "jobs" in accepted:
+        options["jobs"] = jobs
     if model is not None and "model" in accepted:
         options["model"] = model
         record["model"] = settings.model
@@ -192,13 +280,14 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
         from .references import method_options
 
         options.update(method_options(refs, settings.method, accepted))
-    if "jobs" in accepted:
-        options["jobs"] = jobs
 
     from .api import fill
 
     started = time.perf_counter()
-    result = fill(work, settings.method, **options)
+    if columns.size:
+        result = fill(work, settings.method, **options)
+    else:  # nothing to fill: only model points / unlabelled trajectories
+        result = FillResult(work.positions.copy(), np.zeros(work.positions.shape[:2], dtype=bool))
     seconds = time.perf_counter() - started
     if refs:
         used = result.info.get("references")
@@ -209,6 +298,13 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
                                            f"fitted the capture better without references)")
         record["references"] = [ref.record(data.units) for ref in refs]
 
+    if not every:
+        full_work = data.positions.copy()
+        full_work[:, columns] = work.positions
+        result = widen_result(result, columns, data.positions, data.labels)
+        if bones is not None:
+            bones = dataclasses.replace(bones, pairs=columns[np.asarray(bones.pairs, dtype=np.int64)])
+        work = data.with_positions(full_work)
     positions = result.positions
     if settings.smooth:
         from .guards.smooth import savgol_smooth
@@ -218,16 +314,25 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
             smooth_options["window"] = settings.smooth_window
         if settings.smooth_order is not None:
             smooth_options["order"] = settings.smooth_order
-        positions = savgol_smooth(positions, **smooth_options)
+        smoothed = savgol_smooth(positions[:, columns], **smooth_options)
+        positions = positions.copy()
+        positions[:, columns] = smoothed
         record["smooth"] = {"window": settings.smooth_window, "order": settings.smooth_order}
 
     output = data.with_positions(positions)
-    refilled = rejected if repaired is None else (repaired if rejected is None else rejected | repaired)
-    if refilled is not None:  # a rejected sample filled again is written as filled, not with its old residual
+    dropped = _either(_either(rejected, held), repaired)
+    if dropped is not None:  # a dropped sample filled again is written as filled, not with its old residual
         from .io.c3d import mark_refilled
 
-        output = mark_refilled(output, refilled)
-    return FillOutcome(data, work, result, output, rejected, bones, record, seconds, refs, repaired)
+        output = mark_refilled(output, dropped)
+    return FillOutcome(data, work, result, output, rejected, bones, record, seconds, held, columns, summary, refs,
+                       repaired)
+
+
+def _either(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray | None:
+    if a is None or not a.any():
+        return b if b is not None and b.any() else None
+    return a if b is None else a | b
 
 
 def write_fill_report(outcome: FillOutcome, path: str, *, method: str, input_path: str | None,
@@ -239,14 +344,52 @@ def write_fill_report(outcome: FillOutcome, path: str, *, method: str, input_pat
     """
     from .report import build_fill_report, write_report
 
+    columns = outcome.columns if outcome.columns is not None else fill_columns(outcome.data)
+    data, work, result = outcome.data, outcome.work, outcome.result
+    dropped = _either(outcome.rejected, outcome.held)
     bones = outcome.bones
+    if columns.size != data.n_markers:  # the report covers the points that were filled, not the ones kept aside
+        position = {int(c): i for i, c in enumerate(columns)}
+        if bones is not None:
+            pairs = np.asarray(bones.pairs, dtype=np.int64)
+            bones = dataclasses.replace(bones, pairs=np.vectorize(position.get)(pairs) if pairs.size else pairs)
+        data, work = subset(data, columns), subset(work, columns)
+        result = FillResult(result.positions[:, columns], result.filled[:, columns],
+                            None if result.std is None else result.std[:, columns], result.n_iter,
+                            result.converged, list(result.objective), dict(result.info))
+        dropped = None if dropped is None else dropped[:, columns]
     if bones is None:
         from .bones.boneset import estimate_bones
 
-        bones = estimate_bones(outcome.work.positions, units=outcome.data.units, labels=outcome.data.labels)
+        bones = estimate_bones(work.positions, units=data.units, labels=data.labels)
         if len(bones) == 0:
             bones = None
-    report = build_fill_report(outcome.data, outcome.result, method=method, settings=outcome.settings,
+    report = build_fill_report(data, result, method=method, settings=outcome.settings,
                                seconds=outcome.seconds, input_path=input_path, output_path=output_path,
-                               bones=bones, rejected=outcome.rejected, smoothed=smoothed)
-    write_report(report, path, data=outcome.data, result=outcome.result, bones=bones)
+                               bones=bones, rejected=dropped, smoothed=smoothed)
+    report["summary"]["points"] = points_line(outcome.data)
+    if outcome.held_summary is not None:
+        report["summary"]["held"] = held_report(outcome.held_summary, kept=outcome.held is None)
+    write_report(report, path, data=data, result=result, bones=bones)
+
+
+def points_line(data: MarkerData) -> str:
+    """One line on the kinds of points: ``"39 markers; 78 model points and 42 unlabelled trajectories kept
+    untouched (not filled)"``."""
+    counts = {kind: sum(1 for k in data.kinds if k == kind) for kind in ("marker", "model", "unlabelled")}
+    aside = [f"{counts['model']} model point(s)" if counts["model"] else "",
+             f"{counts['unlabelled']} unlabelled trajectory(ies)" if counts["unlabelled"] else ""]
+    aside = [a for a in aside if a]
+    line = f"{counts['marker']} marker(s)"
+    if aside:
+        line += "; " + " and ".join(aside) + " kept untouched (not filled)"
+    return line
+
+
+def held_report(summary: dict[str, Any], *, kept: bool) -> dict[str, Any]:
+    """The fill report's record of held samples: the guard's counts and runs, its one line, and whether they were
+    kept (``--keep-held``) or filled."""
+    from .guards.held import held_line
+
+    return {"line": held_line(summary) + (" (kept: --keep-held)" if kept and summary["held_samples"] else ""),
+            "kept": bool(kept), **summary}

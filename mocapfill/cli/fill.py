@@ -94,9 +94,32 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
                               smoothed=settings.smooth)
 
     show_warnings(caught, quiet)
+    columns = outcome.columns
+    work, result, rejected, repaired = outcome.work, outcome.result, outcome.rejected, outcome.repaired
+    if columns is not None and columns.size != data.n_markers:  # counts of the markers filled, not the points kept
+        from ..pipeline import subset
+
+        data, work = subset(data, columns), subset(work, columns)
+        result = dataclasses.replace(result, positions=result.positions[:, columns], filled=result.filled[:, columns])
+        rejected = None if rejected is None else rejected[:, columns]
+        repaired = None if repaired is None else repaired[:, columns]
     _references(outcome.references, data.units, quiet)
-    _summary(data, outcome.work, outcome.result, method, outcome.seconds, outcome.rejected, settings.smooth,
-             report_path, quiet, outcome.repaired)
+    _summary(data, work, result, method, outcome.seconds, rejected, settings.smooth, report_path, quiet, repaired)
+    _found(outcome, quiet)
+
+
+def _found(outcome, quiet: bool) -> None:
+    """One line each on what the reader and the held-sample guard found (only when there is something)."""
+    from ..pipeline import held_report, points_line
+
+    out = console(quiet)
+    if any(kind != "marker" for kind in outcome.data.kinds):
+        out.print(f"points: {points_line(outcome.data)}", markup=False, highlight=False)
+    if outcome.held_summary is not None:
+        line = held_report(outcome.held_summary, kept=outcome.held is None)["line"]
+        if line != "none":
+            out.print(f"held samples: {line}" + ("" if outcome.held is None else " (made gaps and filled)"),
+                      markup=False, highlight=False)
 
 
 def _references(references, units: str, quiet: bool) -> None:

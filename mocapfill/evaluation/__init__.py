@@ -281,6 +281,10 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
     """
     if not isinstance(data, MarkerData):
         raise MocapfillError("evaluate needs a MarkerData (use mocapfill.read)")
+    if any(kind != "marker" for kind in data.kinds):  # scored on the markers: what a fill fills
+        from ..pipeline import fill_columns, subset
+
+        data = subset(data, fill_columns(data))
     methods = list(methods)
     if seed is None:
         seed = int(np.random.SeedSequence().entropy % (2 ** 63))

@@ -102,7 +102,7 @@ def _summary_rows(report: dict) -> list[tuple[str, str]]:
                     f"{s['gap_count']} gaps"),
         ("Filled", f"{s['filled_samples']} samples ({s['percent_filled']:.1f} % of the missing)"),
         ("Left unfilled", str(s["unfilled_samples"])),
-        ("Outliers rejected", str(s["rejected_samples"])),
+        ("Outliers rejected" if not s.get("held") else "Rejected (outliers, held)", str(s["rejected_samples"])),
         *[(f"Reference take {k + 1}", f"{r['name']}: {r['frames']} frames{' (static trial)' if r['static'] else ''}, "
                                       f"weight {r['weight']}; " + "; ".join(f"{stage}: {text}" for stage, text
                                                                            in r["stages"].items()))
@@ -115,6 +115,11 @@ def _summary_rows(report: dict) -> list[tuple[str, str]]:
         ("Convergence", convergence),
         ("Report", f"mocapfill {report['mocapfill_version']}, {report['created']}"),
     ]
+    if s.get("points"):
+        rows.insert(4, ("Points", s["points"]))
+    if s.get("held"):
+        at = next(i for i, (key, _) in enumerate(rows) if key.startswith(("Outliers", "Rejected")))
+        rows.insert(at + 1, ("Held samples", s["held"]["line"]))
     return rows
 
 
