@@ -47,6 +47,9 @@ SHAPE_SCALE_MM = 8.0
 MIN_WEIGHT = 0.05
 #: Frames read per take for the shape statistics (evenly spaced): enough for medians, bounded on long takes.
 STAT_FRAMES = 1000
+#: Frames one reference gives the fill at most (evenly spaced): every local model trains on all of them, so a
+#: long take would cost time in every model and outweigh the capture; 2,000 frames (17 s at 120 Hz) cover a motion.
+MAX_FILL_FRAMES = 2000
 
 
 class ReferenceError(MocapfillError):
@@ -228,17 +231,20 @@ def training_frames(references: Sequence[Reference]) -> tuple[np.ndarray | None,
     """The fill's reference frames and their weights: ``(frames (n, n_markers, 3), weights (n,))``.
 
     References weighted below :data:`MIN_WEIGHT` are left out (and their ``stages["fill"]`` says so); (None, None)
-    when none is left.  Frames without any observed marker are dropped.
+    when none is left.  Frames without any observed marker are dropped; a longer reference gives
+    :data:`MAX_FILL_FRAMES` evenly spaced frames.
     """
     frames, weights = [], []
     for ref in references:
         if not np.isfinite(ref.weight) or ref.weight < MIN_WEIGHT:
             ref.stages["fill"] = "not used: its body differs from the capture's"
             continue
-        keep = ~np.isnan(ref.positions).any(axis=2).all(axis=1)
-        frames.append(ref.positions[keep])
-        weights.append(np.full(int(keep.sum()), ref.weight))
-        ref.stages["fill"] = f"{int(keep.sum())} frames train the body model, weight {ref.weight:.2f}"
+        rows = np.flatnonzero(~np.isnan(ref.positions).any(axis=2).all(axis=1))
+        if len(rows) > MAX_FILL_FRAMES:
+            rows = rows[np.linspace(0, len(rows) - 1, MAX_FILL_FRAMES).round().astype(int)]
+        frames.append(ref.positions[rows])
+        weights.append(np.full(len(rows), ref.weight))
+        ref.stages["fill"] = f"{len(rows)} frames train the body model, weight {ref.weight:.2f}"
     if not frames:
         return None, None
     return np.concatenate(frames), np.concatenate(weights)
