@@ -15,6 +15,10 @@ of ``auto`` without references and with them; per set and protocol the median ov
 reduction and the worst ratio (with / without).  Targets (issue 26): same subject, median >= 30 % lower; other
 subjects, median ratio <= 1.05 and no trial above 1.1.  No mode here uses the clean test capture (no oracle).
 
+``--force-weight`` sets every reference's weight to 1 (the body-fit weighting off), so that only each local
+model's cross-validation on the capture's own frames keeps other subjects' frames out (written with ``--output
+benchmarks/results/bench_references_forced.json``).
+
 Run from the repository root (about 40 min on the shared, heavily loaded 2-core machine)::
 
     python benchmarks/bench_references.py [--trials 2] [--seed 26] [--sets same,other]
