@@ -43,6 +43,8 @@ SHAPE_PAIRS = 3
 #: Among the 15 CMU clips of the 41-marker set, takes of one subject differ by 2-12 mm there (median 3.5), takes of
 #: two subjects by 20-80 mm (median 37): weight 0.3-0.97 for the first, below 0.05 (left out) for the second.
 SHAPE_SCALE_MM = 8.0
+#: A method that takes ``reference_frames`` but no weights gets only the references weighted at least this much.
+FULL_WEIGHT = 0.5
 #: References weighted below this are left out of the fill altogether (they would only cost time).
 MIN_WEIGHT = 0.05
 #: Frames read per take for the shape statistics (evenly spaced): enough for medians, bounded on long takes.
@@ -259,7 +261,15 @@ def method_options(references: Sequence[Reference], method: str, accepted: set[s
             ref.stages["fill"] = f"not used: method {method!r} takes no reference frames"
         return {}
     frames, weights = training_frames(references)
-    return {} if frames is None else {"reference_frames": frames, "reference_weights": weights}
+    if frames is None:
+        return {}
+    if "reference_weights" not in accepted:  # a method without weights gets only the references weighted near 1
+        keep = weights >= FULL_WEIGHT
+        for ref in references:
+            if ref.stages.get("fill", "").endswith(f"weight {ref.weight:.2f}") and ref.weight < FULL_WEIGHT:
+                ref.stages["fill"] = f"not used: method {method!r} takes no weights, and its weight is {ref.weight:.2f}"
+        return {"reference_frames": frames[keep]} if keep.any() else {}
+    return {"reference_frames": frames, "reference_weights": weights}
 
 
 def outlier_frames(references: Sequence[Reference]) -> np.ndarray | None:

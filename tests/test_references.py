@@ -147,3 +147,17 @@ def test_batch_hands_references_to_every_file(halves, tmp_path):
     doc = json.loads(Path(rows[0].report).read_text())
     (record,) = doc["summary"]["settings"]["references"]
     assert record["static"] and record["frames"] == 60
+
+
+def test_a_method_without_weights_gets_only_the_well_fitting_references(halves):
+    from mocapfill.references import method_options
+
+    first, second = halves
+    (ref,) = prepare(first, [second])
+    ref.weight = 0.9
+    options = method_options([ref], "x", {"reference_frames"})
+    assert set(options) == {"reference_frames"} and len(options["reference_frames"]) == second.n_frames
+    ref.weight = 0.2
+    assert method_options([ref], "x", {"reference_frames"}) == {}
+    assert "takes no weights" in ref.stages["fill"]
+    assert method_options([ref], "linear", set()) == {} and ref.stages["fill"].startswith("not used: method")
