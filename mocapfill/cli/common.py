@@ -112,6 +112,9 @@ def fill_options(func: Callable) -> Callable:
                      help="Smoothing window in frames, odd (default about 1/15 s)."),
         click.option("--smooth-order", type=click.IntRange(min=0), default=None,
                      help="Smoothing polynomial order (3)."),
+        click.option("--ik-model", "ik_model", type=str, default=None, metavar="MODEL.osim",
+                     help="Scaled OpenSim model whose markers carry the capture's labels, for --method opensim-ik "
+                          "(the kinematic fill; needs the extra mocapfill[opensim])."),
     ]
     for option in reversed(options):
         wrapper = option(wrapper)

@@ -26,6 +26,7 @@ class MethodSpec(NamedTuple):
     target: str  # "module:function", module relative to mocapfill.methods
     summary: str
     uncertainty: bool  # whether the method returns a per-sample std
+    requires: str | None = None  # an option the method cannot run without (the CLI names it when it is missing)
 
     def load(self) -> Callable[..., FillResult]:
         module_name, func_name = self.target.split(":")
@@ -49,8 +50,13 @@ METHODS: dict[str, MethodSpec] = {
         MethodSpec("bilinear", "bilinear:fill_bilinear", "DCT-conditioned bilinear spatiotemporal basis", False),
         MethodSpec("pca", "pca:fill_pca", "distance-weighted PCA (Gloersen & Federolf 2016)", True),
         MethodSpec("auto", "auto:fill_auto", "the most accurate combination measured (default)", True),
+        MethodSpec("auto-next", "auto_next:fill_auto_next", "local weighted PCA fused with a white-jerk motion "
+                   "model by one smoother", True),
+        MethodSpec("opensim-ik", "kinematic:fill_opensim_ik", "kinematic fill: OpenSim IK on the observed markers, "
+                   "the missing ones read off the fitted model (needs --ik-model; extra mocapfill[opensim])", True,
+                   "ik_model"),
         MethodSpec("learned", "learned:fill_learned", "denoiser learnt from clean takes of the layout (Holden "
-                   "2018; needs --model)", False),
+                   "2018; needs --model)", False, "model"),
     ]
 }
 
