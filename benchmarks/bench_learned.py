@@ -29,13 +29,11 @@ Writes ``benchmarks/results/bench_learned.json``; tables on stderr.
 
 from __future__ import annotations
 
-import os
+import harness
 
-for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+harness.pin_blas()
 
 import argparse  # noqa: E402
-import json  # noqa: E402
 import re  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -45,12 +43,8 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
-
 import mocapfill  # noqa: E402
-from bench_references import header, layout, load  # noqa: E402
+from harness import cmu41_clip as load, cmu41_layout as layout  # noqa: E402
 from mocapfill.engines.denoiser import save_model  # noqa: E402
 from mocapfill.evaluation.occlusions import make_occlusions  # noqa: E402
 from mocapfill.guards.denoise import find_displaced  # noqa: E402
@@ -76,7 +70,7 @@ def main() -> None:
     parser.add_argument("--hidden", type=int, default=256)
     parser.add_argument("--blocks", type=int, default=2)
     parser.add_argument("--seed", type=int, default=26)
-    parser.add_argument("--output", default=str(ROOT / "benchmarks" / "results" / "bench_learned.json"))
+    harness.add_results_argument(parser)
     args = parser.parse_args()
     from mocapfill.engines.denoiser_training import train
 
@@ -166,33 +160,24 @@ def main() -> None:
     for r in summary:
         log("  " + " ".join(str(x) for x in r))
     log(f"learned fill: {per_1000:.3f} s per 1,000 frames")
-    doc = {
-        **header("bench_learned.py", started),
-        "tables": {
-            "training": {"title": f"three nested training sets (no test clip), {args.steps} steps, hidden "
-                                  f"{args.hidden}, {args.blocks} blocks",
-                         "columns": ["size", "clips", "frames", "training seconds", "model KiB", "parameters",
-                                     "validation loss (L1, normalised)", "median held-out residual (mm)"],
-                         "rows": size_rows},
-            "summary": {"title": "median over trials of the per-trial RMSE (mm) over the hidden and displaced "
-                                 "samples; random: Holden's corruption, outliers not pre-rejected (learned: "
-                                 "--denoise); marker: tidy one-marker gaps.  No oracle.",
-                        "columns": ["protocol", "trials"] + heads, "rows": summary},
-            "trials": {"title": "every trial, RMSE (mm)", "columns": ["clip", "protocol", "trial"] + heads,
-                       "rows": trial_rows},
-        },
-        "figures": {
-            "learned_fill_seconds_per_1000_frames": {"value": round(per_1000, 4), "unit": "s", "better": "lower"},
-            "training_seconds_large": {"value": size_rows[-1][3], "unit": "s", "better": "lower"},
-            "model_kib": {"value": size_rows[-1][4], "unit": "KiB", "better": "lower"},
-            **{f"{row[0]}_median_{re.sub('[^a-z]+', '_', h).strip('_')}":
-               {"value": row[2 + i], "unit": "mm", "better": "lower"}
-               for row in summary for i, h in enumerate(heads[:-1])},
-        },
-    }
-    Path(args.output).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.output).write_text(json.dumps(doc, indent=1, allow_nan=False, default=str) + "\n")
-    log(f"wrote {args.output}")
+    results = harness.Results("bench_learned.py", path=args.results, note=args.note)
+    results.table("training", f"three nested training sets (no test clip), {args.steps} steps, hidden {args.hidden}, "
+                  f"{args.blocks} blocks", ["size", "clips", "frames", "training seconds", "model KiB", "parameters",
+                                            "validation loss (L1, normalised)", "median held-out residual (mm)"],
+                  size_rows)
+    results.table("summary", "median over trials of the per-trial RMSE (mm) over the hidden and displaced samples; "
+                  "random: Holden's corruption, outliers not pre-rejected (learned: --denoise); marker: tidy "
+                  "one-marker gaps.  No oracle.", ["protocol", "trials"] + heads, summary)
+    results.table("trials", "every trial, RMSE (mm)", ["clip", "protocol", "trial"] + heads, trial_rows)
+    results.figure("learned_fill_seconds_per_1000_frames", round(per_1000, 4), "s")
+    results.figure("training_seconds_large", size_rows[-1][3], "s")
+    results.figure("model_kib", size_rows[-1][4], "KiB")
+    for row in summary:
+        for i, h in enumerate(heads[:-1]):
+            if row[2 + i] is not None:
+                results.figure(f"{row[0]}_median_{re.sub('[^a-z]+', '_', h).strip('_')}", row[2 + i], "mm")
+    results.write()
+    log(f"({time.perf_counter() - started:.0f} s)")
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ reduction and the worst ratio (with / without).  Targets (issue 26): same subjec
 subjects, median ratio <= 1.05 and no trial above 1.1.  No mode here uses the clean test capture (no oracle).
 
 ``--force-weight`` sets every reference's weight to 1 (the body-fit weighting off), so that only each local
-model's cross-validation on the capture's own frames keeps other subjects' frames out (written with ``--output
+model's cross-validation on the capture's own frames keeps other subjects' frames out (written with ``--results
 benchmarks/results/bench_references_forced.json``).
 
 Run from the repository root (about 40 min on the shared, heavily loaded 2-core machine)::
@@ -28,60 +28,25 @@ Writes ``benchmarks/results/bench_references.json``; tables on stderr.
 
 from __future__ import annotations
 
-import os
+import harness
 
-for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+harness.pin_blas()
 
 import argparse  # noqa: E402
-import datetime  # noqa: E402
-import json  # noqa: E402
-import platform  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
 import mocapfill  # noqa: E402
-from mocapfill.markers import MarkerData  # noqa: E402
-from mocapfill.references import bare_label  # noqa: E402
-
+from harness import cmu41_clip as load, cmu41_layout as layout  # noqa: E402
 
 SAME = {"16_07": ["16_08", "16_57"], "16_08": ["16_07", "16_57"], "16_57": ["16_07", "16_08"],
         "07_01": ["07_12"], "07_12": ["07_01"]}
 OTHER = {"85_02": ["16_07", "07_01"], "16_08": ["02_01", "82_08"], "127_07": ["133_01", "49_04"]}
 PROTOCOLS = [("dense 20 %", "dense", {"missing": 0.2}), ("dense 30 %", "dense", {"missing": 0.3}),
              ("segment", "segment", {})]
-
-
-def shared_dir() -> Path:
-    for base in (ROOT.parent / "shared" / "data", ROOT.parent.parent / "shared" / "data", Path("/work/shared/data")):
-        if base.exists():
-            return base
-    raise SystemExit("../shared/data not found")
-
-
-def layout() -> list[str]:
-    return [bare_label(x) for x in mocapfill.read(ROOT / "sample_data" / "85_02.c3d").labels]
-
-
-def load(name: str, labels: list[str]) -> MarkerData:
-    """A CMU clip restricted to ``labels`` (bare), in that order."""
-    base = shared_dir()
-    if name == "85_02":
-        data = mocapfill.read(ROOT / "sample_data" / "85_02.c3d")
-    elif name in ("127_07", "132_32"):
-        data = mocapfill.read(base / "bolero" / f"{name}.csv", rate=120)
-    else:
-        data = mocapfill.read(base / "cmu-train" / f"{name}.c3d")
-    bare = [bare_label(x) for x in data.labels]
-    idx = [bare.index(x) for x in labels]
-    return MarkerData(data.positions[:, idx].copy(), list(labels), data.rate, data.units, path=name)
 
 
 def run_set(name: str, table: dict[str, list[str]], labels: list[str], trials: int, seed: int, log) -> list[list]:
@@ -105,14 +70,6 @@ def run_set(name: str, table: dict[str, list[str]], labels: list[str], trials: i
             log(f"{name:5} {test:6} <- {'+'.join(ref_names):14} {pname:10} without {np.median(a):7.1f}  with "
                 f"{np.median(b):7.1f} mm  ({t1 - t0:.0f} s / {t2 - t1:.0f} s)")
     return rows
-
-
-def header(script: str, started: float) -> dict:
-    """The results file's head (COORDINATION's format): script, command, machine, date, seconds."""
-    return {"script": script, "command": f"python benchmarks/{script} " + " ".join(sys.argv[1:]),
-            "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores (shared, loaded), "
-                       f"python {platform.python_version()}, numpy {np.__version__}",
-            "date": datetime.date.today().isoformat(), "seconds": round(time.perf_counter() - started, 1)}
 
 
 def summarise(rows: list[list]) -> tuple[list[list], dict]:
@@ -145,7 +102,7 @@ def main() -> None:
     parser.add_argument("--force-weight", action="store_true",
                         help="weight every reference 1 (the body-fit weighting off): what the per-model "
                              "cross-validation alone keeps out")
-    parser.add_argument("--output", default=str(ROOT / "benchmarks" / "results" / "bench_references.json"))
+    harness.add_results_argument(parser)
     args = parser.parse_args()
 
     def log(text: str) -> None:
@@ -168,25 +125,17 @@ def main() -> None:
     log("\nset    protocol    trials  without  with (median RMSE, mm)  reduction %  median ratio  max ratio")
     for r in summary:
         log(f"{r[0]:6} {r[1]:11} {r[2]:6} {r[3]:8} {r[4]:8} {r[5]:22} {r[6]:12} {r[7]:10}")
-    doc = {
-        **header("bench_references.py", started),
-        "tables": {
-            "summary": {"title": "auto with and without reference takes: median over trials of the per-trial RMSE "
-                                 "(mm); reduction of the median; ratio with / without per trial (median, max). "
-                                 "No oracle: the test clip is never a reference.",
-                        "columns": ["set", "protocol", "trials", "median RMSE without", "median RMSE with",
-                                    "reduction %", "median ratio", "max ratio"],
-                        "rows": summary},
-            "trials": {"title": "every trial: RMSE (mm) of auto without / with the references",
-                       "columns": ["set", "test clip", "references", "protocol", "trial", "RMSE without",
-                                   "RMSE with", "ratio"],
-                       "rows": rows},
-        },
-        "figures": figures,
-    }
-    Path(args.output).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.output).write_text(json.dumps(doc, indent=1) + "\n")
-    log(f"wrote {args.output}")
+    results = harness.Results("bench_references.py", path=args.results, note=args.note)
+    results.table("summary", "auto with and without reference takes: median over trials of the per-trial RMSE (mm); "
+                  "reduction of the median; ratio with / without per trial (median, max). No oracle: the test clip "
+                  "is never a reference.", ["set", "protocol", "trials", "median RMSE without", "median RMSE with",
+                                            "reduction %", "median ratio", "max ratio"], summary)
+    results.table("trials", "every trial: RMSE (mm) of auto without / with the references",
+                  ["set", "test clip", "references", "protocol", "trial", "RMSE without", "RMSE with", "ratio"], rows)
+    for name, fig in figures.items():
+        results.figure(name, fig["value"], fig["unit"], fig["better"])
+    results.write()
+    log(f"({time.perf_counter() - started:.0f} s)")
 
 
 if __name__ == "__main__":
