@@ -92,6 +92,21 @@ def utc_now() -> str:
     return time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
 
 
+def git_commit() -> str:
+    """The checkout's short commit, with ``+dirty`` when ``mocapfill/`` has uncommitted changes ("unknown" without git):
+    what made a cached result."""
+    import subprocess
+
+    try:
+        head = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "--", "mocapfill"],
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + ("+dirty" if dirty else "")
+
+
 def banner(script: str, file=None) -> None:
     """Print the run's first two lines: the script and the time, then :func:`machine`."""
     print(f"# {Path(script).stem}  {utc_now()}\n# machine: {machine()}", file=file or sys.stdout, flush=True)
@@ -227,6 +242,32 @@ def dumps(doc: dict) -> str:
         return json.dumps(value)
 
     return compact(doc, 0) + "\n"
+
+
+def cmu41_layout() -> list[str]:
+    """The CMU 41-marker set: 85_02's labels without their ``Subject:`` prefix."""
+    import mocapfill
+    from mocapfill.references import bare_label
+
+    return [bare_label(x) for x in mocapfill.read(CLIP_85_02).labels]
+
+
+def cmu41_clip(name: str, labels: Sequence[str]):
+    """A CMU clip of the 41-marker set (``85_02``, a ``bolero/`` CSV at 120 Hz, or a ``cmu-train/`` C3D) restricted
+    to ``labels`` (without prefix) in that order: a MarkerData named ``name``."""
+    import mocapfill
+    from mocapfill.markers import MarkerData
+    from mocapfill.references import bare_label
+
+    if name == "85_02":
+        data = mocapfill.read(CLIP_85_02)
+    elif name in ("127_07", "132_32"):
+        data = mocapfill.read(SHARED_DATA / "bolero" / f"{name}.csv", rate=120)
+    else:
+        data = mocapfill.read(SHARED_DATA / "cmu-train" / f"{name}.c3d")
+    bare = [bare_label(x) for x in data.labels]
+    idx = [bare.index(x) for x in labels]
+    return MarkerData(data.positions[:, idx].copy(), list(labels), data.rate, data.units, path=name)
 
 
 def add_results_argument(parser) -> None:

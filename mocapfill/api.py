@@ -30,6 +30,10 @@ def fill(data: MarkerData | np.ndarray, method: str = DEFAULT_METHOD, **options:
     **options
         Method options (``hidden``, ``max_iter``, ``tol``, ``seed``, ``bones``, ``progress``, ...).  An option the
         method does not take is ignored with a warning, so one command line can drive any method.
+        ``reference=[...]``: reference takes of the same marker set (MarkerData or paths; a single one is fine),
+        matched by label and weighed by :func:`mocapfill.references.prepare` (``data`` must then be a MarkerData);
+        a method that takes ``reference_frames`` (``auto``, ``pca``) trains on them, and ``result.info
+        ["references"]`` says how much each was used.
 
     Returns
     -------
@@ -66,6 +70,17 @@ def fill(data: MarkerData | np.ndarray, method: str = DEFAULT_METHOD, **options:
             kwargs[key] = value
         elif value is not None:
             ignored.append(key)
+    refs = []
+    reference = options.get("reference")
+    if reference is not None:
+        ignored = [key for key in ignored if key != "reference"]
+        kwargs.pop("reference", None)
+        if not isinstance(data, MarkerData):
+            raise MethodError("reference= needs the capture as a MarkerData (labels and units to match them by)")
+        from .references import method_options, prepare
+
+        refs = prepare(data, reference if isinstance(reference, (list, tuple)) else [reference])
+        kwargs.update(method_options(refs, method, accepted))
     if ignored:
         warnings.warn(f"method {method!r} ignores option(s): {', '.join(sorted(ignored))}", UserWarning,
                       stacklevel=2)
@@ -74,6 +89,8 @@ def fill(data: MarkerData | np.ndarray, method: str = DEFAULT_METHOD, **options:
     if not isinstance(result, FillResult):  # pragma: no cover - a registry bug, not a user error
         raise MethodError(f"method {method!r} returned {type(result).__name__}, not FillResult")
     result.info.setdefault("method", method)
+    if refs:
+        result.info["reference_takes"] = [ref.record(context["units"] or "mm") for ref in refs]
     return result
 
 

@@ -21,15 +21,21 @@ from .methods import DEFAULT_METHOD, get_method
 from .methods.base import FillResult
 
 
+#: The report lists at most this many repaired samples (the count is always complete).
+REPAIRED_LISTED = 10000
+
+
 @dataclass(frozen=True)
 class FillSettings:
     """What to do to a capture; ``None`` = the method's or step's own default.
 
-    ``bones`` and ``reference`` are paths: a bones file (from ``estimate-bones``) and a clean capture giving the
-    distance ranges for outlier rejection.  ``donors``: the donors of ``pattern`` / ``rigid`` as ``--donors`` writes
-    them (``"MARKER=D1,D2;D3,D4"``, see :mod:`mocapfill.methods.suite`; a list of labels is joined).  ``lowpass``:
-    a Butterworth low-pass after the fill, a cutoff in Hz, ``"auto"`` or ``"auto-marker"``
-    (:mod:`mocapfill.guards.lowpass`).
+    ``bones`` is a path (a bones file from ``estimate-bones``); ``reference`` the paths of reference takes of the
+    same marker set (:mod:`mocapfill.references`): their frames train the fill's body model (methods that take
+    ``reference_frames``) and the moving ones give ``--reject-outliers`` its distance ranges.  ``model``: a denoiser
+    model (``mocapfill train``) for ``--method learned`` and ``denoise``.  ``donors``: the donors of
+    ``pattern`` / ``rigid`` as ``--donors`` writes them (``"MARKER=D1,D2;D3,D4"``, see :mod:`mocapfill.methods.suite`;
+    a list of labels is joined).  ``lowpass``: a Butterworth low-pass after the fill, a cutoff in Hz, ``"auto"`` or
+    ``"auto-marker"`` (:mod:`mocapfill.guards.lowpass`).
     """
 
     method: str = DEFAULT_METHOD
@@ -40,7 +46,9 @@ class FillSettings:
     bones: str | None = None
     reject_outliers: bool = False
     delta: float | None = None
-    reference: str | None = None
+    reference: tuple[str, ...] = ()
+    model: str | None = None
+    denoise: bool = False
     smooth: bool = False
     smooth_window: int | None = None
     smooth_order: int | None = None
@@ -59,8 +67,11 @@ class FillSettings:
         ``name`` spells a field in the message (the CLI gives ``--delta`` for ``delta``).
         """
         get_method(self.method)
-        for options, step in ((("delta", "reference"), "reject_outliers"),
-                              (("smooth_window", "smooth_order"), "smooth")):
+        if self.denoise and self.model is None:
+            raise MethodError(f"{name('denoise')} needs {name('model')} (a model from `mocapfill train`)")
+        if self.delta is not None and not self.reject_outliers:
+            raise MethodError(f"{name('delta')} only applies with {name('reject_outliers')}")
+        for options, step in ((("smooth_window", "smooth_order"), "smooth"),):
             if any(getattr(self, option) is not None for option in options) and not getattr(self, step):
                 raise MethodError(f"{name(options[0])} and {name(options[1])} only apply with {name(step)}")
         if self.donors is not None and "donors" not in get_method(self.method).parameters():
@@ -104,6 +115,11 @@ class FillOutcome:
     held_summary : dict or None
         What the held-sample guard found (:func:`mocapfill.guards.held.held_summary`, fill columns only), also with
         ``keep_held`` (then nothing was rejected).
+    references : list of Reference
+        The reference takes as matched and weighed (:mod:`mocapfill.references`), each saying which stage used it.
+    repaired : ndarray of bool (n_frames, n_markers) or None
+        Observed samples the learned denoiser judged displaced or swapped (``--denoise``), refilled
+        (``Status.REPAIRED``); None without it.
     """
 
     data: MarkerData
@@ -117,6 +133,8 @@ class FillOutcome:
     held: np.ndarray | None = None
     columns: np.ndarray | None = None
     held_summary: dict[str, Any] | None = None
+    references: list = dataclasses.field(default_factory=list)
+    repaired: np.ndarray | None = None
 
 
 def fill_columns(data: MarkerData, chosen: Any = None) -> np.ndarray:
@@ -166,7 +184,7 @@ def widen_result(result: FillResult, columns: np.ndarray, positions: np.ndarray,
     return FillResult(full, filled, std, result.n_iter, result.converged, list(result.objective), info)
 
 
-def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerData | None = None,
+def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = None,
                  progress: Callable[[int, int, float], None] | None = None, jobs: int = 1) -> FillOutcome:
     """Find held samples, reject outliers (optional), fill, smooth (optional) one capture.
 
@@ -179,8 +197,9 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
     data : MarkerData
         positions (n_frames, n_markers, 3), NaN = missing.
     settings : FillSettings
-    reference : MarkerData or None
-        The capture named by ``settings.reference``, already read by the caller (positions (n, n_markers_ref, 3)).
+    reference : MarkerData, list of MarkerData, or None
+        The reference takes named by ``settings.reference``, already read by the caller (positions
+        (n, n_markers_ref, 3) each); matched to the filled columns by label (:func:`mocapfill.references.prepare`).
     progress : callable or None
         ``progress(iteration, n_max, objective)``, handed to methods that report progress.
     jobs : int
@@ -212,6 +231,29 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
         held[:, columns] = held_sub
         record["held"] = {"rejected": int(held_sub.sum()), "runs": summary["held"] + summary["zero"]}
 
+    refs = []
+    if reference is not None:
+        from .references import prepare
+
+        refs = prepare(view, reference if isinstance(reference, (list, tuple)) else [reference])
+    model = None
+    if settings.model is not None:
+        from .engines.denoiser import load_model
+
+        model = load_model(settings.model)
+    repaired = None
+    if settings.denoise:
+        from .guards.denoise import find_displaced
+
+        repaired_sub = find_displaced(work.positions, model, labels=list(view.labels), units=data.units,
+                                      rate=data.rate)
+        work = work.with_positions(np.where(repaired_sub[:, :, None], np.nan, work.positions))
+        repaired = np.zeros((data.n_frames, data.n_markers), dtype=bool)
+        repaired[:, columns] = repaired_sub
+        shown = [{"marker": view.labels[m], "frame": int(f) + data.first_frame}
+                 for f, m in zip(*np.nonzero(repaired_sub))][:REPAIRED_LISTED]
+        record["denoise"] = {"model": settings.model, "repaired": int(repaired_sub.sum()), "samples": shown}
+
     rejected = None
     if settings.reject_outliers:
         from .guards.outliers import reject_outliers
@@ -219,16 +261,21 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
         options: dict[str, Any] = {"units": data.units, "labels": list(view.labels), "rate": data.rate}
         if settings.delta is not None:
             options["delta"] = settings.delta
-        if reference is not None:
-            options.update(reference=reference.positions, reference_labels=list(reference.labels),
-                           reference_units=reference.units)
+        if refs:
+            from .references import outlier_frames
+
+            ranges = outlier_frames(refs)  # moving references only: a static trial's ranges would reject motion
+            if ranges is not None:
+                options["reference"] = ranges
         outcome = reject_outliers(work.positions, **options)
         rejected_sub = np.asarray(outcome.rejected, dtype=bool)
         work = work.with_positions(outcome.positions)
         rejected = np.zeros((data.n_frames, data.n_markers), dtype=bool)
         rejected[:, columns] = rejected_sub
         record["reject_outliers"] = {"delta": 0.1 if settings.delta is None else settings.delta,
-                                     "reference": settings.reference, "rejected": int(rejected_sub.sum())}
+                                     "reference": [r.name for r in refs if r.stages.get("reject_outliers", "")
+                                                   .endswith("distance ranges")] or None,
+                                     "rejected": int(rejected_sub.sum())}
 
     bones = None
     if settings.bones is not None:
@@ -251,6 +298,13 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
         options["progress"] = progress
     if "jobs" in accepted:
         options["jobs"] = jobs
+    if model is not None and "model" in accepted:
+        options["model"] = model
+        record["model"] = settings.model
+    if refs:
+        from .references import method_options
+
+        options.update(method_options(refs, settings.method, accepted))
 
     from .api import fill
 
@@ -260,6 +314,14 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
     else:  # nothing to fill: only model points / unlabelled trajectories
         result = FillResult(work.positions.copy(), np.zeros(work.positions.shape[:2], dtype=bool))
     seconds = time.perf_counter() - started
+    if refs:
+        used = result.info.get("references")
+        if isinstance(used, dict) and used.get("models"):
+            for ref in refs:
+                if ref.stages.get("fill", "").endswith(f"weight {ref.weight:.2f}"):
+                    ref.stages["fill"] += (f"; kept by {used['used']} of {used['models']} local models (the others "
+                                           f"fitted the capture better without references)")
+        record["references"] = [ref.record(data.units) for ref in refs]
 
     if not every:
         full_work = data.positions.copy()
@@ -294,12 +356,13 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
                                        "response, gain 0.5 at the cutoff)"}
 
     output = data.with_positions(positions)
-    dropped = _either(rejected, held)
+    dropped = _either(_either(rejected, held), repaired)
     if dropped is not None:  # a dropped sample filled again is written as filled, not with its old residual
         from .io.c3d import mark_refilled
 
         output = mark_refilled(output, dropped)
-    return FillOutcome(data, work, result, output, rejected, bones, record, seconds, held, columns, summary)
+    return FillOutcome(data, work, result, output, rejected, bones, record, seconds, held, columns, summary, refs,
+                       repaired)
 
 
 def _either(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray | None:

@@ -44,9 +44,14 @@ FAST = {"max_iter": 15}
 
 
 
-def _options(name: str) -> dict:
+def _options(name: str, n_markers: int = 8, units: str = "mm", labels=None) -> dict:
     accepted = METHODS[name].parameters()
-    return {k: v for k, v in FAST.items() if k in accepted}
+    options = {k: v for k, v in FAST.items() if k in accepted}
+    if "model" in accepted:  # the learned method: a model of the right layout (random weights: the contract only)
+        from mocapfill.engines.denoiser import untrained_model
+
+        options["model"] = untrained_model(n_markers, units, labels=labels)
+    return options
 
 
 def _fill(positions: np.ndarray, name: str, *, seed=0, rate=60.0, units="mm", labels=None, request=None,
@@ -58,8 +63,8 @@ def _fill(positions: np.ndarray, name: str, *, seed=0, rate=60.0, units="mm", la
             labels = SYNTHETIC_LABELS[:positions.shape[1]]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return mocapfill.fill(positions, name, seed=seed, rate=rate, units=units, labels=labels, **_options(name),
-                              **extra)
+        return mocapfill.fill(positions, name, seed=seed, rate=rate, units=units, labels=labels,
+                              **_options(name, np.shape(positions)[1], units, labels), **extra)
 
 
 def synthetic(n_frames: int = 90, n_markers: int = 8, seed: int = 3) -> np.ndarray:

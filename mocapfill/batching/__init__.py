@@ -73,8 +73,9 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
         ``progress(done, total, row)``, called once with ``(0, total, None)`` and after every file.
     **options
         The fill options of :class:`mocapfill.pipeline.FillSettings` (``hidden``, ``max_iter``, ``tol``, ``seed``,
-        ``bones``, ``reject_outliers``, ``delta``, ``reference``, ``smooth``, ``smooth_window``, ``smooth_order``,
-        ``donors``, ``lowpass``).
+        ``bones``, ``reject_outliers``, ``delta``, ``reference`` (paths of reference takes), ``model``,
+        ``denoise``, ``smooth``, ``smooth_window``, ``smooth_order``, ``donors``,
+        ``lowpass``).
 
     Returns
     -------
@@ -92,6 +93,12 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
     unknown = sorted(set(options) - known)
     if unknown:
         raise MocapfillError(f"batch: unknown option(s) {', '.join(unknown)} (expected {', '.join(sorted(known))})")
+    if isinstance(options.get("reference"), (str, os.PathLike)):
+        options["reference"] = (os.fspath(options["reference"]),)
+    elif options.get("reference") is not None:
+        options["reference"] = tuple(os.fspath(p) for p in options["reference"])
+    else:
+        options.pop("reference", None)
     settings = FillSettings(method=method, **options).check()
     from ..io import WRITE_FORMATS
 

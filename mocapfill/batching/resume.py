@@ -38,13 +38,14 @@ def settings_digest(task: FileTask) -> str:
     doc: dict[str, Any] = {"mocapfill": __version__, "fill": task.settings.as_dict(), "report": report,
                            "reading": [task.input_format, task.rate, task.override_rate],
                            "format": task.output_format}
-    for name in ("bones", "reference"):
-        path = getattr(task.settings, name)
-        if path is not None:
+    for name in ("bones", "reference", "model"):
+        value = getattr(task.settings, name)
+        paths = [value] if isinstance(value, str) else list(value or ())
+        for k, path in enumerate(paths):
             try:
-                doc[f"{name}_sha256"] = file_digest(path)
+                doc[f"{name}_sha256_{k}"] = file_digest(path)
             except OSError:
-                doc[f"{name}_sha256"] = None  # the task will fail and say why
+                doc[f"{name}_sha256_{k}"] = None  # the task will fail and say why
     return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
 
 

@@ -128,9 +128,8 @@ def _fill_file(task: FileTask, row: BatchRow) -> None:
                 data = read(task.input, format=task.input_format, rate=task.rate, override_rate=task.override_rate)
                 notes += [f"note: {note}" for note in data.notes]
                 row.frames, row.markers = data.n_frames, data.n_markers
-                reference = None
-                if task.settings.reject_outliers and task.settings.reference is not None:
-                    reference = read(task.settings.reference, rate=task.rate, override_rate=task.override_rate)
+                reference = [read(path, rate=task.rate if task.rate else data.rate, override_rate=True)
+                             for path in task.settings.reference]
                 outcome = fill_capture(data, task.settings, reference=reference)
                 columns = outcome.columns  # the markers filled: model points and unlabelled ones are not counted
                 row.markers = int(columns.size)

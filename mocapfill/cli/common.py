@@ -93,9 +93,16 @@ def fill_options(func: Callable) -> Callable:
                      "ranges (Holden's rule) before filling; they become gaps and are filled."),
         click.option("--delta", type=click.FloatRange(min=0), default=None,
                      help="Outlier margin as a fraction of each pair's distance range (default 0.1)."),
-        click.option("--reference", "reference", type=str, default=None,
-                     help="A clean capture of the same marker set giving the distance ranges for --reject-outliers "
-                          "(default: the file itself)."),
+        click.option("--reference", "reference", type=str, multiple=True,
+                     help="A reference take of the same marker set (repeatable: the static trial, other takes of the "
+                          "session): its frames train the fill's body model, weighted by how well its body fits; a "
+                          "moving one also gives --reject-outliers its distance ranges (default: the file itself)."),
+        click.option("--model", "model", type=str, default=None,
+                     help="A denoiser model of this marker layout (from `mocapfill train`): for --method learned and "
+                          "--denoise."),
+        click.option("--denoise", is_flag=True,
+                     help="Observed samples the --model judges displaced or swapped become gaps and are refilled "
+                          "(reported as repaired)."),
         click.option("--keep-held", is_flag=True,
                      help="Keep held and frozen samples (a marker repeating its exact position while the body moves, "
                           "a coordinate stuck at exactly 0) as observed; by default they become gaps and are filled."),

@@ -87,8 +87,11 @@ def _show(result, quiet: bool) -> None:
         gap = f", gaps of {settings['gap_min_frames']}-{settings['gap_max_frames']} frames"
     out.print(f"[bold]{data.path}[/bold]: {data.n_markers} markers, {data.n_frames} frames at {data.rate:g} Hz; "
               f"protocol {result.protocol}, {len(result.trials)} trials{gap}, seed {result.seed}", highlight=False)
+    if settings.get("references"):
+        out.print(f"reference takes: {', '.join(settings['references'])}", highlight=False)
+    oracle = " [ORACLE: outlier ranges from the clean file itself]" if settings.get("oracle") else ""
 
-    table = Table(title=f"errors over the hidden samples, in {units} (MSE in {units}\u00b2, Eq. 13)",
+    table = Table(title=f"errors over the hidden samples, in {units} (MSE in {units}\u00b2, Eq. 13){oracle}",
                   title_justify="left")
     table.add_column("method")
     honesty = any(summary[m]["error_ratio"]["median"] is not None for m in result.methods)
@@ -213,7 +216,10 @@ def angle_headline(result) -> str:
 @click.option("--reject-outliers", type=click.Choice(["self", "clean"]), default=None,
               help="Run outlier rejection on each corrupted clip before filling (for the random protocol): "
                    "'self' uses the corrupted clip as its own reference (as fill does), 'clean' uses the clean "
-                   "file as Holden's reference take.")
+                   "file as Holden's reference take (an oracle: it has seen the truth; tables say so).")
+@click.option("--reference", "references", type=str, multiple=True,
+              help="A reference take of the same marker set (repeatable; never the clean file itself) for the "
+                   "methods that train on references (auto, pca).")
 @click.option("--ik", "ik_setup", type=str, default=None, metavar="SETUP.xml",
               help="Also score joint angles: OpenSim inverse kinematics with this IK setup on each fill, on the "
                    "capture with the hidden markers left missing, and on the complete capture (needs the extra "
@@ -231,7 +237,7 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
              gap_min: str | None, gap_max: str | None, limb_size: int, missing: float, radius: str | None,
              events: int, occlusions: str | None,
              save_occlusions: str | None, jobs: int, option_pairs: tuple[str, ...], reject_outliers: str | None,
-             ik_setup: str | None, ik_model: str | None, report_path: str | None,
+             references: tuple[str, ...], ik_setup: str | None, ik_model: str | None, report_path: str | None,
              as_json: bool, as_csv: bool, reading: ReadOptions, quiet: bool) -> None:
     """Score fill methods on CLEAN_FILE: hide samples it has, fill them with each method, compare with the truth.
 
@@ -251,7 +257,7 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
     out = console(quiet)
     if report_path is not None and not report_path.lower().endswith((".html", ".htm", ".json")):
         raise click.BadParameter("the report's name must end in .html or .json", param_hint="'--report'")
-    given = {"ik_model"} if (ik_model or ik_setup) else set()
+    given = ({"ik_model"} if (ik_model or ik_setup) else set()) | set(options)  # -o model=F: the learned method
     if methods is None:
         names, unavailable = _default_methods(given)
         if unavailable:
@@ -263,7 +269,8 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
         for name in names:
             spec = get_method(name)  # unknown names fail here, before the file is read
             if spec.requires and spec.requires not in given:
-                raise MethodError(f"method {name!r} needs --{spec.requires.replace('_', '-')} MODEL.osim")
+                needs = "--ik-model MODEL.osim" if spec.requires == "ik_model" else f"-o {spec.requires}=FILE"
+                raise MethodError(f"method {name!r} needs {needs}")
     if ik_setup or any(get_method(n).requires == "ik_model" for n in names):
         from ..kinematics.opensim_ik import require_opensim
 
@@ -292,6 +299,8 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
                                     gap_min=gap_min, gap_max=gap_max, jobs=jobs, options=options,
                                     reject_outliers=reject_outliers, progress=progress,
                                     save_occlusions=save_occlusions, ik=ik_setup, ik_model=ik_model,
+                                    reference=[read_input(path, reading._replace(format=None, override_rate=True),
+                                                          quiet=quiet) for path in references] or None,
                                     **protocol_options)
     show_warnings(caught, quiet)
     if save_occlusions:

@@ -74,10 +74,10 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         data = read_input(input_path, reading, quiet=quiet)
-        reference = None
-        if settings.reference is not None:
-            check_output_path(output_path, settings.reference)
-            reference = read_input(settings.reference, reading._replace(format=None), quiet=quiet)
+        reference = []
+        for path in settings.reference:
+            check_output_path(output_path, path)
+            reference.append(read_input(path, reading._replace(format=None, override_rate=True), quiet=quiet))
 
         with _ProgressBar(method, quiet) as bar:
             outcome = fill_capture(data, settings, reference=reference, progress=bar if bar.enabled else None,
@@ -95,14 +95,16 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
 
     show_warnings(caught, quiet)
     columns = outcome.columns
-    work, result, rejected = outcome.work, outcome.result, outcome.rejected
+    work, result, rejected, repaired = outcome.work, outcome.result, outcome.rejected, outcome.repaired
     if columns is not None and columns.size != data.n_markers:  # counts of the markers filled, not the points kept
         from ..pipeline import subset
 
         data, work = subset(data, columns), subset(work, columns)
         result = dataclasses.replace(result, positions=result.positions[:, columns], filled=result.filled[:, columns])
         rejected = None if rejected is None else rejected[:, columns]
-    _summary(data, work, result, method, outcome.seconds, rejected, settings.smooth, report_path, quiet,
+        repaired = None if repaired is None else repaired[:, columns]
+    _references(outcome.references, data.units, quiet)
+    _summary(data, work, result, method, outcome.seconds, rejected, settings.smooth, report_path, quiet, repaired,
              lowpass=outcome.settings.get("lowpass"))
     _found(outcome, quiet)
 
@@ -121,8 +123,18 @@ def _found(outcome, quiet: bool) -> None:
                       markup=False, highlight=False)
 
 
+def _references(references, units: str, quiet: bool) -> None:
+    """One line per reference take on stderr: frames, weight, and what each stage did with it."""
+    out = console(quiet)
+    for ref in references:
+        stages = "; ".join(f"{stage}: {text}" for stage, text in ref.stages.items())
+        kind = "static trial, " if ref.static else ""
+        out.print(f"reference {ref.name} ({kind}{ref.n_frames} frames, body fit {ref.shape_rms:.3g} {units} RMS, "
+                  f"weight {ref.weight:.2f}): {stages}", markup=False, highlight=False, soft_wrap=True)
+
+
 def _summary(data, work, result, method: str, seconds: float, rejected, smoothed: bool, report_path, quiet: bool,
-             lowpass: dict | None = None) -> None:
+             repaired=None, lowpass: dict | None = None) -> None:
     """A few lines on stderr: method, filled samples, gaps left, time, convergence."""
     from ..gaps import all_missing_markers, find_gaps
 
@@ -139,6 +151,8 @@ def _summary(data, work, result, method: str, seconds: float, rejected, smoothed
         parts.append(f"{result.n_iter} iterations" + ("" if result.converged else " (not converged)"))
     if rejected is not None:
         parts.append(f"{int(rejected.sum())} outlier samples rejected")
+    if repaired is not None:
+        parts.append(f"{int(repaired.sum())} displaced samples repaired by the denoiser")
     if smoothed:
         parts.append("output smoothed")
     if lowpass:

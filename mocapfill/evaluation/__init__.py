@@ -255,11 +255,28 @@ def _method_parameters(methods: Sequence[str]) -> dict[str, set[str]]:
     return accepted
 
 
+def _check_references(data: MarkerData, reference) -> list[MarkerData]:
+    """The reference takes as a list; the test capture itself (same positions) is an error: it would be an oracle."""
+    if reference is None:
+        return []
+    refs = list(reference) if isinstance(reference, (list, tuple)) else [reference]
+    for ref in refs:
+        if not isinstance(ref, MarkerData):
+            raise MocapfillError("evaluate: reference takes must be MarkerData (use mocapfill.read)")
+        same_path = data.path and ref.path and os.path.abspath(str(ref.path)) == os.path.abspath(str(data.path))
+        if same_path or (ref.positions.shape == data.positions.shape
+                         and np.array_equal(ref.positions, data.positions, equal_nan=True)):
+            raise MocapfillError(f"evaluate: {ref.path or 'a reference'} is the test capture itself; a fill that "
+                                 "has seen the truth is an oracle, not an evaluation")
+    return refs
+
+
 def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), protocol: str = "marker", *,
              trials: int = 10, seed: int | None = None, occlusions: Sequence[Trial] | str | os.PathLike | dict | None
              = None, gap_min=None, gap_max=None, jobs: int = 1, options: dict[str, Any] | None = None,
              method_options: dict[str, dict[str, Any]] | None = None, reject_outliers: bool | str | None = None,
              progress: Callable[[int, int], None] | None = None, save_occlusions: str | os.PathLike | None = None,
+             reference: Sequence[MarkerData] | MarkerData | None = None,
              ik: str | os.PathLike | None = None, ik_model: str | os.PathLike | None = None,
              **protocol_options: Any) -> EvaluationResult:
     """Score ``methods`` on ``data`` by hiding known samples and filling them.
@@ -290,7 +307,12 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
         Run :func:`mocapfill.guards.outliers.reject_outliers` on each corrupted clip before filling (the samples it rejects
         become gaps); ``detected`` then reports the fraction of shifted samples it caught.  "self": the corrupted
         clip is its own reference (what ``fill`` does without a reference); "clean": the clean clip is the reference
-        take of Holden's rule (its distance ranges, not its positions).
+        take of Holden's rule (its distance ranges, not its positions): an **oracle** (it has seen the truth), and
+        labelled so in the settings and every table.
+    reference : MarkerData or sequence of MarkerData, optional
+        Reference takes of the same marker set (:mod:`mocapfill.references`) for the methods that train on them
+        (``auto``, ``pca``); matched and weighed against each corrupted clip.  The test capture itself is refused
+        (identical positions): a fill that has seen the truth is not evaluated.
     progress : callable(done, total), optional
         Called once before the first trial (done = 0) and after each trial.
     save_occlusions : path, optional
@@ -326,6 +348,7 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
     from ..methods import get_method
 
     accepted = _method_parameters(methods)
+    references = tuple(_check_references(data, reference))
     ik_setup = None
     if ik is not None:
         from ..kinematics.opensim_ik import load_setup
@@ -351,7 +374,10 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
             raise MethodError(f"method {name!r} needs --{required.replace('_', '-')} (evaluate(..., {required}=...))")
     seeded = frozenset(name for name in methods if "seed" in accepted[name])
     settings: dict[str, Any] = {"options": dict(options or {}), "method_options": dict(method_options or {}),
-                                "reject_outliers": reject_outliers}
+                                "reject_outliers": reject_outliers,
+                                "oracle": reject_outliers == "clean",
+                                "references": [getattr(r, "path", None) or f"reference {k + 1}"
+                                               for k, r in enumerate(references)]}
     if occlusions is not None:
         protocol = "replay"
         if isinstance(occlusions, (str, os.PathLike)):
@@ -389,7 +415,9 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
                      "truth_seconds": truth_angles.seconds, "frames": int(len(truth_angles.frames)),
                      "coordinates": dict(zip(truth_angles.names, truth_angles.kinds))}
         settings["ik"] = {"setup": ik_setup.setup, "model": ik_setup.model}
-    config = RunConfig(tuple(methods), per_method, reject_outliers, seeded, ik_setup, truth_angles)
+    referenced = frozenset(name for name in methods if "reference_frames" in accepted[name])
+    config = RunConfig(tuple(methods), per_method, reject_outliers, seeded, references, referenced, ik_setup,
+                       truth_angles)
     scores = run_trials(data, trial_list, seeds, config, jobs=jobs, progress=progress)
     left = [s for s in scores if s.method == LEFT_MISSING]
     scores = [s for s in scores if s.method != LEFT_MISSING]

@@ -64,6 +64,8 @@ METHODS: dict[str, MethodSpec] = {
         MethodSpec("opensim-ik", "kinematic:fill_opensim_ik", "kinematic fill: OpenSim IK on the observed markers, "
                    "the missing ones read off the fitted model (needs --ik-model; extra mocapfill[opensim])", True,
                    "ik_model"),
+        MethodSpec("learned", "learned:fill_learned", "denoiser learnt from clean takes of the layout (Holden "
+                   "2018; needs --model)", False, "model"),
     ]
 }
 

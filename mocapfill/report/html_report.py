@@ -79,7 +79,8 @@ def _frames_mask(records: list[dict], labels: list[str], first: int, shape: tupl
 
 def _summary_rows(report: dict) -> list[tuple[str, str]]:
     s = report["summary"]
-    settings = ", ".join(f"{k}={v}" for k, v in s["settings"].items()) or "defaults"
+    shown = {k: v for k, v in s["settings"].items() if k not in ("references", "denoise")}
+    settings = ", ".join(f"{k}={v}" for k, v in shown.items()) or "defaults"
     method = s["method"]
     if s["methods_used"]:
         method += f" (gaps filled by: {', '.join(s['methods_used'])})"
@@ -102,6 +103,12 @@ def _summary_rows(report: dict) -> list[tuple[str, str]]:
         ("Filled", f"{s['filled_samples']} samples ({s['percent_filled']:.1f} % of the missing)"),
         ("Left unfilled", str(s["unfilled_samples"])),
         ("Outliers rejected" if not s.get("held") else "Rejected (outliers, held)", str(s["rejected_samples"])),
+        *[(f"Reference take {k + 1}", f"{r['name']}: {r['frames']} frames{' (static trial)' if r['static'] else ''}, "
+                                      f"weight {r['weight']}; " + "; ".join(f"{stage}: {text}" for stage, text
+                                                                           in r["stages"].items()))
+          for k, r in enumerate(s["settings"].get("references", []))],
+        *([("Repaired by the denoiser", f"{s['settings']['denoise']['repaired']} observed samples judged displaced "
+                                        f"or swapped, refilled")] if "denoise" in s["settings"] else []),
         ("Uncertainty", "yes (per-sample standard deviation)" if s["uncertainty"] else "not given by this method"),
         ("Smoothed after filling", "yes" if s["smoothed"] else "no"),
         ("Time", f"{s['seconds']:.2f} s"),
