@@ -16,7 +16,9 @@ from .methods.base import FillResult, check_positions
 CONTEXT_KEYS = ("units", "rate", "labels")
 
 
-def fill(data: MarkerData | np.ndarray, method: str = DEFAULT_METHOD, **options: Any) -> FillResult:
+def fill(data: MarkerData | np.ndarray, method: str = DEFAULT_METHOD, *, max_gap: int | str | None = None,
+         edges: str = "fill", markers: str | list[str] | None = None, exclude: str | list[str] | None = None,
+         **options: Any) -> FillResult:
     """Fill the gaps of ``data`` with ``method``.
 
     Parameters
@@ -26,6 +28,14 @@ def fill(data: MarkerData | np.ndarray, method: str = DEFAULT_METHOD, **options:
         uses them.
     method : str
         A name from :data:`mocapfill.methods.METHODS`.
+    max_gap : int, str or None
+        Gaps longer than this stay missing: frames (``40``) or seconds (``"0.5s"``, needs the rate).
+    edges : "fill" or "leave"
+        Whether gaps touching the first or last frame are filled.
+    markers, exclude : str (comma-separated) or list of str, or None
+        Labels or shell patterns (``"L*,R*"``) of the markers to fill / not to fill (see
+        :func:`mocapfill.pipeline.select_markers`; a bare array needs ``labels=``).  Every marker still informs
+        the fill.  The stretches left missing by these four are listed in ``result.info["left_missing"]``.
     **options
         Method options (``hidden``, ``max_iter``, ``tol``, ``seed``, ``bones``, ``progress``, ...).  An option the
         method does not take is ignored with a warning, so one command line can drive any method.
@@ -58,10 +68,26 @@ def fill(data: MarkerData | np.ndarray, method: str = DEFAULT_METHOD, **options:
         warnings.warn(f"method {method!r} ignores option(s): {', '.join(sorted(ignored))}", UserWarning,
                       stacklevel=2)
     positions = check_positions(positions)
+    limits = None
+    if max_gap is not None or edges != "fill" or markers is not None or exclude is not None:
+        from .guards.limits import check_edges, parse_max_gap
+        from .pipeline import select_markers
+
+        check_edges(edges, name="edges")
+        n_markers = positions.shape[1]
+        labels = context["labels"] if context["labels"] is not None else [f"M{k + 1}" for k in range(n_markers)]
+        kinds = data.kinds if isinstance(data, MarkerData) else None
+        path = data.path if isinstance(data, MarkerData) else None
+        limits = {"max_gap": None if max_gap is None else parse_max_gap(max_gap, context["rate"], name="max_gap"),
+                  "edges": edges, "chosen": select_markers(labels, kinds, markers, exclude, path=path)}
     result = func(positions, **kwargs)
     if not isinstance(result, FillResult):  # pragma: no cover - a registry bug, not a user error
         raise MethodError(f"method {method!r} returned {type(result).__name__}, not FillResult")
     result.info.setdefault("method", method)
+    if limits is not None:
+        from .guards.limits import apply_limits
+
+        result, _ = apply_limits(result, np.isnan(positions).any(axis=2), **limits)
     return result
 
 

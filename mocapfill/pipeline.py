@@ -1,22 +1,28 @@
 """Fill one capture end to end: the steps `mocapfill fill` and `mocapfill batch` share.
 
-:class:`FillSettings` holds what a user chooses (method, its options, outlier rejection, smoothing);
-:func:`fill_capture` runs reject outliers -> fill -> smooth on a :class:`~mocapfill.markers.MarkerData` and returns a
-:class:`FillOutcome`; :func:`write_fill_report` writes its JSON or HTML report.  Reading and writing the capture stay
-with the caller (a command prints notes, a batch worker records them).
+:class:`FillSettings` holds what a user chooses (method, its options, outlier rejection, short fragments, which gaps
+and markers to fill, smoothing); :func:`fill_capture` runs reject outliers -> drop short fragments -> fill -> leave
+the gaps not to fill -> smooth on a :class:`~mocapfill.markers.MarkerData` and returns a :class:`FillOutcome`, whose
+``status`` (:func:`sample_status`) says what became of every sample; :func:`write_fill_report` writes its JSON or
+HTML report and :func:`write_status_csv` its status CSV.  :func:`select_markers` turns ``--markers`` / ``--exclude``
+into the markers to fill.  Reading and writing the capture stay with the caller (a command prints notes, a batch
+worker records them).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import difflib
+import fnmatch
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from .errors import MethodError
 from .markers import MarkerData
+from .status import Status
 from .methods import DEFAULT_METHOD, get_method
 from .methods.base import FillResult
 
@@ -26,7 +32,10 @@ class FillSettings:
     """What to do to a capture; ``None`` = the method's or step's own default.
 
     ``bones`` and ``reference`` are paths: a bones file (from ``estimate-bones``) and a clean capture giving the
-    distance ranges for outlier rejection.
+    distance ranges for outlier rejection.  ``max_gap``: gaps longer than this stay missing (frames, or seconds as
+    ``"0.5s"``); ``edges``: ``"fill"`` or ``"leave"`` the gaps touching the first or last frame; ``min_fragment``:
+    observed stretches of fewer frames between two gaps join the gap around them; ``markers`` / ``exclude``:
+    comma-separated labels or shell patterns of the markers to fill / not to fill (:func:`select_markers`).
     """
 
     method: str = DEFAULT_METHOD
@@ -41,13 +50,25 @@ class FillSettings:
     smooth: bool = False
     smooth_window: int | None = None
     smooth_order: int | None = None
+    max_gap: str | int | None = None
+    edges: str = "fill"
+    min_fragment: int | None = None
+    markers: str | None = None
+    exclude: str | None = None
 
     def check(self, *, name: Callable[[str], str] = str) -> "FillSettings":
-        """Raise MethodError for an unknown method or an option whose step is off; return self.
+        """Raise MethodError for an unknown method, an option whose step is off or a malformed value; return self.
 
         ``name`` spells a field in the message (the CLI gives ``--delta`` for ``delta``).
         """
+        from .guards.limits import check_edges, parse_max_gap
+
         get_method(self.method)
+        check_edges(self.edges, name=name("edges"))
+        if self.max_gap is not None:
+            parse_max_gap(self.max_gap, 1.0, name=name("max_gap"))  # the form only: seconds need the file's rate
+        if self.min_fragment is not None and int(self.min_fragment) < 1:
+            raise MethodError(f"{name('min_fragment')} must be at least 1 frame, got {self.min_fragment}")
         for options, step in ((("delta", "reference"), "reject_outliers"),
                               (("smooth_window", "smooth_order"), "smooth")):
             if any(getattr(self, option) is not None for option in options) and not getattr(self, step):
@@ -56,6 +77,87 @@ class FillSettings:
 
     def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+
+def select_markers(labels: Sequence[str], kinds: Sequence[str] | None = None, markers: str | Sequence[str] | None
+                   = None, exclude: str | Sequence[str] | None = None, *, path: str | None = None) -> np.ndarray:
+    """The points to fill: ``--markers`` (default every point of kind ``"marker"``) minus ``--exclude``.
+
+    Parameters
+    ----------
+    labels : sequence of str, length n_markers
+    kinds : sequence of str, length n_markers, or None
+        :attr:`MarkerData.kinds` (None: every point is a marker).
+    markers, exclude : str (comma-separated) or sequence of str, or None
+        Labels or shell-style patterns (``L*``, ``?ASI``, ``[LR]KNE``), each matched against the whole label and
+        against the label after a ``Subject:`` prefix.  A pattern reaches markers only; an exact name also reaches
+        a model point or an unlabelled trajectory.
+    path : str or None
+        The capture's path, for messages.
+
+    Returns
+    -------
+    ndarray of bool, shape (n_markers,)
+
+    Raises
+    ------
+    MethodError
+        An item that matches nothing (one line naming it, with the near labels), or a choice that leaves nothing.
+    """
+    labels = [str(label) for label in labels]
+    kinds = ["marker"] * len(labels) if kinds is None else list(kinds)
+    is_marker = np.array([kind == "marker" for kind in kinds], dtype=bool)
+    chosen = is_marker.copy() if markers is None else _matching(labels, kinds, markers, "--markers", path)
+    if exclude is not None:
+        chosen &= ~_matching(labels, kinds, exclude, "--exclude", path)
+    if (markers is not None or exclude is not None) and labels and not chosen.any():
+        raise MethodError(f"{_where(path)}--markers / --exclude leave no marker to fill")
+    return chosen
+
+
+#: Characters that make a ``--markers`` item a shell pattern rather than a name.
+PATTERN_CHARS = "*?["
+
+
+def _where(path: str | None) -> str:
+    return f"{path}: " if path else ""
+
+
+def _items(spec: str | Sequence[str]) -> list[str]:
+    parts = spec.split(",") if isinstance(spec, str) else [str(item) for item in spec]
+    return [part.strip() for part in parts if part.strip()]
+
+
+def _matching(labels: list[str], kinds: list[str], spec: str | Sequence[str], option: str, path: str | None
+              ) -> np.ndarray:
+    """(n_markers,) bool: the points some item of ``spec`` names; MethodError for an item that names none."""
+    items = _items(spec)
+    if not items:
+        raise MethodError(f"{_where(path)}{option} is empty; give labels or patterns, comma-separated")
+    bases = [label.rpartition(":")[2] for label in labels]
+    out = np.zeros(len(labels), dtype=bool)
+    for item in items:
+        if any(char in item for char in PATTERN_CHARS):
+            hits = np.array([kind == "marker" and (fnmatch.fnmatchcase(label, item) or fnmatch.fnmatchcase(base, item))
+                             for label, base, kind in zip(labels, bases, kinds)], dtype=bool)
+            what = f"pattern {item!r} matches no marker"
+        else:
+            hits = np.array([item in (label, base) for label, base in zip(labels, bases)], dtype=bool)
+            what = f"no marker called {item!r}"
+        if not hits.any():
+            raise MethodError(f"{_where(path)}{option}: {what}{_near(item, labels, bases)}")
+        out |= hits
+    return out
+
+
+def _near(item: str, labels: list[str], bases: list[str]) -> str:
+    """``"; near: A, B"`` listing the labels closest to ``item`` (case-insensitive), or ``""``."""
+    names = list(dict.fromkeys(bases + labels))
+    lower = {}
+    for name in names:
+        lower.setdefault(name.lower(), name)
+    close = difflib.get_close_matches(item.lower().strip("*?[]"), list(lower), n=5, cutoff=0.5)
+    return f"; near: {', '.join(lower[c] for c in close)}" if close else ""
 
 
 @dataclass
@@ -67,9 +169,9 @@ class FillOutcome:
     data : MarkerData
         The input as read; positions (n_frames, n_markers, 3).
     work : MarkerData
-        What was filled: ``data`` with rejected outliers turned into gaps.
+        What was filled: ``data`` with rejected outliers and dropped fragments turned into gaps.
     result : FillResult
-        The fill of ``work``.
+        The fill of ``work``, with the gaps left on request put back to missing.
     output : MarkerData
         ``data`` carrying the output positions (filled, then smoothed when asked).
     rejected : ndarray of bool (n_frames, n_markers) or None
@@ -80,6 +182,15 @@ class FillOutcome:
         The options used, as the report records them.
     seconds : float
         Wall-clock time of the fill step alone.
+    held, fragments, repaired : ndarray of bool (n_frames, n_markers) or None
+        Observed samples a guard dropped as held (frozen) samples, as short fragments (``--min-fragment``), or that
+        the denoiser moved (None when the guard did not run).
+    chosen : ndarray of bool (n_markers,) or None
+        The points filled (:func:`select_markers`).
+    left : ndarray of int8 (n_frames, n_markers) or None
+        Missing samples left missing on request: the :class:`~mocapfill.status.Status` code of the reason, 0 elsewhere.
+    status : ndarray of int8 (n_frames, n_markers) or None
+        What became of each sample (:func:`sample_status`; :mod:`mocapfill.status` codes).
     """
 
     data: MarkerData
@@ -90,11 +201,40 @@ class FillOutcome:
     bones: Any
     settings: dict[str, Any]
     seconds: float
+    held: np.ndarray | None = None
+    fragments: np.ndarray | None = None
+    repaired: np.ndarray | None = None
+    chosen: np.ndarray | None = None
+    left: np.ndarray | None = None
+    status: np.ndarray | None = None
+
+    def dropped(self) -> np.ndarray | None:
+        """(n_frames, n_markers) bool: observed samples a guard turned into gaps (outliers, held, fragments)."""
+        masks = [m for m in (self.rejected, self.held, self.fragments) if m is not None]
+        if not masks:
+            return None
+        return np.logical_or.reduce([np.asarray(m, dtype=bool) for m in masks])
+
+    def observed_changed(self) -> list[str]:
+        """The options that changed or dropped observed samples in this fill, with how many (for the reports);
+        empty when every observed sample is returned bit-identical."""
+        out = []
+        for option, mask in (("--reject-outliers", self.rejected), ("held-sample guard", self.held),
+                             ("--min-fragment", self.fragments), ("--denoise", self.repaired)):
+            if mask is not None and np.asarray(mask).any():
+                out.append(f"{option} ({int(np.asarray(mask).sum())} samples)")
+        if self.status is not None:
+            smoothed = int((self.status == Status.SMOOTHED).sum())
+            for key, option in (("smooth", "--smooth"), ("lowpass", "--lowpass")):
+                if key in self.settings and smoothed:
+                    out.append(f"{option} ({smoothed} samples)")
+        return out
 
 
 def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerData | None = None,
                  progress: Callable[[int, int, float], None] | None = None) -> FillOutcome:
-    """Reject outliers (optional), fill, smooth (optional) one capture.
+    """Reject outliers (optional), drop short fragments (optional), fill, leave the gaps not to fill, smooth
+    (optional) one capture.
 
     Parameters
     ----------
@@ -105,7 +245,16 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
         The capture named by ``settings.reference``, already read by the caller (positions (n, n_markers_ref, 3)).
     progress : callable or None
         ``progress(iteration, n_max, objective)``, handed to methods that report progress.
+
+    Every marker informs the fill; gaps longer than ``max_gap``, at the edges under ``edges="leave"`` and of the
+    markers not chosen are put back to missing after it.  A fragment is dropped only when the gap it then belongs
+    to is filled.  Observed samples come back bit-identical unless outliers, fragments or smoothing changed them
+    (``FillOutcome.observed_changed()`` names which).
     """
+    from .guards.limits import apply_limits, leave_reasons, parse_max_gap
+
+    chosen = select_markers(data.labels, data.kinds, settings.markers, settings.exclude, path=data.path)
+    max_gap = None if settings.max_gap is None else parse_max_gap(settings.max_gap, data.rate)
     work = data
     rejected = None
     record: dict[str, Any] = {}
@@ -123,6 +272,27 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
         work = data.with_positions(outcome.positions)
         record["reject_outliers"] = {"delta": 0.1 if settings.delta is None else settings.delta,
                                      "reference": settings.reference, "rejected": int(rejected.sum())}
+
+    fragments = None
+    if settings.min_fragment is not None:
+        from .guards.fragments import count_fragments, short_fragments
+
+        candidates = short_fragments(work.missing, int(settings.min_fragment)) & chosen[None, :]
+        joined = leave_reasons(work.missing | candidates, max_gap=max_gap, edges=settings.edges, chosen=chosen)
+        fragments = candidates & (joined == 0)  # kept where the gap they would join is left missing
+        if fragments.any():
+            positions = work.positions.copy()
+            positions[fragments] = np.nan
+            work = work.with_positions(positions)
+        record["min_fragment"] = {"frames": int(settings.min_fragment), "fragments": count_fragments(fragments),
+                                  "samples": int(fragments.sum())}
+    if max_gap is not None:
+        record["max_gap"] = {"given": settings.max_gap, "frames": max_gap}
+    if settings.edges != "fill":
+        record["edges"] = settings.edges
+    if settings.markers is not None or settings.exclude is not None:
+        record["markers"] = {"markers": settings.markers, "exclude": settings.exclude,
+                             "chosen": int(chosen.sum())}
 
     bones = None
     if settings.bones is not None:
@@ -144,6 +314,7 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
 
     started = time.perf_counter()
     result = fill(work, settings.method, **options)
+    result, left = apply_limits(result, work.missing, max_gap=max_gap, edges=settings.edges, chosen=chosen)
     seconds = time.perf_counter() - started
 
     positions = result.positions
@@ -155,15 +326,93 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
             smooth_options["window"] = settings.smooth_window
         if settings.smooth_order is not None:
             smooth_options["order"] = settings.smooth_order
-        positions = savgol_smooth(positions, **smooth_options)
+        positions = positions.copy()
+        positions[:, chosen] = savgol_smooth(positions[:, chosen], **smooth_options)  # the chosen markers only
         record["smooth"] = {"window": settings.smooth_window, "order": settings.smooth_order}
 
     output = data.with_positions(positions)
-    if rejected is not None:  # a rejected sample filled again is written as filled, not with its old residual
+    filled_again = np.logical_or.reduce([m for m in (rejected, fragments) if m is not None] or
+                                        [np.zeros(data.missing.shape, dtype=bool)])
+    if filled_again.any():  # a dropped sample filled again is written as filled, not with its old residual
         from .io.c3d import mark_refilled
 
-        output = mark_refilled(output, rejected)
-    return FillOutcome(data, work, result, output, rejected, bones, record, seconds)
+        output = mark_refilled(output, filled_again)
+    outcome = FillOutcome(data, work, result, output, rejected, bones, record, seconds, fragments=fragments,
+                          chosen=chosen, left=left)
+    outcome.status = sample_status(outcome)
+    return outcome
+
+
+def sample_status(outcome: FillOutcome) -> np.ndarray:
+    """What became of every sample of one fill, as :class:`~mocapfill.status.Status` codes.
+
+    Returns
+    -------
+    ndarray of int8, shape (n_frames, n_markers)
+        ``OBSERVED`` (returned bit-identical), ``FILLED``, ``MISSING_TOO_LONG`` / ``MISSING_EDGE`` /
+        ``MISSING_NOT_CHOSEN`` (left on request), ``MISSING_DECLINED`` (the method declined the gap),
+        ``MISSING`` (left for another reason), ``REJECTED_OUTLIER`` / ``REJECTED_HELD`` / ``REJECTED_FRAGMENT``
+        (observed, dropped by a guard, filled again; a dropped sample left missing gets the reason it was left),
+        ``REPAIRED`` (moved by the denoiser), ``SMOOTHED`` (observed, changed by ``--smooth`` / ``--lowpass``),
+        ``MODEL_POINT`` / ``UNLABELLED`` (every sample of such a point that was not chosen for filling).
+    """
+    data = outcome.data
+    before = data.positions
+    after = outcome.output.positions
+    was_missing = data.missing
+    now_missing = np.isnan(after).any(axis=2)
+    status = np.full(was_missing.shape, int(Status.OBSERVED), dtype=np.int8)
+    status[was_missing & ~now_missing] = Status.FILLED
+    status[now_missing] = Status.MISSING
+    with np.errstate(invalid="ignore"):
+        changed = ~was_missing & ~now_missing & (after != before).any(axis=2)
+    status[changed] = Status.SMOOTHED
+    for mask, code in ((outcome.repaired, Status.REPAIRED), (outcome.rejected, Status.REJECTED_OUTLIER),
+                       (outcome.held, Status.REJECTED_HELD), (outcome.fragments, Status.REJECTED_FRAGMENT)):
+        if mask is not None:
+            status[np.asarray(mask, dtype=bool) & ~now_missing] = code
+    declined = outcome.result.info.get("declined") if isinstance(outcome.result.info, dict) else None
+    if isinstance(declined, np.ndarray) and declined.shape == status.shape:
+        status[declined.astype(bool) & now_missing] = Status.MISSING_DECLINED
+    if outcome.left is not None:
+        left = np.asarray(outcome.left)
+        status[left != 0] = left[left != 0]
+    chosen = np.ones(status.shape[1], dtype=bool) if outcome.chosen is None else np.asarray(outcome.chosen)
+    for kind, code in (("model", Status.MODEL_POINT), ("unlabelled", Status.UNLABELLED)):
+        columns = np.array([k == kind for k in data.kinds], dtype=bool) & ~chosen
+        status[:, columns] = code
+    return status
+
+
+#: The header of a status CSV (``fill --status``).
+STATUS_COLUMNS = ("frame", "marker", "status")
+
+
+def write_status_csv(outcome: FillOutcome, path: str) -> None:
+    """Write ``outcome.status`` as CSV (atomically): one row per frame and marker, frame-major, with the file's frame
+    number, the marker's label and the status text (:data:`mocapfill.status.NAMES`)."""
+    from .io.atomic import atomic_write
+    from .status import NAMES
+
+    status = outcome.status if outcome.status is not None else sample_status(outcome)
+    data = outcome.data
+    names = np.array([NAMES[Status(code)] for code in range(max(int(c) for c in Status) + 1)], dtype=object)
+    labels = np.array([_csv_field(label) for label in data.labels], dtype=object)
+    with atomic_write(path, "w", newline="") as handle:
+        handle.write(",".join(STATUS_COLUMNS) + "\n")
+        for start in range(0, data.n_frames, 4096):
+            block = status[start:start + 4096]
+            frames = np.repeat(np.arange(start, start + len(block)) + data.first_frame, data.n_markers)
+            rows = [f"{f},{m},{s}\n" for f, m, s in zip(frames.tolist(), np.tile(labels, len(block)),
+                                                        names[block.ravel().astype(np.intp)])]
+            handle.write("".join(rows))
+
+
+def _csv_field(text: str) -> str:
+    """``text`` quoted for CSV when it needs to be."""
+    if any(char in text for char in ',"\n\r'):
+        return '"' + text.replace('"', '""') + '"'
+    return text
 
 
 def write_fill_report(outcome: FillOutcome, path: str, *, method: str, input_path: str | None,
