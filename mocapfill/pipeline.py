@@ -61,18 +61,23 @@ class FillSettings:
 
         ``name`` spells a field in the message (the CLI gives ``--delta`` for ``delta``).
         """
-        from .guards.limits import check_edges, parse_max_gap
-
         get_method(self.method)
-        check_edges(self.edges, name=name("edges"))
-        if self.max_gap is not None:
-            parse_max_gap(self.max_gap, 1.0, name=name("max_gap"))  # the form only: seconds need the file's rate
-        if self.min_fragment is not None and int(self.min_fragment) < 1:
-            raise MethodError(f"{name('min_fragment')} must be at least 1 frame, got {self.min_fragment}")
+        self.check_values(name=name)
         for options, step in ((("delta", "reference"), "reject_outliers"),
                               (("smooth_window", "smooth_order"), "smooth")):
             if any(getattr(self, option) is not None for option in options) and not getattr(self, step):
                 raise MethodError(f"{name(options[0])} and {name(options[1])} only apply with {name(step)}")
+        return self
+
+    def check_values(self, *, name: Callable[[str], str] = str) -> "FillSettings":
+        """Raise MethodError for a malformed ``max_gap``, ``edges`` or ``min_fragment``; return self."""
+        from .guards.limits import check_edges, duration_form
+
+        check_edges(self.edges, name=name("edges"))
+        if self.max_gap is not None:
+            duration_form(self.max_gap, name=name("max_gap"))  # the form only: seconds need the file's rate
+        if self.min_fragment is not None and int(self.min_fragment) < 1:
+            raise MethodError(f"{name('min_fragment')} must be at least 1 frame, got {self.min_fragment}")
         return self
 
     def as_dict(self) -> dict[str, Any]:

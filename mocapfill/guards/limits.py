@@ -29,29 +29,39 @@ EDGE_CHOICES = ("fill", "leave")
 LEAVE_REASONS = (Status.MISSING_NOT_CHOSEN, Status.MISSING_EDGE, Status.MISSING_TOO_LONG)
 
 
-def parse_max_gap(value: Any, rate: float | None, *, name: str = "--max-gap") -> int:
-    """A gap length in frames from ``40`` / ``"40"`` (frames) or ``"0.5s"`` (seconds at ``rate``, rounded).
+def duration_form(value: Any, *, name: str = "--max-gap") -> tuple[float, bool]:
+    """(number, in seconds?) of a duration given as ``40`` / ``"40"`` (frames) or ``"0.5s"`` (seconds).
 
-    Raises MethodError naming ``name`` and the value for anything else, for a fraction of a frame, or for seconds
-    without a frame rate.
+    Raises MethodError naming ``name`` and the value for anything else, for a fraction of a frame and for zero.
     """
     if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
-        frames = float(value)
+        number, seconds = float(value), False
     else:
         text = str(value).strip().lower()
         match = re.fullmatch(r"([0-9]*\.?[0-9]+(?:e[-+]?[0-9]+)?)\s*(s|f|frames?)?", text)
         if not match:
             raise MethodError(f"{name} {value!r}: expected frames (40) or seconds (0.5s)")
-        frames = float(match.group(1))
-        if match.group(2) == "s":
-            if rate is None or not rate > 0 or not math.isfinite(rate):
-                raise MethodError(f"{name} {value!r}: the capture has no frame rate to convert seconds")
-            frames = math.floor(frames * rate + 0.5)
-        elif frames != int(frames):
-            raise MethodError(f"{name} {value!r}: a number of frames must be whole (or give seconds: 0.5s)")
-    if frames < 1:
-        raise MethodError(f"{name} {value!r}: must be at least one frame")
-    return int(frames)
+        number, seconds = float(match.group(1)), match.group(2) == "s"
+    if not seconds and number != int(number):
+        raise MethodError(f"{name} {value!r}: a number of frames must be whole (or give seconds: 0.5s)")
+    if not number > 0:
+        raise MethodError(f"{name} {value!r}: must be more than zero")
+    return number, seconds
+
+
+def parse_max_gap(value: Any, rate: float | None, *, name: str = "--max-gap") -> int:
+    """A gap length in frames from ``40`` / ``"40"`` (frames) or ``"0.5s"`` (seconds at ``rate``, rounded to the
+    nearest frame, at least one).
+
+    Raises MethodError naming ``name`` and the value for a malformed value (:func:`duration_form`) or for seconds
+    without a frame rate.
+    """
+    number, seconds = duration_form(value, name=name)
+    if not seconds:
+        return int(number)
+    if rate is None or not rate > 0 or not math.isfinite(rate):
+        raise MethodError(f"{name} {value!r}: the capture has no frame rate to convert seconds")
+    return max(1, int(math.floor(number * rate + 0.5)))
 
 
 def check_edges(edges: str, *, name: str = "--edges") -> str:
