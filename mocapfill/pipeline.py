@@ -438,5 +438,8 @@ def write_fill_report(outcome: FillOutcome, path: str, *, method: str, input_pat
             bones = None
     report = build_fill_report(outcome.data, outcome.result, method=method, settings=outcome.settings,
                                seconds=outcome.seconds, input_path=input_path, output_path=output_path,
-                               bones=bones, rejected=outcome.rejected, smoothed=smoothed)
+                               bones=bones, rejected=outcome.rejected, smoothed=smoothed,
+                               fragments=outcome.fragments, left=outcome.left, chosen=outcome.chosen,
+                               edges=outcome.settings.get("edges", "fill"),
+                               observed_changed=outcome.observed_changed())
     write_report(report, path, data=outcome.data, result=outcome.result, bones=bones)
