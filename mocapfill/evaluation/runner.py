@@ -53,6 +53,7 @@ class RunConfig:
     options: dict[str, dict[str, Any]]  # per method: the keyword options for mocapfill.api.fill
     reject_outliers: str | None = None  # None, "self" (the corrupted clip is its own reference) or "clean"
     seeded: frozenset = frozenset()  # methods that take a ``seed``: they get the trial's seed
+    limits: dict[str, Any] = field(default_factory=dict)  # ``max_gap`` / ``edges`` for every method (api.fill)
 
 
 def _bones(positions: np.ndarray, units: str, labels: list[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -91,7 +92,7 @@ def run_trial(truth: MarkerData, index: int, trial: Trial, method_seed: int, con
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:
-                result = fill(data, method, **opts)
+                result = fill(data, method, **config.limits, **opts)
             except MocapfillError as exc:
                 result, error = None, str(exc)
             else:
