@@ -43,7 +43,7 @@ __all__ = ["batch", "BatchRow", "COLUMNS", "RESULTS_NAME", "STATE_NAME", "INDEX_
 
 #: Columns of the results table, in order.
 COLUMNS = ("input", "output", "status", "frames", "markers", "missing_samples", "filled_samples", "method",
-           "seconds", "error")
+           "seconds", "error", "left_samples")
 #: The results table, the resume record and the index page inside ``out_dir``.
 RESULTS_NAME = "mocapfill-batch.csv"
 STATE_NAME = ".mocapfill-batch.jsonl"
@@ -53,7 +53,7 @@ REPORT_KINDS = ("html", "json")
 
 @dataclass
 class BatchRow:
-    """The outcome of one input; the first ten fields are the results table's :data:`COLUMNS`.
+    """The outcome of one input; the first ten fields and ``left_samples`` are the results table's :data:`COLUMNS`.
 
     ``status`` is ``"filled"``, ``"skipped"`` (done before with the same content and settings) or ``"failed"``
     (``error`` says why, on one line).  ``frames`` ... ``filled_samples`` are None where the file could not be read.
@@ -62,6 +62,8 @@ class BatchRow:
     so far (None where unknown), ``input_sha256`` the hash of the content the task read.  How the task used its
     thread (None where unknown; what ``bench_batch.py`` compares across runners): ``started`` (wall clock, seconds
     since the epoch), ``cpu_seconds`` (user + kernel), ``kernel_seconds`` and ``page_faults`` (minor).
+    ``left_samples``: missing samples left missing on request (``max_gap``, ``edges="leave"``, markers not chosen);
+    ``status_csv``: the per-sample status CSV's path ("" without one).
     """
 
     input: str
@@ -83,6 +85,8 @@ class BatchRow:
     cpu_seconds: float | None = None
     kernel_seconds: float | None = None
     page_faults: int | None = None
+    left_samples: int | None = None
+    status_csv: str = ""
 
     def table_row(self) -> dict[str, Any]:
         """The row as the results table holds it (:data:`COLUMNS` only)."""
@@ -101,6 +105,7 @@ class FileTask:
     rate: float | None = None
     override_rate: bool = False
     output_format: str | None = None
+    status: str | None = None  # where to write the per-sample status CSV, or None
 
 
 # --------------------------------------------------------------------------------------------------------- inputs
@@ -220,6 +225,7 @@ def _settings_digest(task: FileTask) -> str:
 
     report = None if task.report is None else Path(task.report).suffix
     doc: dict[str, Any] = {"mocapfill": __version__, "fill": task.settings.as_dict(), "report": report,
+                           "status": task.status is not None,
                            "reading": [task.input_format, task.rate, task.override_rate],
                            "format": task.output_format}
     for name in ("bones", "reference"):
@@ -307,6 +313,12 @@ def _fill_file(task: FileTask, row: BatchRow) -> None:
                     write_fill_report(outcome, task.report, method=task.settings.method, input_path=task.input,
                                       output_path=task.output, smoothed=task.settings.smooth)
                     row.report = task.report
+                if task.status is not None:
+                    from .pipeline import write_status_csv
+
+                    write_status_csv(outcome, task.status)
+                    row.status_csv = task.status
+                row.left_samples = 0 if outcome.left is None else int((outcome.left != 0).sum())
                 row.status = "filled"
             finally:
                 notes += [f"{item.category.__name__}: {_one_line(item.message)}" for item in caught]
@@ -325,7 +337,7 @@ def _fill_file(task: FileTask, row: BatchRow) -> None:
 
 def _remove_temporaries(task: FileTask) -> None:
     """Remove the temporary files :func:`mocapfill.io.atomic.atomic_write` leaves when its process is killed."""
-    for target in (task.output, task.report):
+    for target in (task.output, task.report, task.status):
         if target is None:
             continue
         path = Path(target)
@@ -416,7 +428,8 @@ def _row_from_state(entry: dict[str, Any], task: FileTask, seconds: float) -> Ba
     except (KeyError, TypeError):
         return None
     return BatchRow(task.input, task.output, "skipped", method=task.settings.method, seconds=seconds,
-                    report=task.report or "", **known)
+                    report=task.report or "", left_samples=entry["row"].get("left_samples"),
+                    status_csv=task.status or "", **known)
 
 
 # ------------------------------------------------------------------------------------------------------ the API
@@ -441,7 +454,7 @@ def _jobs(jobs: int, n_tasks: int) -> int:
 def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str | os.PathLike, *,
           method: str = "auto", jobs: int = 1, scheduler: Any = None, format: str | None = None,
           input_format: str | None = None, rate: float | None = None, override_rate: bool = False,
-          report: str | None = None, force: bool = False,
+          report: str | None = None, status: bool = False, force: bool = False,
           progress: Callable[[int, int, BatchRow | None], None] | None = None, **options: Any) -> list[BatchRow]:
     """Fill every input file into ``out_dir``; return one :class:`BatchRow` per input, in input order.
 
@@ -464,13 +477,16 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
         How to read the inputs (as :func:`mocapfill.read`).
     report : {"html", "json"} or None
         Write ``<output>.report.<kind>`` per file and ``out_dir/index.html`` linking them.
+    status : bool
+        Write ``<output>.status.csv`` per file: what became of every sample (see ``fill --status``).
     force : bool
         Redo inputs that a previous run finished with the same content and settings.
     progress : callable or None
         ``progress(done, total, row)``, called once with ``(0, total, None)`` and after every file.
     **options
         The fill options of :class:`mocapfill.pipeline.FillSettings` (``hidden``, ``max_iter``, ``tol``, ``seed``,
-        ``bones``, ``reject_outliers``, ``delta``, ``reference``, ``smooth``, ``smooth_window``, ``smooth_order``).
+        ``bones``, ``reject_outliers``, ``delta``, ``reference``, ``smooth``, ``smooth_window``, ``smooth_order``,
+        ``max_gap``, ``edges``, ``min_fragment``, ``markers``, ``exclude``).
 
     Returns
     -------
@@ -514,7 +530,8 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
             raise InputError(f"{output}: output is the same file as the input {path}; choose another --out-dir")
         owners[key] = path
         tasks.append(FileTask(str(path), str(output), None if report_path is None else str(report_path), settings,
-                              input_format, rate, override_rate, format))
+                              input_format, rate, override_rate, format,
+                              str(output.with_name(f"{output.name}.status.csv")) if status else None))
 
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -559,7 +576,8 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
             started = time.perf_counter()
             skipped = None
             if entry is not None and entry.get("settings_sha256") == settings_digest \
-                    and Path(task.output).is_file() and (task.report is None or Path(task.report).is_file()):
+                    and Path(task.output).is_file() and (task.report is None or Path(task.report).is_file()) \
+                    and (task.status is None or Path(task.status).is_file()):
                 with contextlib.suppress(OSError):
                     if file_digest(task.input) == entry.get("input_sha256"):
                         skipped = _row_from_state(entry, task, time.perf_counter() - started)
