@@ -95,8 +95,8 @@ def select_markers(labels: Sequence[str], kinds: Sequence[str] | None = None, ma
         :attr:`MarkerData.kinds` (None: every point is a marker).
     markers, exclude : str (comma-separated) or sequence of str, or None
         Labels or shell-style patterns (``L*``, ``?ASI``, ``[LR]KNE``), each matched against the whole label and
-        against the label after a ``Subject:`` prefix.  A pattern reaches markers only; an exact name also reaches
-        a model point or an unlabelled trajectory.
+        against the label after a ``Subject:`` prefix.  A pattern reaches markers only; an exact name (tried first,
+        so Vicon's unlabelled ``*12`` is a name) also reaches a model point or an unlabelled trajectory.
     path : str or None
         The capture's path, for messages.
 
@@ -142,13 +142,12 @@ def _matching(labels: list[str], kinds: list[str], spec: str | Sequence[str], op
     bases = [label.rpartition(":")[2] for label in labels]
     out = np.zeros(len(labels), dtype=bool)
     for item in items:
-        if any(char in item for char in PATTERN_CHARS):
+        hits = np.array([item in (label, base) for label, base in zip(labels, bases)], dtype=bool)
+        what = f"no marker called {item!r}"
+        if not hits.any() and any(char in item for char in PATTERN_CHARS):  # a name first: Vicon's "*12"
             hits = np.array([kind == "marker" and (fnmatch.fnmatchcase(label, item) or fnmatch.fnmatchcase(base, item))
                              for label, base, kind in zip(labels, bases, kinds)], dtype=bool)
             what = f"pattern {item!r} matches no marker"
-        else:
-            hits = np.array([item in (label, base) for label, base in zip(labels, bases)], dtype=bool)
-            what = f"no marker called {item!r}"
         if not hits.any():
             raise MethodError(f"{_where(path)}{option}: {what}{_near(item, labels, bases)}")
         out |= hits
