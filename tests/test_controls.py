@@ -319,7 +319,8 @@ def test_status_of_model_points_and_unlabelled():
     assert np.isnan(outcome.output.positions[10:15, 2:]).all()  # kept untouched
     assert (outcome.status[10:15, :2] == Status.FILLED).all()
     named = fill_capture(data, FillSettings(method="linear", markers="A,Model"))  # an exact name reaches a model point
-    assert (named.status[10:15, 2] == Status.FILLED).all() and (named.status[10:15, 1] == Status.MISSING_NOT_CHOSEN).all()
+    assert (named.status[10:15, 2] == Status.FILLED).all()
+    assert (named.status[10:15, 1] == Status.MISSING_NOT_CHOSEN).all()
 
 
 @pytest.mark.parametrize("options", [

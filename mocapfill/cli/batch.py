@@ -55,13 +55,14 @@ class _BatchProgress(StderrProgress):
 @click.option("--force", is_flag=True, help="Redo inputs already filled with the same content and settings.")
 @quiet_option
 def batch_command(inputs: tuple[str, ...], out_dir: str, fill_settings: FillSettings, report: str | None,
-                  status: bool, output_format: str | None, reading: ReadOptions, jobs: int, scheduler: str | None, force: bool,
-                  quiet: bool) -> None:
+                  status: bool, output_format: str | None, reading: ReadOptions, jobs: int, scheduler: str | None,
+                  force: bool, quiet: bool) -> None:
     """Fill every INPUT (files, folders searched recursively, globs) into DIR.
 
     Each output keeps its input's path relative to its folder.  Results go to DIR/mocapfill-batch.csv as files
     finish (input, output, status, frames, markers, missing_samples, filled_samples, method, seconds, error,
-    left_samples: samples left missing by --max-gap, --edges leave, --markers / --exclude).  A re-run skips inputs whose output exists and whose content and settings are unchanged (--force redoes them).
+    left_samples: samples left missing by --max-gap, --edges leave, --markers / --exclude).  A re-run skips inputs
+    whose output exists and whose content and settings are unchanged (--force redoes them).
     A bad file gives a `failed` row and the others go on; the exit status is 1 if any file failed.
     """
     import dataclasses

@@ -114,7 +114,7 @@ def _summary_rows(report: dict) -> list[tuple[str, str]]:
                            if (g["at_start"] or g["at_end"]) and g["status"] == "filled"]
         listed = ", ".join(filled_at_edges[:10]) + (", ..." if len(filled_at_edges) > 10 else "")
         rows.append(("Gaps at the edges", f"--edges {s['edges']}: {s['edge_gaps_filled']} filled"
-                                          + (f" ({listed})" if listed else "") + f", {s['edge_gaps_left']} left missing"))
+                     + (f" ({listed})" if listed else "") + f", {s['edge_gaps_left']} left missing"))
     if s.get("fragments") is not None:
         rows.append(("Short fragments", f"{s['fragments']} dropped and filled over ({s['fragment_samples']} samples)"))
     if "observed_changed" in s:
