@@ -93,7 +93,7 @@ def worker(mode: str, frames: int, part: int, missing: float, seed: int, window:
                                                         units=data.units),
                                      window=window, overlap=overlap, jobs=2 if mode == "windows-2jobs" else 1)
         else:
-            result = mocapfill.fill(data)
+            result = mocapfill.fill(data, jobs=2)  # the processes the figure was measured with (2 cores)
     seconds = time.perf_counter() - t0
     err = np.linalg.norm(result.positions[hidden] - truth.positions[hidden], axis=1)
     return {"mode": mode, "frames": int(truth.n_frames), "markers": int(truth.n_markers),

@@ -30,3 +30,28 @@ class ConvergenceWarning(UserWarning):
 
 class DataWarning(UserWarning):
     """Something in the input was repaired or ignored on reading (duplicate labels, truncated rows, ...)."""
+
+
+def one_line(problem: BaseException | object, where: str | None = None) -> str | None:
+    """The user's one-line message for ``problem``: the one place that words an error, for the CLI and ``batch``.
+
+    A :class:`MocapfillError` says it all itself; an ``OSError`` becomes ``FILE: reason``; ``MemoryError`` becomes
+    ``out of memory`` (prefixed by ``where``, the file at hand, when given); any other exception (a bug of ours)
+    becomes ``where: TypeName: message``.  Text is folded onto one line.  Returns None for an exception that is not
+    an error of the input (``KeyboardInterrupt``, ``SystemExit``): those propagate.
+    """
+    prefix = f"{where}: " if where else ""
+    if isinstance(problem, (KeyboardInterrupt, SystemExit, GeneratorExit)):
+        return None
+    if isinstance(problem, MocapfillError):
+        text = str(problem)
+    elif isinstance(problem, MemoryError):
+        text = f"{prefix}out of memory"
+    elif isinstance(problem, OSError):
+        filename = getattr(problem, "filename", None) or where
+        text = f"{filename}: {problem.strerror or problem}" if filename else str(problem.strerror or problem)
+    elif isinstance(problem, BaseException):
+        text = f"{prefix}{type(problem).__name__}: {problem}"
+    else:
+        text = str(problem)
+    return " ".join(text.split())

@@ -236,7 +236,7 @@ class FillOutcome:
 
 
 def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerData | None = None,
-                 progress: Callable[[int, int, float], None] | None = None) -> FillOutcome:
+                 progress: Callable[[int, int, float], None] | None = None, jobs: int = 1) -> FillOutcome:
     """Reject outliers (optional), drop short fragments (optional), fill, leave the gaps not to fill, smooth
     (optional) one capture.
 
@@ -249,6 +249,9 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
         The capture named by ``settings.reference``, already read by the caller (positions (n, n_markers_ref, 3)).
     progress : callable or None
         ``progress(iteration, n_max, objective)``, handed to methods that report progress.
+    jobs : int
+        Local worker processes a method may use (a long take's windows; 1: here, 0: every core), handed to methods
+        that take ``jobs``.  Not a setting: the output does not depend on it.
 
     Every marker informs the fill; gaps longer than ``max_gap``, at the edges under ``edges="leave"`` and of the
     markers not chosen are put back to missing after it.  A fragment is dropped only when the gap it then belongs
@@ -313,6 +316,8 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
         record["bones"] = settings.bones
     if progress is not None and "progress" in accepted:
         options["progress"] = progress
+    if "jobs" in accepted:
+        options["jobs"] = jobs
 
     from .api import fill
 

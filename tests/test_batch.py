@@ -17,7 +17,7 @@ from click.testing import CliRunner
 import mocapfill
 from mocapfill.batching import COLUMNS, INDEX_NAME, RESULTS_NAME, STATE_NAME
 from mocapfill.cli import cli
-from mocapfill.runtime.workers import WORKER_NAME
+from mocapfill.runtime.executor import WORKER_NAME
 from mocapfill.errors import MocapfillError
 
 GOOD = {"serve.c3d": 1092, "vicon.csv": 580, "sub/T.trc": 89, "sub/deeper/racing.c3d": 700}
@@ -131,7 +131,7 @@ def test_dask_local_cluster_gives_the_serial_outputs(session, tmp_path):
 
 def test_an_unreachable_scheduler_is_a_one_line_error(session, tmp_path, monkeypatch):
     pytest.importorskip("distributed")
-    monkeypatch.setattr("mocapfill.runtime.workers.CONNECT_TIMEOUT", "1s")
+    monkeypatch.setattr("mocapfill.runtime.executor.CONNECT_TIMEOUT", "1s")
     result = CliRunner().invoke(cli, ["batch", str(session), "-o", str(tmp_path / "o"), "--scheduler",
                                       "tcp://127.0.0.1:9", "-m", "linear"])
     assert result.exit_code == 1 and "Dask scheduler" in result.stderr and "Traceback" not in result.output
@@ -230,15 +230,18 @@ def test_fill_options_are_shared_with_fill(session, tmp_path):
 
 
 def test_tasks_are_ordered_by_samples_read_from_the_headers(session, tmp_path):
-    from mocapfill.batching import _TEXT_BYTES_PER_SAMPLE, _samples_hint
+    from mocapfill.io.peek import TEXT_BYTES_PER_SAMPLE, peek
+
+    def _samples_hint(path):
+        return peek(path, scan=False).samples or 0
 
     for rel in ("serve.c3d", "sub/T.trc", "sub/deeper/racing.c3d"):
         data = mocapfill.read(session / rel)
         assert _samples_hint(str(session / rel)) == data.n_frames * data.n_markers, rel
     csv_path = session / "vicon.csv"
-    assert _samples_hint(str(csv_path)) == csv_path.stat().st_size // _TEXT_BYTES_PER_SAMPLE
+    assert _samples_hint(str(csv_path)) == csv_path.stat().st_size // TEXT_BYTES_PER_SAMPLE
     broken = session / "sub" / "broken.c3d"
-    assert _samples_hint(str(broken)) == broken.stat().st_size // _TEXT_BYTES_PER_SAMPLE
+    assert _samples_hint(str(broken)) == broken.stat().st_size // TEXT_BYTES_PER_SAMPLE
     assert _samples_hint(str(tmp_path / "absent.c3d")) == 0
 
 

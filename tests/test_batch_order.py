@@ -1,5 +1,5 @@
 """`mocapfill batch`'s task order: longest expected fill first, from a bounded scan of the missing samples
-(``mocapfill.batching._longest_first``).  The order only schedules; outputs are covered by tests/test_batch.py."""
+(``mocapfill.batching.order.longest_first`` on ``mocapfill.io.peek.peek``).  The order only schedules; outputs are covered by tests/test_batch.py."""
 
 from __future__ import annotations
 
@@ -11,8 +11,21 @@ import numpy as np
 import pytest
 
 import mocapfill
-from mocapfill import batching
-from mocapfill.batching import _longest_first, _samples_hint, _scan_missing
+from mocapfill.batching import order
+from mocapfill.io.peek import peek
+
+
+def _longest_first(tasks):
+    return order.longest_first(tasks, [t.input for t in tasks])
+
+
+def _samples_hint(path) -> int:
+    return peek(path, scan=False).samples or 0
+
+
+def _scan_missing(path):
+    found = peek(path)
+    return None if found.missing is None else (found.missing, found.samples)
 
 
 def _task(path) -> types.SimpleNamespace:
@@ -43,7 +56,7 @@ def test_a_heavily_gapped_small_c3d_goes_before_a_barely_gapped_larger_one(two_c
     # The header alone (frames x markers) puts the larger file first ...
     assert _samples_hint(tasks[0].input) > _samples_hint(tasks[1].input)
     # ... the scan of its residual words counts what the reader reads as missing (every frame of the small file,
-    # every other frame of the large one: more than _SCAN_FRAMES).
+    # every other frame of the large one: more than SCAN_FRAMES).
     for data, name, tolerance in ((small, "small.c3d", 1e-12), (large, "large.c3d", 0.003)):
         fraction, samples = _scan_missing(str(tmp_path / name))
         assert samples == data.n_frames * data.n_markers
@@ -85,7 +98,12 @@ def test_past_the_time_box_files_are_costed_from_their_headers(two_captures, tmp
     small, large = two_captures
     mocapfill.write(small, tmp_path / "small.c3d")
     mocapfill.write(large, tmp_path / "large.c3d")
-    monkeypatch.setattr(batching, "_SCAN_SECONDS", 0.0)
-    monkeypatch.setattr(batching, "_scan_missing", lambda path: pytest.fail("scanned past the time box"))
+    monkeypatch.setattr(order, "SCAN_SECONDS", 0.0)
+
+    def header_only(path, *, scan=True):
+        assert not scan, "scanned past the time box"
+        return peek(path, scan=False)
+
+    monkeypatch.setattr(order, "peek", header_only)
     tasks = [_task(tmp_path / "small.c3d"), _task(tmp_path / "large.c3d")]
     assert [t.input for t in _longest_first(tasks)] == [tasks[1].input, tasks[0].input]

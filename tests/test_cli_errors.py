@@ -60,7 +60,7 @@ def test_truncated_c3d(sample_data, tmp_path):
 
 def test_corrupt_c3d(tmp_path):
     path = tmp_path / "junk.c3d"
-    path.write_bytes(os.urandom(10) + b"\x00" * 3000)
+    path.write_bytes(bytes(range(1, 11)) + b"\x00" * 3000)  # byte 1 is not 0x50, the C3D signature
     assert "not a C3D file" in _info_error(path)
 
 

@@ -12,7 +12,7 @@ import sys
 import click
 
 from .. import __version__
-from ..errors import MocapfillError
+from ..errors import MocapfillError, one_line
 
 
 class _Group(click.Group):
@@ -21,17 +21,12 @@ class _Group(click.Group):
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
-        except MocapfillError as exc:
-            raise click.ClickException(str(exc)) from None
         except BrokenPipeError:
             # The reader of our stdout went away (``| head``): not an error of ours.
             sys.stderr.close()
             raise SystemExit(0) from None
-        except OSError as exc:
-            where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
-            raise click.ClickException(f"{where}{exc.strerror or exc}") from None
-        except MemoryError:
-            raise click.ClickException("out of memory") from None
+        except (MocapfillError, OSError, MemoryError) as exc:
+            raise click.ClickException(one_line(exc)) from None
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})

@@ -11,7 +11,7 @@ from typing import Callable, NamedTuple
 import click
 from rich.console import Console
 
-from ..errors import ConvergenceWarning, DataWarning, MethodError
+from ..errors import ConvergenceWarning, DataWarning, MethodError, one_line
 
 from ..io import READ_FORMATS, WRITE_FORMATS
 
@@ -183,10 +183,6 @@ def read_input(path: str, reading: ReadOptions = ReadOptions(), *, quiet: bool =
 _PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def _one_line(message: object) -> str:
-    return " ".join(str(message).split())
-
-
 def _ours(item: warnings.WarningMessage) -> bool:
     """Warnings meant for the user: mocapfill's own categories, or any warning raised from mocapfill's code."""
     if issubclass(item.category, (ConvergenceWarning, DataWarning)):
@@ -201,7 +197,7 @@ def show_warnings(caught: list[warnings.WarningMessage], quiet: bool) -> None:
     for item in caught:
         if not _ours(item):
             continue
-        text = f"{item.category.__name__}: {_one_line(item.message)}"
+        text = f"{item.category.__name__}: {one_line(item.message)}"
         if text in seen:
             continue
         seen.add(text)

@@ -52,9 +52,11 @@ FILL_EPILOG = "\b\nMethods:\n" + "\n".join(f"  {spec.name:<10} {spec.summary}" f
 @format_options
 @quiet_option
 @click.option("--force", is_flag=True, help="Allow OUT to be the same file as IN (it is replaced atomically).")
+@click.option("-j", "--jobs", type=click.IntRange(min=0), default=1, show_default=True,
+              help="Worker processes for a long take's windows (0 = every core); the output does not depend on it.")
 def fill_command(input_path: str, output_path: str, fill_settings: FillSettings, report_path: str | None,
                  status_path: str | None, output_format: str | None, reading: ReadOptions, quiet: bool,
-                 force: bool) -> None:
+                 force: bool, jobs: int) -> None:
     """Fill the gaps of IN and write the result to OUT ("-" = stdin / stdout).
 
     Observed samples are written back unchanged, except under --smooth, --reject-outliers and --min-fragment
@@ -87,7 +89,8 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
             reference = read_input(settings.reference, reading._replace(format=None), quiet=quiet)
 
         with _ProgressBar(method, quiet) as bar:
-            outcome = fill_capture(data, settings, reference=reference, progress=bar if bar.enabled else None)
+            outcome = fill_capture(data, settings, reference=reference, progress=bar if bar.enabled else None,
+                                   jobs=jobs)
 
         out_data = outcome.output
         if force:

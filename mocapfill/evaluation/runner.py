@@ -1,24 +1,23 @@
 """Running trials: corrupt the clean clip, fill it with each method, score against the truth.
 
-One trial is one task (:func:`run_trial`); :func:`run_trials` runs them in order or in worker processes.  Nothing
+One trial is one task (:func:`run_trial`); :func:`run_trials` runs them on an executor (here, local processes, Dask).  Nothing
 random happens here: the occlusions are fixed beforehand and each trial passes its own precomputed ``seed`` to the
 methods, so that serial and parallel runs give the same numbers (only ``seconds`` differs).
 """
 
 from __future__ import annotations
 
-import concurrent.futures as cf
-import multiprocessing
-import os
 import time
 import warnings
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any, Callable
 
 import numpy as np
 
 from ..errors import MocapfillError
 from ..markers import MarkerData
+from ..runtime.executor import Executor, make_executor
 from .metrics import score
 from ..bones.boneset import estimate_bones
 from .occlusions import Trial
@@ -110,54 +109,39 @@ def run_trial(truth: MarkerData, index: int, trial: Trial, method_seed: int, con
     return out
 
 
-_WORKER: dict[str, Any] = {}
-
-
-def _init_worker(truth: MarkerData, config: RunConfig) -> None:
-    _WORKER["truth"], _WORKER["config"] = truth, config
-
-
-def _worker_task(index: int, trial: Trial, method_seed: int) -> list[TrialScore]:
-    return run_trial(_WORKER["truth"], index, trial, method_seed, _WORKER["config"])
-
-
 def run_trials(truth: MarkerData, trials: list[Trial], seeds: list[int], config: RunConfig, *, jobs: int = 1,
-               progress: Callable[[int, int], None] | None = None) -> list[TrialScore]:
-    """Run every trial; scores come back trial-major, methods in ``config.methods`` order, whatever ``jobs``.
+               executor: Executor | None = None, progress: Callable[[int, int], None] | None = None
+               ) -> list[TrialScore]:
+    """Run every trial; scores come back trial-major, methods in ``config.methods`` order, whatever runs them.
 
-    ``jobs`` > 1 runs trials in that many worker processes (``spawn``: no state inherited from the caller);
-    ``jobs`` <= 0 uses every CPU.  ``progress(done, total)`` is called after each trial.
+    Each trial is one task on ``executor`` (:mod:`mocapfill.runtime.executor`), else on ``jobs`` local processes
+    (1: here; 0: every core).  ``progress(done, total)`` is called after each trial.
     """
     # The workers need the positions and labels only, not the format payload (a C3D's parameter section).
     light = MarkerData(truth.positions, truth.labels, truth.rate, truth.units, truth.first_frame, path=truth.path)
     total = len(trials)
-    if jobs <= 0:
-        jobs = os.cpu_count() or 1
-    jobs = min(jobs, total)
+    runner = executor if executor is not None else make_executor(jobs, n_tasks=total)
     results: list[list[TrialScore] | None] = [None] * total
     done = 0
     if progress:
         progress(0, total)
-    if jobs <= 1:
-        for i, (trial, seed) in enumerate(zip(trials, seeds)):
-            results[i] = run_trial(light, i, trial, seed, config)
-            done += 1
-            if progress:
-                progress(done, total)
-    else:
-        ctx = multiprocessing.get_context("spawn")
-        with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_init_worker,
-                                    initargs=(light, config)) as pool:
-            futures = {pool.submit(_worker_task, i, trial, seed): i
-                       for i, (trial, seed) in enumerate(zip(trials, seeds))}
-            try:
-                for future in cf.as_completed(futures):
-                    results[futures[future]] = future.result()
-                    done += 1
-                    if progress:
-                        progress(done, total)
-            except BaseException:
-                for future in futures:
-                    future.cancel()
-                raise
+
+    def on_result(task: tuple[int, Trial, int], scores: list[TrialScore]) -> None:
+        nonlocal done
+        results[task[0]] = scores
+        done += 1
+        if progress:
+            progress(done, total)
+
+    def lost(task: tuple[int, Trial, int], exc: BaseException) -> list[TrialScore]:
+        raise MocapfillError(f"{truth.path or 'evaluate'}: the worker running trial {task[0] + 1} died ({exc})")
+
+    tasks = [(i, trial, seed) for i, (trial, seed) in enumerate(zip(trials, seeds))]
+    runner.run(partial(run_indexed_trial, light, config), tasks, on_result, on_failure=lost)
     return [s for chunk in results for s in chunk]  # type: ignore[union-attr]
+
+
+def run_indexed_trial(truth: MarkerData, config: RunConfig, task: tuple[int, Trial, int]) -> list[TrialScore]:
+    """:func:`run_trial` on an ``(index, trial, method_seed)`` task (an executor's task)."""
+    index, trial, method_seed = task
+    return run_trial(truth, index, trial, method_seed, config)

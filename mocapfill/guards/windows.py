@@ -40,6 +40,7 @@ import numpy as np
 from ..errors import MethodError
 from ..gaps import runs
 from ..methods.base import FillResult, finish
+from ..runtime.executor import Executor, InProcess, make_executor
 
 #: Defaults: windows of at most 5,000 frames (the length the default fill is measured on), 400 shared (3.3 s at
 #: 120 Hz: longer than most gaps, so that one window holds each gap whole).
@@ -119,34 +120,18 @@ def _cut_gaps(missing: np.ndarray, at_take_start: bool, at_take_end: bool) -> np
     return cut
 
 
-def _window_results(positions: np.ndarray, bounds: list[tuple[int, int]], fill: Callable, jobs: int):
-    """The fills of the windows, in order: here, or in ``jobs`` worker processes (at most ``jobs`` windows in
-    flight, so memory stays that of a few windows)."""
-    if jobs <= 1:
+def _window_results(positions: np.ndarray, bounds: list[tuple[int, int]], fill: Callable, executor: Executor):
+    """The fills of the windows, in order: here one after the other (memory: one window's fill at a time), or on
+    the executor's workers (every window's fill is held until the blend)."""
+    if isinstance(executor, InProcess):
         for start, stop in bounds:
             yield fill(positions[start:stop])
         return
-    import concurrent.futures as cf
-    import multiprocessing
-    from collections import deque
-
-    # fork where there is one: a spawned worker re-imports the caller's __main__, which re-runs a script without a
-    # `__main__` guard (and fails for code read from stdin); the fork inherits the one-thread BLAS limit too.
-    ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
-    with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-        todo = iter(bounds)
-        first = [next(todo) for _ in range(min(jobs, len(bounds)))]
-        pending = deque(pool.submit(fill, positions[a:b]) for a, b in first)
-        while pending:
-            result = pending.popleft().result()
-            following = next(todo, None)
-            if following is not None:
-                pending.append(pool.submit(fill, positions[following[0]:following[1]]))
-            yield result
+    yield from executor.results(fill, [positions[start:stop] for start, stop in bounds])
 
 
 def fill_in_windows(positions: np.ndarray, fill: Callable[[np.ndarray], Any], *, window: int = DEFAULT_WINDOW,
-                    overlap: int = DEFAULT_OVERLAP, jobs: int = 1) -> FillResult:
+                    overlap: int = DEFAULT_OVERLAP, jobs: int = 1, executor: Executor | None = None) -> FillResult:
     """Fill ``positions`` (n_frames, n_markers, 3), NaN = missing, window by window with ``fill`` (see the module
     docstring).
 
@@ -161,8 +146,13 @@ def fill_in_windows(positions: np.ndarray, fill: Callable[[np.ndarray], Any], *,
         Frames per window and shared by neighbours (``window >= 2 * overlap``, ``overlap >= 2``).  A take of at
         most ``window`` frames is filled in one call (its result passed through :func:`finish`).
     jobs : int
-        Windows filled at once in worker processes (default 1: here, one after the other).  With ``jobs > 1``,
-        ``fill`` must be picklable (a module-level function or a :func:`functools.partial` of one, not a lambda).
+        Windows filled at once in local worker processes (1, the default: here, one after the other; 0: every core),
+        when no ``executor`` is given.
+    executor : Executor or None
+        Where the windows run (:mod:`mocapfill.runtime.executor`: local processes or a Dask cluster); each window is
+        one task.  Off this process, ``fill`` must be picklable (a module-level function or a
+        :func:`functools.partial` of one, not a lambda), and a script needs the ``if __name__ == "__main__":`` guard
+        (workers are spawned).
 
     Returns
     -------
@@ -177,6 +167,7 @@ def fill_in_windows(positions: np.ndarray, fill: Callable[[np.ndarray], Any], *,
     n, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
     bounds = window_bounds(missing, window, overlap)
+    runner = executor if executor is not None else make_executor(jobs, n_tasks=len(bounds))
     if len(bounds) == 1:
         res = fill(positions)
         return finish(positions, res.positions, std=getattr(res, "std", None), n_iter=getattr(res, "n_iter", 0),
@@ -190,7 +181,7 @@ def fill_in_windows(positions: np.ndarray, fill: Callable[[np.ndarray], Any], *,
     # per sample, the window with the most weight there: its entry describes the gap in the merged info
     owner_weight = np.zeros((n, n_markers))
     owner = np.full((n, n_markers), -1, dtype=np.intp)
-    for k, ((start, stop), res) in enumerate(zip(bounds, _window_results(positions, bounds, fill, int(jobs)))):
+    for k, ((start, stop), res) in enumerate(zip(bounds, _window_results(positions, bounds, fill, runner))):
         part = positions[start:stop]
         est = np.asarray(res.positions, dtype=np.float64)
         if est.shape != part.shape:

@@ -73,8 +73,6 @@ fill).
 
 from __future__ import annotations
 
-import multiprocessing
-import os
 import warnings
 from functools import partial
 from typing import Any, Sequence
@@ -146,7 +144,7 @@ def fill_auto(
     bones: Any = None,
     knn: int = 10,
     refine: bool = True,
-    jobs: int | None = None,
+    jobs: int = 1,
 ) -> FillResult:
     """Fill gaps with the default pipeline (see the module docstring).
 
@@ -163,9 +161,8 @@ def fill_auto(
     bones : BoneSet, None (estimate from the observed frames) or False (no bone refinement).
     knn : neighbours of the nearest-pose residual correction (0 disables it).
     refine : apply the bone refinement (same as ``bones=False`` when False).
-    jobs : worker processes for the windows of a long take (the output does not depend on it).  None: every core,
-        unless this process is itself a daemonic worker (``batch``, a Dask worker) or the platform cannot fork; then
-        one by one.
+    jobs : local worker processes for the windows of a long take (1, the default: here; 0: every core); the output
+        does not depend on it.  Workers are spawned: a script needs the ``if __name__ == "__main__":`` guard.
 
     Returns
     -------
@@ -186,18 +183,8 @@ def fill_auto(
     core = partial(_fill_auto, units=units, labels=labels, rate=rate, bones=bones, knn=knn, refine=refine)
     with single_blas_thread():  # thousands of small decompositions: BLAS threads only add contention
         if positions.shape[0] > DEFAULT_WINDOW:  # long takes: overlapping windows, time linear in frames
-            return fill_in_windows(positions, core, jobs=_window_jobs(jobs))
+            return fill_in_windows(positions, core, jobs=jobs)
         return core(positions)
-
-
-def _window_jobs(jobs: int | None) -> int:
-    """Worker processes for the windows: ``jobs``, else every core where workers can be forked (not inside a
-    daemonic worker, which may not have children; not where only spawn exists, which re-imports the caller's script)."""
-    if jobs is not None:
-        return max(1, int(jobs))
-    if multiprocessing.current_process().daemon or "fork" not in multiprocessing.get_all_start_methods():
-        return 1
-    return max(1, os.cpu_count() or 1)
 
 
 def _fill_auto(positions: np.ndarray, *, units: str, labels, rate, bones, knn: int, refine: bool) -> FillResult:

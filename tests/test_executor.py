@@ -1,0 +1,45 @@
+"""The one executor: the same results here and on local processes; a lost worker ends only its task."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import pytest
+
+from mocapfill.runtime.executor import InProcess, LocalProcesses, WorkerLost, make_executor, resolve_jobs
+
+
+def square(x: int) -> int:
+    return x * x
+
+
+def die_on_three(x: int) -> int:
+    if x == 3:
+        os.kill(os.getpid(), signal.SIGKILL)
+    return x
+
+
+def test_make_executor_follows_jobs():
+    assert isinstance(make_executor(), InProcess)  # the library's default: one process
+    assert isinstance(make_executor(1), InProcess)
+    assert isinstance(make_executor(2, n_tasks=5), LocalProcesses)
+    assert isinstance(make_executor(2, n_tasks=1), InProcess)  # never more workers than tasks
+    assert resolve_jobs(0) == len(os.sched_getaffinity(0))
+
+
+@pytest.mark.parametrize("executor", [InProcess(), LocalProcesses(2)], ids=["in-process", "processes"])
+def test_results_come_back_in_task_order(executor):
+    assert executor.results(square, list(range(7))) == [x * x for x in range(7)]
+
+
+def test_a_dead_worker_ends_only_its_task():
+    seen, lost = {}, []
+
+    def on_failure(task, exc):
+        lost.append((task, exc))
+        return None
+
+    LocalProcesses(2).run(die_on_three, [1, 2, 3, 4, 5], seen.__setitem__, on_failure=on_failure)
+    assert seen == {1: 1, 2: 2, 3: None, 4: 4, 5: 5}
+    assert [t for t, _ in lost] == [3] and isinstance(lost[0][1], WorkerLost) and "SIGKILL" in str(lost[0][1])
