@@ -15,6 +15,7 @@ import dataclasses
 import difflib
 import fnmatch
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
@@ -141,16 +142,24 @@ def _matching(labels: list[str], kinds: list[str], spec: str | Sequence[str], op
         raise MethodError(f"{_where(path)}{option} is empty; give labels or patterns, comma-separated")
     bases = [label.rpartition(":")[2] for label in labels]
     out = np.zeros(len(labels), dtype=bool)
+    unmatched = []
     for item in items:
         hits = np.array([item in (label, base) for label, base in zip(labels, bases)], dtype=bool)
-        what = f"no marker called {item!r}"
         if not hits.any() and any(char in item for char in PATTERN_CHARS):  # a name first: Vicon's "*12"
             hits = np.array([kind == "marker" and (fnmatch.fnmatchcase(label, item) or fnmatch.fnmatchcase(base, item))
                              for label, base, kind in zip(labels, bases, kinds)], dtype=bool)
-            what = f"pattern {item!r} matches no marker"
-        if not hits.any():
-            raise MethodError(f"{_where(path)}{option}: {what}{_near(item, labels, bases)}")
+            if not hits.any():
+                unmatched.append(item)
+        elif not hits.any():
+            raise MethodError(f"{_where(path)}{option}: no marker called {item!r}{_near(item, labels, bases)}")
         out |= hits
+    if unmatched:
+        message = f"{_where(path)}{option}: pattern {unmatched[0]!r} matches no marker"
+        if not out.any():  # nothing chosen at all: an error, with the near labels
+            raise MethodError(message + _near(unmatched[0], labels, bases))
+        # one pattern of several may miss a file of a batch (no right-side markers): said, not fatal
+        warnings.warn(message + "".join(f"; nor does {item!r}" for item in unmatched[1:]), UserWarning,
+                      stacklevel=3)
     return out
 
 

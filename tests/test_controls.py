@@ -236,6 +236,8 @@ def test_select_markers_patterns_prefixes_and_kinds():
         select_markers(labels, kinds, "LKEN", path="t.c3d")
     with pytest.raises(MethodError, match="pattern 'Q\\*' matches no marker"):
         select_markers(labels, kinds, "Q*")
+    with pytest.warns(UserWarning, match="pattern 'Q\\*' matches no marker"):  # one of several: said, not fatal
+        assert select_markers(labels, kinds, "L*,Q*").tolist() == [True, False, True, False, False, False]
     with pytest.raises(MethodError, match="leave no marker"):
         select_markers(labels, kinds, "LASI", exclude="L*")
 
