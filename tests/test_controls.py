@@ -370,3 +370,15 @@ def test_smooth_touches_only_the_chosen_markers(gappy_data):
     outcome = fill_capture(gappy_data, FillSettings(method="linear", smooth=True, markers="Daphnee:*"))
     boite = [i for i, label in enumerate(gappy_data.labels) if label.startswith("boite:")]
     np.testing.assert_array_equal(outcome.output.positions[:, boite], gappy_data.positions[:, boite])
+
+
+def test_c3d_keeps_its_residuals_under_max_gap(runner, sample_data, tmp_path):
+    source = sample_data / "kinematics_tennis_serve_nan.c3d"  # RSHO: ten gaps of 4-42 frames at 50 Hz
+    data = mocapfill.read(source)
+    out = tmp_path / "out.c3d"
+    result = _fill(runner, source, out, "--max-gap", "0.3s")  # 15 frames: the 23- and 42-frame gaps stay
+    after = mocapfill.read(out)
+    seen = ~data.missing
+    np.testing.assert_array_equal(after.positions[seen], data.positions[seen])
+    assert sorted(g.length for g in find_gaps(after.missing)) == [23, 42]
+    assert "left missing (too long): 2 gaps" in result.stderr
