@@ -150,10 +150,11 @@ def _summary(outcome, method: str, report_path, status_path, quiet: bool) -> Non
             shown_items = ", ".join(items[:8]) + (f", ... {len(items) - 8} more" if len(items) > 8 else "")
             out.print(f"{reason}: {len(items)} gaps (marker frames): {shown_items}", markup=False,
                       highlight=False, soft_wrap=True)
+    edges = outcome.settings.get("edges", "fill")
     edge_filled = [g for g in find_gaps(missing) if (g.at_start or g.at_end) and result.filled[g.start, g.marker]]
-    if settings_edges(outcome) == "leave" or edge_filled:
-        out.print(f"edges: {settings_edges(outcome)}; {len(edge_filled)} gaps at the first or last frame filled",
-                  markup=False, highlight=False, soft_wrap=True)
+    if edges == "leave" or edge_filled:
+        out.print(f"edges: {edges}; {len(edge_filled)} gaps at the first or last frame filled", markup=False,
+                  highlight=False, soft_wrap=True)
     changed = outcome.observed_changed()
     out.print("observed samples changed by: " + ", ".join(changed) if changed else
               "observed samples returned bit-identical", markup=False, highlight=False, soft_wrap=True)
@@ -161,7 +162,3 @@ def _summary(outcome, method: str, report_path, status_path, quiet: bool) -> Non
     if dead:
         out.print(f"never observed, left empty: {', '.join(dead)}", markup=False, highlight=False)
 
-
-def settings_edges(outcome) -> str:
-    """``"fill"`` or ``"leave"``: what the fill did with gaps at the capture's edges."""
-    return outcome.settings.get("edges", "fill")
