@@ -35,6 +35,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
@@ -53,6 +54,7 @@ from mocapfill.evaluation.occlusions import make_occlusions  # noqa: E402
 from mocapfill.io import read  # noqa: E402
 from mocapfill.methods import METHODS  # noqa: E402
 from mocapfill.methods.auto import MIN_SPEED_MM, step_reference  # noqa: E402
+from mocapfill.pipeline import fill_columns, subset  # noqa: E402
 from mocapfill.guards.plausibility import (body_centre, observed_speed, plausibility,  # noqa: E402
                                             project_plausible)
 from mocapfill.units import length_factor  # noqa: E402
@@ -185,7 +187,9 @@ def _captures() -> list[Path]:
     return found
 
 
-def plausibility_scan() -> None:
+def plausibility_scan(only: str = "", all_points: bool = False) -> None:
+    """``only``: comma-separated substrings of the captures to scan (default all); ``all_points``: fill every point
+    as the default did before model points and unlabelled trajectories were kept aside (issue 23)."""
     print("\n## plausibility of the default's fills on every capture with real gaps", file=sys.stderr)
     print("extent: largest filled distance from the body's median centre / farthest observed; step: largest step "
           "touching a filled sample / its marker's largest observed step (own), or / the larger of that and the "
@@ -196,13 +200,24 @@ def plausibility_scan() -> None:
           "forced samples | extent, step / max(own, body) without them | s |\n|---|---|---|---|---|---|---|---|---|",
           file=sys.stderr)
     worst = {"extent": 0.0, "speed": 0.0, "body": 0.0, "extent_free": 0.0, "body_free": 0.0}
+    wanted = [w for w in only.split(",") if w]
     for path in _captures():
+        if wanted and not any(w in str(path) for w in wanted):
+            continue
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 data = read(path, rate=120.0) if path.suffix.lower() == ".csv" else read(path)
         except (MocapfillError, OSError, ValueError):
             continue
+        kept = 0
+        if all_points:  # every point a marker: fill model points and unlabelled trajectories too (the old default)
+            data = dataclasses.replace(data, kinds=["marker"] * data.n_markers)
+        else:  # what `fill` fills: the markers (model points and unlabelled trajectories kept aside)
+            columns = fill_columns(data)
+            kept = data.n_markers - columns.size
+            if kept:
+                data = subset(data, columns)
         pos = data.positions
         missing = np.isnan(pos).any(axis=2)
         gaps = missing & ~missing.all(axis=0) & (~missing).any(axis=1)[:, None]
@@ -232,7 +247,8 @@ def plausibility_scan() -> None:
                            ("extent_free", ext_free), ("body_free", body_free)):
             worst[key] = max(worst[key], value)
         rel = path.relative_to(SHARED) if SHARED in path.parents else path.relative_to(REPO)
-        print(f"| {rel} | {pos.shape[0]} x {pos.shape[1]} | {missing.mean():.1%} | {ratios['extent']:.2f} | "
+        shape = f"{pos.shape[0]} x {pos.shape[1]}" + (f" (+{kept} kept)" if kept else "")
+        print(f"| {rel} | {shape} | {missing.mean():.1%} | {ratios['extent']:.2f} | "
               f"{ratios['speed']:.2f} | {body_ratio:.2f} | {int(forced.sum())} of {int(filled.sum())} | "
               f"{ext_free:.2f}, {body_free:.2f} | {sec:.2f} |", file=sys.stderr, flush=True)
     print(f"\nWorst: extent {worst['extent']:.2f}, step / own {worst['speed']:.2f}, step / max(own, body) "
@@ -250,6 +266,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--dump", default="", help="directory: save each clip's dense errors there (npz)")
     parser.add_argument("--merge", default="", help="directory: dense tables from the errors --dump runs saved")
     parser.add_argument("--skip", default="", help="comma-separated sections to skip: dense,segment,plausibility")
+    parser.add_argument("--only", default="", help="plausibility: comma-separated substrings of the captures to scan")
+    parser.add_argument("--all-points", action="store_true",
+                        help="plausibility: fill model points and unlabelled trajectories too (as before issue 23)")
     args = parser.parse_args(argv)
     methods = list(METHODS) if args.methods == "all" else args.methods.split(",")
     methods = ["auto"] + [m for m in methods if m != "auto"]
@@ -265,7 +284,7 @@ def main(argv: list[str] | None = None) -> None:
     if "segment" not in skip:
         segment(clips, methods, args.segment_trials, args.seed)
     if "plausibility" not in skip:
-        plausibility_scan()
+        plausibility_scan(args.only, args.all_points)
     print(f"\n{time.perf_counter() - t0:.0f} s in all; load now {os.getloadavg()[0]:.2f}", file=sys.stderr)
 
 

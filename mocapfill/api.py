@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from typing import Any
 
@@ -24,8 +25,9 @@ def fill(data: MarkerData | np.ndarray, method: str = DEFAULT_METHOD, *, max_gap
     Parameters
     ----------
     data : MarkerData or ndarray of shape (n_frames, n_markers, 3)
-        The capture; NaN = missing.  For a bare array, pass ``units=`` (default "mm") and ``rate=`` if the method
-        uses them.
+        The capture; NaN = missing.  Of a MarkerData only the points of kind "marker" (and those ``markers``
+        names exactly) inform the fill and are filled; model points and unlabelled trajectories come back
+        untouched.  For a bare array, pass ``units=`` (default "mm") and ``rate=`` if the method uses them.
     method : str
         A name from :data:`mocapfill.methods.METHODS`.
     max_gap : int, str or None
@@ -47,6 +49,23 @@ def fill(data: MarkerData | np.ndarray, method: str = DEFAULT_METHOD, *, max_gap
         ``data`` is a MarkerData, ``result.info["data"]`` is not set; use ``data.with_positions(result.positions)``
         (or :func:`fill_data`) for a writable copy.
     """
+    if isinstance(data, MarkerData) and any(kind != "marker" for kind in data.kinds):
+        # Only the markers (and points --markers names exactly) inform the fill; model points and unlabelled
+        # trajectories come back as they were (the pipeline's rule: mocapfill.pipeline.fill_columns).
+        from .pipeline import fill_columns, select_markers, subset, widen_result
+
+        chosen = None
+        if markers is not None or exclude is not None:
+            chosen = select_markers(data.labels, data.kinds, markers, exclude, path=data.path)
+        columns = fill_columns(data, chosen)
+        if columns.size == 0:
+            return FillResult(data.positions.copy(), np.zeros(data.positions.shape[:2], dtype=bool),
+                              info={"method": method})
+        # the view's columns are all filled as markers; the choice is handed on as exact names
+        names = None if chosen is None else [data.labels[k] for k in np.flatnonzero(chosen)]
+        view = dataclasses.replace(subset(data, columns), kinds=None)
+        result = fill(view, method, max_gap=max_gap, edges=edges, markers=names, **options)
+        return widen_result(result, columns, data.positions, data.labels)
     spec = get_method(method)
     func = spec.load()
     accepted = spec.parameters()

@@ -51,6 +51,7 @@ class FillSettings:
     smooth: bool = False
     smooth_window: int | None = None
     smooth_order: int | None = None
+    keep_held: bool = False
     max_gap: str | int | None = None
     edges: str = "fill"
     min_fragment: int | None = None
@@ -195,11 +196,18 @@ class FillOutcome:
         The options used, as the report records them.
     seconds : float
         Wall-clock time of the fill step alone.
-    held, fragments, repaired : ndarray of bool (n_frames, n_markers) or None
-        Observed samples a guard dropped as held (frozen) samples, as short fragments (``--min-fragment``), or that
-        the denoiser moved (None when the guard did not run).
+    held : ndarray of bool (n_frames, n_markers) or None
+        Samples turned into gaps as held or frozen (:mod:`mocapfill.guards.held`); None with ``keep_held``.
+    columns : ndarray of int or None
+        The point columns the fill saw (:func:`fill_columns`); the others came back untouched.
+    held_summary : dict or None
+        What the held-sample guard found (:func:`mocapfill.guards.held.held_summary`, fill columns only), also with
+        ``keep_held`` (then nothing was rejected).
+    fragments, repaired : ndarray of bool (n_frames, n_markers) or None
+        Observed samples dropped as short fragments (``--min-fragment``) or moved by the denoiser (None when the
+        guard did not run).
     chosen : ndarray of bool (n_markers,) or None
-        The points filled (:func:`select_markers`).
+        The points to fill (:func:`select_markers`); a subset of ``columns``.
     left : ndarray of int8 (n_frames, n_markers) or None
         Missing samples left missing on request: the :class:`~mocapfill.status.Status` code of the reason, 0 elsewhere.
     status : ndarray of int8 (n_frames, n_markers) or None
@@ -215,18 +223,13 @@ class FillOutcome:
     settings: dict[str, Any]
     seconds: float
     held: np.ndarray | None = None
+    columns: np.ndarray | None = None
+    held_summary: dict[str, Any] | None = None
     fragments: np.ndarray | None = None
     repaired: np.ndarray | None = None
     chosen: np.ndarray | None = None
     left: np.ndarray | None = None
     status: np.ndarray | None = None
-
-    def dropped(self) -> np.ndarray | None:
-        """(n_frames, n_markers) bool: observed samples a guard turned into gaps (outliers, held, fragments)."""
-        masks = [m for m in (self.rejected, self.held, self.fragments) if m is not None]
-        if not masks:
-            return None
-        return np.logical_or.reduce([np.asarray(m, dtype=bool) for m in masks])
 
     def observed_changed(self) -> list[str]:
         """The options that changed or dropped observed samples in this fill, with how many (for the reports);
@@ -244,10 +247,63 @@ class FillOutcome:
         return out
 
 
+def fill_columns(data: MarkerData, chosen: Any = None) -> np.ndarray:
+    """The point columns that inform the fill: int array, ascending.
+
+    The points of kind ``"marker"`` (every marker informs the fill, chosen or not), plus the points in ``chosen``:
+    the ``--markers`` / ``--exclude`` selection (:func:`select_markers`, a bool mask (n_points,) or indices), which
+    brings in a model point or an unlabelled trajectory named exactly.  The others are kept untouched, out of the
+    fill and its statistics.  Which of these columns are filled is ``chosen`` (:func:`fill_capture`).
+    """
+    columns = np.array([k for k, kind in enumerate(data.kinds) if kind == "marker"], dtype=np.int64)
+    if chosen is None:
+        return columns
+    chosen = np.asarray(chosen)
+    extra = np.flatnonzero(chosen) if chosen.dtype == bool else chosen.astype(np.int64).reshape(-1)
+    return np.union1d(columns, extra).astype(np.int64)
+
+
+def subset(data: MarkerData, columns: np.ndarray) -> MarkerData:
+    """``data`` restricted to ``columns`` (positions (n_frames, len(columns), 3)); the C3D payload is dropped, so
+    write the full capture, not this view."""
+    columns = np.asarray(columns, dtype=np.int64)
+    return MarkerData(data.positions[:, columns], [data.labels[k] for k in columns], data.rate, data.units,
+                      data.first_frame, data.source_format, None, data.path, list(data.notes),
+                      [data.kinds[k] for k in columns])
+
+
+def widen_result(result: FillResult, columns: np.ndarray, positions: np.ndarray, labels: list[str]) -> FillResult:
+    """A fill of ``positions[:, columns]`` as a result over every column of ``positions`` (n_frames, n_points, 3):
+    the other columns as they were, not filled; per-gap records name their marker by label."""
+    full = positions.copy()
+    full[:, columns] = result.positions
+    filled = np.zeros(positions.shape[:2], dtype=bool)
+    filled[:, columns] = result.filled
+    std = None
+    if result.std is not None:
+        std = np.where(np.isnan(positions).any(axis=2), np.nan, 0.0)
+        std[:, columns] = result.std
+    info = dict(result.info)
+    if isinstance(info.get("left_missing"), list):  # the stretches left on request, in the full capture's columns
+        info["left_missing"] = [dict(r, marker=int(columns[r["marker"]])) for r in info["left_missing"]]
+    records = info.get("gap_methods")
+    if isinstance(records, list):  # name each gap's marker: indices would point into the fill's columns
+        sub_labels = [labels[k] for k in columns]
+        info["gap_methods"] = [dict(r, marker=sub_labels[r["marker"]]) if isinstance(r, dict)
+                               and isinstance(r.get("marker"), (int, np.integer))
+                               and 0 <= r["marker"] < len(sub_labels) else r for r in records]
+    return FillResult(full, filled, std, result.n_iter, result.converged, list(result.objective), info)
+
+
 def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerData | None = None,
                  progress: Callable[[int, int, float], None] | None = None, jobs: int = 1) -> FillOutcome:
-    """Reject outliers (optional), drop short fragments (optional), fill, leave the gaps not to fill, smooth
-    (optional) one capture.
+    """Find held samples, reject outliers (optional), drop short fragments (optional), fill, leave the gaps not to
+    fill, smooth (optional) one capture.
+
+    Only the columns of :func:`fill_columns` (the markers, and the points ``--markers`` names) go through these steps
+    and inform the fill: the method sees ``positions[:, columns]``; model points and unlabelled trajectories come
+    back untouched.  Held and frozen samples (:mod:`mocapfill.guards.held`) become gaps unless
+    ``settings.keep_held``.
 
     Parameters
     ----------
@@ -271,35 +327,61 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
 
     chosen = select_markers(data.labels, data.kinds, settings.markers, settings.exclude, path=data.path)
     max_gap = None if settings.max_gap is None else parse_max_gap(settings.max_gap, data.rate)
-    work = data
-    rejected = None
+    columns = fill_columns(data, chosen)
+    every = columns.size == data.n_markers
+    view = data if every else subset(data, columns)
+    chosen_view = chosen[columns]
     record: dict[str, Any] = {}
+    if not every:
+        record["points_kept"] = {kind: sum(1 for k in data.kinds if k == kind) for kind in ("model", "unlabelled")}
+
+    from .guards.held import find_held, held_summary
+
+    quantum = None
+    extra = data.extra
+    if getattr(getattr(extra, "file", None), "is_float", True) is False:
+        quantum = abs(float(extra.file.scale))
+    found = find_held(view.positions, units=data.units, quantum=quantum)
+    summary = held_summary(found, view.labels, data.first_frame)
+    held = None
+    work = view
+    if not settings.keep_held:
+        held_sub = found.held
+        if held_sub.any():
+            work = view.with_positions(np.where(held_sub[:, :, None], np.nan, view.positions))
+        held = np.zeros((data.n_frames, data.n_markers), dtype=bool)
+        held[:, columns] = held_sub
+        record["held"] = {"rejected": int(held_sub.sum()), "runs": summary["held"] + summary["zero"]}
+
+    rejected = None
     if settings.reject_outliers:
         from .guards.outliers import reject_outliers
 
-        options: dict[str, Any] = {"units": data.units, "labels": list(data.labels), "rate": data.rate}
+        options: dict[str, Any] = {"units": data.units, "labels": list(view.labels), "rate": data.rate}
         if settings.delta is not None:
             options["delta"] = settings.delta
         if reference is not None:
             options.update(reference=reference.positions, reference_labels=list(reference.labels),
                            reference_units=reference.units)
-        outcome = reject_outliers(data.positions, **options)
-        rejected = np.asarray(outcome.rejected, dtype=bool)
-        work = data.with_positions(outcome.positions)
+        outcome = reject_outliers(work.positions, **options)
+        rejected_sub = np.asarray(outcome.rejected, dtype=bool)
+        work = work.with_positions(outcome.positions)
+        rejected = np.zeros((data.n_frames, data.n_markers), dtype=bool)
+        rejected[:, columns] = rejected_sub
         record["reject_outliers"] = {"delta": 0.1 if settings.delta is None else settings.delta,
-                                     "reference": settings.reference, "rejected": int(rejected.sum())}
+                                     "reference": settings.reference, "rejected": int(rejected_sub.sum())}
 
     fragments = None
     if settings.min_fragment is not None:
         from .guards.fragments import count_fragments, short_fragments
 
-        candidates = short_fragments(work.missing, int(settings.min_fragment)) & chosen[None, :]
-        joined = leave_reasons(work.missing | candidates, max_gap=max_gap, edges=settings.edges, chosen=chosen)
-        fragments = candidates & (joined == 0)  # kept where the gap they would join is left missing
-        if fragments.any():
-            positions = work.positions.copy()
-            positions[fragments] = np.nan
-            work = work.with_positions(positions)
+        candidates = short_fragments(work.missing, int(settings.min_fragment)) & chosen_view[None, :]
+        joined = leave_reasons(work.missing | candidates, max_gap=max_gap, edges=settings.edges, chosen=chosen_view)
+        fragments_view = candidates & (joined == 0)  # kept where the gap they would join is left missing
+        if fragments_view.any():
+            work = work.with_positions(np.where(fragments_view[:, :, None], np.nan, work.positions))
+        fragments = np.zeros((data.n_frames, data.n_markers), dtype=bool)
+        fragments[:, columns] = fragments_view
         record["min_fragment"] = {"frames": int(settings.min_fragment), "fragments": count_fragments(fragments),
                                   "samples": int(fragments.sum())}
     if max_gap is not None:
@@ -314,7 +396,7 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
     if settings.bones is not None:
         from .bones.boneset import load_bones
 
-        bones = load_bones(settings.bones, data.labels, units=data.units)
+        bones = load_bones(settings.bones, view.labels, units=data.units)
 
     accepted = get_method(settings.method).parameters()
     options = {key: value for key, value in (("hidden", settings.hidden), ("max_iter", settings.max_iter),
@@ -331,10 +413,22 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
     from .api import fill
 
     started = time.perf_counter()
-    result = fill(work, settings.method, **options)
-    result, left = apply_limits(result, work.missing, max_gap=max_gap, edges=settings.edges, chosen=chosen)
+    if columns.size:  # every column of the view is filled as a marker (a point --markers named exactly too)
+        result = fill(dataclasses.replace(work, kinds=None), settings.method, **options)
+    else:  # nothing to fill: only model points / unlabelled trajectories
+        result = FillResult(work.positions.copy(), np.zeros(work.positions.shape[:2], dtype=bool))
+    result, left_view = apply_limits(result, work.missing, max_gap=max_gap, edges=settings.edges, chosen=chosen_view)
     seconds = time.perf_counter() - started
+    left = np.zeros((data.n_frames, data.n_markers), dtype=np.int8)
+    left[:, columns] = left_view
 
+    if not every:
+        full_work = data.positions.copy()
+        full_work[:, columns] = work.positions
+        result = widen_result(result, columns, data.positions, data.labels)
+        if bones is not None:
+            bones = dataclasses.replace(bones, pairs=columns[np.asarray(bones.pairs, dtype=np.int64)])
+        work = data.with_positions(full_work)
     positions = result.positions
     if settings.smooth:
         from .guards.smooth import savgol_smooth
@@ -345,20 +439,28 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
         if settings.smooth_order is not None:
             smooth_options["order"] = settings.smooth_order
         positions = positions.copy()
-        positions[:, chosen] = savgol_smooth(positions[:, chosen], **smooth_options)  # the chosen markers only
+        smoothed = np.flatnonzero(chosen)  # the chosen markers only
+        positions[:, smoothed] = savgol_smooth(positions[:, smoothed], **smooth_options)
         record["smooth"] = {"window": settings.smooth_window, "order": settings.smooth_order}
 
     output = data.with_positions(positions)
-    filled_again = np.logical_or.reduce([m for m in (rejected, fragments) if m is not None] or
-                                        [np.zeros(data.missing.shape, dtype=bool)])
-    if filled_again.any():  # a dropped sample filled again is written as filled, not with its old residual
+    dropped = either(either(rejected, held), fragments)
+    if dropped is not None:  # a dropped sample filled again is written as filled, not with its old residual
         from .io.c3d import mark_refilled
 
-        output = mark_refilled(output, filled_again)
-    outcome = FillOutcome(data, work, result, output, rejected, bones, record, seconds, fragments=fragments,
-                          chosen=chosen, left=left)
+        output = mark_refilled(output, dropped)
+    outcome = FillOutcome(data, work, result, output, rejected, bones, record, seconds, held=held, columns=columns,
+                          held_summary=summary, fragments=fragments, chosen=chosen, left=left)
     outcome.status = sample_status(outcome)
     return outcome
+
+
+def either(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray | None:
+    """``a | b`` of two (n_frames, n_markers) bool masks, either of which may be None; None when neither has a
+    True."""
+    if a is None or not a.any():
+        return b if b is not None and b.any() else None
+    return a if b is None else a | b
 
 
 def sample_status(outcome: FillOutcome) -> np.ndarray:
@@ -442,17 +544,58 @@ def write_fill_report(outcome: FillOutcome, path: str, *, method: str, input_pat
     """
     from .report import build_fill_report, write_report
 
+    columns = outcome.columns if outcome.columns is not None else fill_columns(outcome.data)
+    data, work, result = outcome.data, outcome.work, outcome.result
+    dropped = either(outcome.rejected, outcome.held)
+    fragments, left, chosen = outcome.fragments, outcome.left, outcome.chosen
     bones = outcome.bones
+    if columns.size != data.n_markers:  # the report covers the points that were filled, not the ones kept aside
+        position = {int(c): i for i, c in enumerate(columns)}
+        if bones is not None:
+            pairs = np.asarray(bones.pairs, dtype=np.int64)
+            bones = dataclasses.replace(bones, pairs=np.vectorize(position.get)(pairs) if pairs.size else pairs)
+        data, work = subset(data, columns), subset(work, columns)
+        result = FillResult(result.positions[:, columns], result.filled[:, columns],
+                            None if result.std is None else result.std[:, columns], result.n_iter,
+                            result.converged, list(result.objective), dict(result.info))
+        dropped = None if dropped is None else dropped[:, columns]
+        fragments = None if fragments is None else fragments[:, columns]
+        left = None if left is None else left[:, columns]
+        chosen = None if chosen is None else chosen[columns]
     if bones is None:
         from .bones.boneset import estimate_bones
 
-        bones = estimate_bones(outcome.work.positions, units=outcome.data.units, labels=outcome.data.labels)
+        bones = estimate_bones(work.positions, units=data.units, labels=data.labels)
         if len(bones) == 0:
             bones = None
-    report = build_fill_report(outcome.data, outcome.result, method=method, settings=outcome.settings,
+    report = build_fill_report(data, result, method=method, settings=outcome.settings,
                                seconds=outcome.seconds, input_path=input_path, output_path=output_path,
-                               bones=bones, rejected=outcome.rejected, smoothed=smoothed,
-                               fragments=outcome.fragments, left=outcome.left, chosen=outcome.chosen,
-                               edges=outcome.settings.get("edges", "fill"),
+                               bones=bones, rejected=dropped, smoothed=smoothed, fragments=fragments, left=left,
+                               chosen=chosen, edges=outcome.settings.get("edges", "fill"),
                                observed_changed=outcome.observed_changed())
-    write_report(report, path, data=outcome.data, result=outcome.result, bones=bones)
+    report["summary"]["points"] = points_line(outcome.data)
+    if outcome.held_summary is not None:
+        report["summary"]["held"] = held_report(outcome.held_summary, kept=outcome.held is None)
+    write_report(report, path, data=data, result=result, bones=bones)
+
+
+def points_line(data: MarkerData) -> str:
+    """One line on the kinds of points: ``"39 markers; 78 model points and 42 unlabelled trajectories kept
+    untouched (not filled)"``."""
+    counts = {kind: sum(1 for k in data.kinds if k == kind) for kind in ("marker", "model", "unlabelled")}
+    aside = [f"{counts['model']} model point(s)" if counts["model"] else "",
+             f"{counts['unlabelled']} unlabelled trajectory(ies)" if counts["unlabelled"] else ""]
+    aside = [a for a in aside if a]
+    line = f"{counts['marker']} marker(s)"
+    if aside:
+        line += "; " + " and ".join(aside) + " kept untouched (not filled)"
+    return line
+
+
+def held_report(summary: dict[str, Any], *, kept: bool) -> dict[str, Any]:
+    """The fill report's record of held samples: the guard's counts and runs, its one line, and whether they were
+    kept (``--keep-held``) or filled."""
+    from .guards.held import held_line
+
+    return {"line": held_line(summary) + (" (kept: --keep-held)" if kept and summary["held_samples"] else ""),
+            "kept": bool(kept), **summary}

@@ -95,7 +95,9 @@ def summarize(data: MarkerData) -> dict[str, Any]:
     """Everything ``mocapfill info`` shows about ``data``: the file's facts plus :func:`summarize_missing`.
 
     Adds ``path``, ``format``, ``rate``, ``duration_seconds``, ``units``, ``first_frame``, ``notes`` and, for a C3D,
-    ``c3d`` (processor, storage, analog channels, model outputs).
+    ``c3d`` (processor, storage, analog channels, model outputs).  The gap statistics cover the points of kind
+    "marker" only; ``model_points`` and ``unlabelled`` list the others (kept untouched by a fill), and ``held`` is
+    what :func:`mocapfill.guards.held.held_summary` finds on the markers.
     """
     out: dict[str, Any] = {
         "path": data.path,
@@ -105,7 +107,20 @@ def summarize(data: MarkerData) -> dict[str, Any]:
         "units": data.units,
         "first_frame": int(data.first_frame),
     }
-    out.update(summarize_missing(data.missing, rate=data.rate, labels=data.labels, first_frame=data.first_frame))
+    columns = [k for k, kind in enumerate(data.kinds) if kind == "marker"]
+    labels = [data.labels[k] for k in columns]
+    out.update(summarize_missing(data.missing[:, columns], rate=data.rate, labels=labels,
+                                 first_frame=data.first_frame))
+    out["model_points"] = [lab for lab, kind in zip(data.labels, data.kinds) if kind == "model"]
+    out["unlabelled"] = [lab for lab, kind in zip(data.labels, data.kinds) if kind == "unlabelled"]
+    from .guards.held import find_held, held_summary
+
+    extra = data.extra
+    quantum = None
+    if getattr(getattr(extra, "file", None), "is_float", True) is False:
+        quantum = abs(float(extra.file.scale))
+    out["held"] = held_summary(find_held(data.positions[:, columns], units=data.units, quantum=quantum), labels,
+                               data.first_frame)
     extra = data.extra
     if hasattr(extra, "marker_points") and hasattr(extra, "model_outputs"):
         out["c3d"] = {"processor": extra.processor, "storage": extra.storage,

@@ -323,6 +323,11 @@ def test_status_of_model_points_and_unlabelled():
     named = fill_capture(data, FillSettings(method="linear", markers="A,Model"))  # an exact name reaches a model point
     assert (named.status[10:15, 2] == Status.FILLED).all()
     assert (named.status[10:15, 1] == Status.MISSING_NOT_CHOSEN).all()
+    assert (named.status[:, 3] == Status.UNLABELLED).all()
+    python = mocapfill.fill(data, "linear", markers="A,Model")  # the same rule in mocapfill.fill
+    np.testing.assert_array_equal(python.positions, named.output.positions)
+    assert {(r["marker"], r["reason"]) for r in python.info["left_missing"]} == {(1, "left missing (not chosen)")}
+    assert np.isnan(mocapfill.fill(data, "linear").positions[10:15, 2:]).all()
 
 
 @pytest.mark.parametrize("options", [

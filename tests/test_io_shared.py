@@ -34,9 +34,7 @@ RATES = {"bolero/127_07.csv": 120.0, "bolero/132_32.csv": 120.0}
 C3D_FILES = [f for f in FILES if f.lower().endswith(".c3d")]
 
 # Files we reject on purpose, with the reason our error gives.
-REJECTED = {
-    "btk/TRCSamples/Gait.trc": "ragged TRC",  # rows of 102, 204, 249, 300, 312 ... fields: values shifted
-}
+REJECTED: dict[str, str] = {}  # BTK's Gait.trc (rows of 102 ... 318 fields) is read: 33 markers + 72 unnamed
 
 # The data README's table: (frames, rate, markers, percent missing or None, longest gap or None).
 FACTS = {
@@ -89,15 +87,21 @@ def test_read_or_rejected_and_info_agrees(shared_data, rel):
     result = CliRunner().invoke(cli, ["info", "--json", str(path), *rate])
     assert result.exit_code == 0, result.output
     s = json.loads(result.stdout)
-    missing = data.missing
+    columns = [k for k, kind in enumerate(data.kinds) if kind == "marker"]  # info counts the markers only
+    missing = data.missing[:, columns]
+    labels = [data.labels[k] for k in columns]
     gaps = find_gaps(missing)
-    assert (s["n_frames"], s["n_markers"], s["rate"], s["units"]) == (data.n_frames, data.n_markers, data.rate,
+    assert (s["n_frames"], s["n_markers"], s["rate"], s["units"]) == (data.n_frames, len(columns), data.rate,
                                                                      data.units)
+    assert s["model_points"] + s["unlabelled"] == [lab for lab, kind in zip(data.labels, data.kinds)
+                                                   if kind == "model"] + [lab for lab, kind in
+                                                                          zip(data.labels, data.kinds)
+                                                                          if kind == "unlabelled"]
     assert s["n_missing"] == int(missing.sum()) and s["n_gaps"] == len(gaps)
     assert s["longest_gap_frames"] == max((g.length for g in gaps), default=0)
-    assert s["blackout_frames"] == int(missing.all(axis=1).sum()) if data.n_markers else True
-    assert [m["label"] for m in s["markers"]] == data.labels
-    assert s["markers_missing_throughout"] == [data.labels[k] for k in np.flatnonzero(missing.all(axis=0))] \
+    assert s["blackout_frames"] == int(missing.all(axis=1).sum()) if columns else True
+    assert [m["label"] for m in s["markers"]] == labels
+    assert s["markers_missing_throughout"] == [labels[k] for k in np.flatnonzero(missing.all(axis=0))] \
         if data.n_frames else True
     table = CliRunner().invoke(cli, ["info", str(path), *rate])
     assert table.exit_code == 0 and "markers" in table.stderr

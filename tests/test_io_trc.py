@@ -83,7 +83,7 @@ def test_ragged_long_rows(tmp_path):
             "2\t0.0167\t1\t2\t3\t4\t5\t6\t7\t8\t9\t10\n")
     path = tmp_path / "x.trc"
     path.write_text(text)
-    with pytest.raises(FormatError, match=r"x\.trc: line 6 has 8 fields.*ragged TRC"):
+    with pytest.raises(FormatError, match=r"x\.trc: line 7 has 12 fields.*inside a marker.*ragged TRC"):
         mocapfill.read(path)
 
 

@@ -137,8 +137,12 @@ def _fill_file(task: FileTask, row: BatchRow) -> None:
                 if task.settings.reject_outliers and task.settings.reference is not None:
                     reference = read(task.settings.reference, rate=task.rate, override_rate=task.override_rate)
                 outcome = fill_capture(data, task.settings, reference=reference)
-                row.missing_samples = int(outcome.work.missing.sum())  # rejected outliers count as gaps
-                row.filled_samples = int(outcome.result.filled.sum())
+                columns = outcome.columns  # the markers filled: model points and unlabelled ones are not counted
+                row.markers = int(columns.size)
+                row.missing_samples = int(outcome.work.missing[:, columns].sum())  # rejected samples count as gaps
+                row.filled_samples = int(outcome.result.filled[:, columns].sum())
+                if outcome.held is not None and outcome.held.any():
+                    notes.append(f"note: {int(outcome.held.sum())} held sample(s) made gaps and filled")
                 Path(task.output).parent.mkdir(parents=True, exist_ok=True)
                 write(outcome.output, task.output, format=task.output_format)
                 if task.report is not None:

@@ -101,6 +101,9 @@ def fill_options(func: Callable) -> Callable:
         click.option("--reference", "reference", type=str, default=None,
                      help="A clean capture of the same marker set giving the distance ranges for --reject-outliers "
                           "(default: the file itself)."),
+        click.option("--keep-held", is_flag=True,
+                     help="Keep held and frozen samples (a marker repeating its exact position while the body moves, "
+                          "a coordinate stuck at exactly 0) as observed; by default they become gaps and are filled."),
         click.option("--smooth", is_flag=True,
                      help="Savitzky-Golay smoothing of the output (off by default: it changes observed samples)."),
         click.option("--smooth-window", type=click.IntRange(min=1), default=None,

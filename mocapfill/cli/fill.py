@@ -106,6 +106,20 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
 
     show_warnings(caught, quiet)
     _summary(outcome, method, report_path, status_path, quiet)
+    _found(outcome, quiet)
+
+def _found(outcome, quiet: bool) -> None:
+    """One line each on what the reader and the held-sample guard found (only when there is something)."""
+    from ..pipeline import held_report, points_line
+
+    out = console(quiet)
+    if any(kind != "marker" for kind in outcome.data.kinds):
+        out.print(f"points: {points_line(outcome.data)}", markup=False, highlight=False)
+    if outcome.held_summary is not None:
+        line = held_report(outcome.held_summary, kept=outcome.held is None)["line"]
+        if line != "none":
+            out.print(f"held samples: {line}" + ("" if outcome.held is None else " (made gaps and filled)"),
+                      markup=False, highlight=False)
 
 
 def _summary(outcome, method: str, report_path, status_path, quiet: bool) -> None:
@@ -114,20 +128,23 @@ def _summary(outcome, method: str, report_path, status_path, quiet: bool) -> Non
     from ..gaps import all_missing_markers, find_gaps
     from ..guards.limits import left_records
 
-    data, work, result, rejected = outcome.data, outcome.work, outcome.result, outcome.rejected
-    out = console(quiet)
-    missing = work.missing
-    left = np.isnan(result.positions).any(axis=2)
+    data, result = outcome.data, outcome.result
+    # counts of the points that went to the fill (markers), not of the model points / unlabelled kept aside
+    columns = np.arange(data.n_markers) if outcome.columns is None else np.asarray(outcome.columns)
+    labels = [data.labels[c] for c in columns]
+    missing = outcome.work.missing[:, columns]
+    filled = result.filled[:, columns]
     n_gaps = len(find_gaps(missing))
-    n_left = len(find_gaps(left))
+    n_left = len(find_gaps(np.isnan(result.positions[:, columns]).any(axis=2)))
+    out = console(quiet)
     shown = result.info.get("method", method)
     parts = [f"[bold]{method}[/bold]" + (f" ({shown})" if shown != method else ""),
-             f"filled {int(result.filled.sum())} of {int(missing.sum())} missing samples in {n_gaps} gaps",
+             f"filled {int(filled.sum())} of {int(missing.sum())} missing samples in {n_gaps} gaps",
              f"{n_left} gaps left", f"{outcome.seconds:.2f} s"]
     if result.n_iter:
         parts.append(f"{result.n_iter} iterations" + ("" if result.converged else " (not converged)"))
-    if rejected is not None:
-        parts.append(f"{int(rejected.sum())} outlier samples rejected")
+    if outcome.rejected is not None:
+        parts.append(f"{int(outcome.rejected.sum())} outlier samples rejected")
     fragments = outcome.settings.get("min_fragment")
     if fragments is not None:
         parts.append(f"{fragments['fragments']} fragments ({fragments['samples']} samples) shorter than "
@@ -139,26 +156,25 @@ def _summary(outcome, method: str, report_path, status_path, quiet: bool) -> Non
     if status_path:
         parts.append(f"status {status_path}")
     out.print(", ".join(parts), highlight=False, soft_wrap=True)
-    if outcome.left is not None and outcome.left.any():
-        records = left_records(outcome.left)
+    if outcome.left is not None and outcome.left[:, columns].any():
         by_reason: dict[str, list[str]] = {}
-        for rec in records:
+        for rec in left_records(outcome.left[:, columns]):
             first = data.first_frame + rec["start"]
             by_reason.setdefault(rec["reason"], []).append(
-                f"{data.labels[rec['marker']]} {first}-{first + rec['length'] - 1}")
+                f"{labels[rec['marker']]} {first}-{first + rec['length'] - 1}")
         for reason, items in by_reason.items():
             shown_items = ", ".join(items[:8]) + (f", ... {len(items) - 8} more" if len(items) > 8 else "")
             out.print(f"{reason}: {len(items)} gaps (marker frames): {shown_items}", markup=False,
                       highlight=False, soft_wrap=True)
     edges = outcome.settings.get("edges", "fill")
-    edge_filled = [g for g in find_gaps(missing) if (g.at_start or g.at_end) and result.filled[g.start, g.marker]]
+    edge_filled = [g for g in find_gaps(missing) if (g.at_start or g.at_end) and filled[g.start, g.marker]]
     if edges == "leave" or edge_filled:
         out.print(f"edges: {edges}; {len(edge_filled)} gaps at the first or last frame filled", markup=False,
                   highlight=False, soft_wrap=True)
     changed = outcome.observed_changed()
     out.print("observed samples changed by: " + ", ".join(changed) if changed else
               "observed samples returned bit-identical", markup=False, highlight=False, soft_wrap=True)
-    dead = [data.labels[m] for m in all_missing_markers(missing)]
+    dead = [labels[m] for m in all_missing_markers(missing)]
     if dead:
         out.print(f"never observed, left empty: {', '.join(dead)}", markup=False, highlight=False)
 

@@ -45,6 +45,13 @@ def _show(summary: dict, quiet: bool) -> None:
     blackouts = summary["blackouts"]
     overview.add_row("blackout frames", f"{summary['blackout_frames']}: {_ranges(blackouts)}" if blackouts
                      else "none")
+    aside = [f"{len(summary['model_points'])} model points" if summary["model_points"] else "",
+             f"{len(summary['unlabelled'])} unlabelled trajectories" if summary["unlabelled"] else ""]
+    if any(aside):
+        overview.add_row("kept aside", " and ".join(a for a in aside if a) + " (not filled, not counted above)")
+    from ..guards.held import held_line
+
+    overview.add_row("held samples", held_line(summary["held"]))
     c3d = summary.get("c3d")
     if c3d:
         overview.add_row("C3D", f"{c3d['processor']} {c3d['storage']} storage, {c3d['analog_channels']} analog "
@@ -68,6 +75,10 @@ def _show(summary: dict, quiet: bool) -> None:
     table.caption = "longest gap in frames (seconds); start / end: a gap touches the first / last frame"
     table.caption_justify = "left"
     out.print(table)
+    for kind, names in (("model points", summary["model_points"]), ("unlabelled", summary["unlabelled"])):
+        if names:
+            out.print(f"{kind}: {', '.join(names[:40])}" + (f" and {len(names) - 40} more" if len(names) > 40 else ""),
+                      markup=False)
     for note in summary["notes"]:
         out.print(f"note: {note}", markup=False)
 

@@ -277,6 +277,10 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
 
         limits = {"max_gap": None if max_gap is None else parse_max_gap(max_gap, data.rate, name="max_gap"),
                   "edges": check_edges(edges, name="edges")}
+    if any(kind != "marker" for kind in data.kinds):  # scored on the markers: what a fill fills
+        from ..pipeline import fill_columns, subset
+
+        data = subset(data, fill_columns(data))
     methods = list(methods)
     if seed is None:
         seed = int(np.random.SeedSequence().entropy % (2 ** 63))

@@ -26,11 +26,12 @@ from ..errors import DataWarning, FormatError
 from ..markers import MarkerData
 from . import c3dfile
 from .c3dfile import BLOCK, INTEL, C3DFile
-from .labels import make_unique, normalise_units
+from .labels import make_unique, normalise_units, point_kinds
 
 MODEL_OUTPUT_PARAMS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS")
 
-__all__ = ["C3DExtra", "read_c3d", "c3d_bytes", "mark_refilled", "MODEL_OUTPUT_PARAMS"]
+__all__ = ["C3DExtra", "read_c3d", "c3d_bytes", "mark_refilled", "c3d_kinds", "MODEL_OUTPUT_PARAMS",
+           "MODEL_POINT_PARAMS"]
 
 
 @dataclass
@@ -114,7 +115,9 @@ def read_c3d(raw: bytes, name: str) -> MarkerData:
                       DataWarning, stacklevel=3)
 
     block = f.point_block()
-    positions, _ = decode_points(f, block[:, marker_points, :])
+    positions, residual = decode_points(f, block[:, marker_points, :])
+    kinds, kind_notes = c3d_kinds(f, marker_labels, [labels[i] for i in marker_points], positions, residual)
+    notes.extend(kind_notes)
     units_raw = " ".join(f.strings("POINT", "UNITS"))
     units, unit_note = normalise_units(units_raw, positions)
     if unit_note:
@@ -122,7 +125,53 @@ def read_c3d(raw: bytes, name: str) -> MarkerData:
     for note in f.notes:
         warnings.warn(f"{name}: {note}", DataWarning, stacklevel=3)
     extra = C3DExtra(f, marker_points, model_outputs)
-    return MarkerData(positions, marker_labels, f.rate, units, f.first_frame, "c3d", extra, name, notes)
+    return MarkerData(positions, marker_labels, f.rate, units, f.first_frame, "c3d", extra, name, notes, kinds)
+
+
+#: Groups of ``POINT:TYPE_GROUPS`` (and parameters of the POINT group) that list points the modelling software
+#: computed but that are positions, kept among the points as model points (Nexus: ``MODELED_MARKERS``).
+MODEL_POINT_PARAMS = ("MODELED_MARKERS", "MODELLED_MARKERS", "VIRTUAL_MARKERS", "VIRTUAL_POINTS")
+#: A C3D records which cameras saw each sample (the residual word: camera bits and residual, > 0 when seen).  When
+#: at least this fraction of its points were seen by cameras, a point whose every sample has residual word exactly 0
+#: was seen by none: the capture software computed it (CMU's virtual skeleton points).
+CAMERA_RECORDED_FRACTION = 0.05
+
+
+def c3d_kinds(f: C3DFile, labels: list[str], raw_labels: list[str], positions: np.ndarray, residual: np.ndarray
+              ) -> tuple[list[str], list[str]]:
+    """The kind of each point column, as the C3D says, and a note per rule that found model points.
+
+    ``labels`` are the unique labels, ``raw_labels`` the file's; ``positions`` (n_frames, k, 3) NaN = missing,
+    ``residual`` (n_frames, k) the residual words.  In order: a name in a model-point parameter
+    (:data:`MODEL_POINT_PARAMS`, or a ``POINT:TYPE_GROUPS`` group other than angles, forces, moments, powers);
+    the names (:func:`mocapfill.io.labels.point_kinds`); a point seen by no camera in a file that records them
+    (:data:`CAMERA_RECORDED_FRACTION`).
+    """
+    notes: list[str] = []
+    kinds = point_kinds(labels)
+    groups = set(MODEL_POINT_PARAMS)
+    type_groups = f.strings("POINT", "TYPE_GROUPS")
+    groups.update(g.upper() for g in type_groups[0::2] if g and g.upper() not in MODEL_OUTPUT_PARAMS)
+    listed: set[str] = set()
+    for group in sorted(groups):
+        listed.update(s for s in f.strings("POINT", group) if s)
+    by_param = [k for k, lab in enumerate(raw_labels) if lab in listed and kinds[k] != "model"]
+    for k in by_param:
+        kinds[k] = "model"
+    observed = ~np.isnan(positions).any(axis=2)
+    if positions.shape[0] and positions.shape[1]:
+        with np.errstate(invalid="ignore"):
+            seen = (residual > 0) & observed
+        any_seen = seen.any(axis=0)
+        if any_seen.mean() >= CAMERA_RECORDED_FRACTION:
+            unseen = [k for k in range(len(kinds)) if kinds[k] == "marker" and observed[:, k].any()
+                      and not any_seen[k] and np.all(residual[observed[:, k], k] == 0)]
+            for k in unseen:
+                kinds[k] = "model"
+            if unseen:
+                notes.append(f"{len(unseen)} point(s) seen by no camera (residual 0 in every frame, while the "
+                             f"file's markers carry camera residuals) are model points, e.g. {labels[unseen[0]]!r}")
+    return kinds, notes
 
 
 # --- writing -------------------------------------------------------------------------------------------------------

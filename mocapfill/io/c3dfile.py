@@ -162,18 +162,42 @@ class C3DFile:
         return points.reshape(self.n_frames, self.n_points, 4)
 
 
-_NAME_CHARS = set(b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_$-. ")
+#: Characters accepted in a group or parameter name.  The C3D specification asks for upper-case letters, digits and
+#: underscores, but real writers use more (Vicon Nexus: ``%RMMAX``; others ``$``, ``-``, ``.``, spaces), so any
+#: printable ASCII character is accepted; whether the chain breaks is judged on the structure (see
+#: :func:`plausible_entry`), not on the spelling.
+NAME_CHARS = frozenset(range(0x20, 0x7F))
+#: The largest number of dimensions a parameter may have (the specification allows 7).
+MAX_DIMS = 7
 
 
-def _plausible_entry(raw: bytes, pos: int, end: int) -> bool:
-    """Does ``pos`` hold the end of the chain (a zero name length) or the start of a group / parameter?"""
+def plausible_entry(raw: bytes, pos: int, end: int) -> bool:
+    """Does ``pos`` hold the end of the chain (a zero name length or group id) or a well-formed group / parameter?
+
+    Well formed: a name of printable characters (:data:`NAME_CHARS`), then for a group its description length, for
+    a parameter a known type (-1, 1, 2, 4), at most :data:`MAX_DIMS` dimensions and its data, all inside the
+    section (``end``).
+    """
     if pos + 2 > end:
         return pos >= end - 1
     n_chars = abs(struct.unpack("b", raw[pos:pos + 1])[0])
-    if n_chars == 0 or raw[pos + 1] == 0:
+    gid = struct.unpack("b", raw[pos + 1:pos + 2])[0]
+    if n_chars == 0 or gid == 0:
         return True
     name = raw[pos + 2:pos + 2 + n_chars]
-    return len(name) == n_chars and all(c in _NAME_CHARS for c in name)
+    if len(name) != n_chars or not all(c in NAME_CHARS for c in name) or not name.strip():
+        return False
+    p = pos + 2 + n_chars + 2  # past the name and the offset
+    if gid < 0:
+        return p < end and p + 1 + raw[p] <= end
+    if p + 2 > end:
+        return False
+    ptype, ndim = struct.unpack("b", raw[p:p + 1])[0], raw[p + 1]
+    if ptype not in (-1, 1, 2, 4) or ndim > MAX_DIMS or p + 2 + ndim > end:
+        return False
+    dims = raw[p + 2:p + 2 + ndim]
+    size = abs(ptype) * int(np.prod(list(dims))) if ndim else abs(ptype)
+    return p + 2 + ndim + size <= end
 
 
 def _parse_parameters(raw: bytes, start: int, end: int, processor: int, notes: list[str]):
@@ -224,9 +248,9 @@ def _parse_parameters(raw: bytes, start: int, end: int, processor: int, notes: l
         # The offset is a signed 16-bit count from the offset field; large entries wrap, so read it unsigned when
         # negative, and fall back on the size we parsed when the stored offset points nowhere sensible.
         declared = offset_pos + (offset & 0xFFFF)
-        if _plausible_entry(raw, declared, end):
+        if plausible_entry(raw, declared, end):
             pos = declared
-        elif _plausible_entry(raw, computed, end):
+        elif plausible_entry(raw, computed, end):
             pos = computed
         else:
             notes.append(f"the parameter chain breaks after {item!r}; later parameters (if any) were ignored")

@@ -35,7 +35,7 @@ import numpy as np
 
 from ..errors import DataWarning, FormatError
 from ..markers import MarkerData
-from .labels import make_unique, normalise_units, unit_name
+from .labels import make_unique, match_label_row, normalise_units, point_kinds, unit_name
 
 __all__ = ["read_csv", "csv_text", "csv_rows", "frame_number", "parse_numbers"]
 
@@ -256,7 +256,7 @@ def _read_wide(rows: list[list[str]], name: str) -> MarkerData:
         units, note = normalise_units(meta.get("units", ""), positions)
         if note:
             notes.append(note)
-    return MarkerData(positions, labels, rate, units, first_frame, "csv", None, name, notes)
+    return MarkerData(positions, labels, rate, units, first_frame, "csv", None, name, notes, point_kinds(labels))
 
 
 def _read_vicon(rows: list[list[str]], name: str) -> MarkerData:
@@ -277,8 +277,12 @@ def _read_vicon(rows: list[list[str]], name: str) -> MarkerData:
     n_markers = (width - 2) // 3
     if (width - 2) % 3:
         raise FormatError(f"{name}: Vicon CSV: {width - 2} coordinate columns is not a multiple of 3")
-    labels = [(label_row[2 + 3 * k].strip() if 2 + 3 * k < len(label_row) else "") or f"M{k + 1:03d}"
-              for k in range(n_markers)]
+    labels, label_note, matched = match_label_row(label_row[2:width], n_markers, f"the label row (line {start + 3})")
+    if label_note:
+        notes.append(label_note)
+    if not matched:
+        warnings.warn(f"{name}: {label_note}", DataWarning, stacklevel=3)
+    labels = [lab or f"M{k + 1:03d}" for k, lab in enumerate(labels[:n_markers])]
     data_rows = []
     for r in rows[start + 5:]:
         if not any(c.strip() for c in r):
@@ -296,7 +300,7 @@ def _read_vicon(rows: list[list[str]], name: str) -> MarkerData:
     for old, new in renamed:
         notes.append(f"duplicate label {old!r} renamed {new!r}")
     first_frame = frame_number(values[0, 0], name) if values.size else 1
-    return MarkerData(positions, labels, rate, units, first_frame, "vicon-csv", None, name, notes)
+    return MarkerData(positions, labels, rate, units, first_frame, "vicon-csv", None, name, notes, point_kinds(labels))
 
 
 def _fmt(values: np.ndarray) -> list[str]:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 _UNIT_NAMES = {
@@ -57,3 +59,80 @@ def normalise_units(text: str, positions: np.ndarray | None = None) -> tuple[str
             guess = "m"
     shown = repr(text.strip()) if str(text).strip() else "missing"
     return guess, f"units {shown}; assumed {guess!r} from the size of the coordinates"
+
+
+#: Names capture software gives trajectories nobody labelled: Vicon ``*12``, Motive ``Unlabeled 1000``, Cortex
+#: ``Unlabel#3``, QTM ``Unidentified 4`` / ``Unnamed 4`` (matched on the part after a ``subject:`` prefix).
+UNLABELLED_NAME = re.compile(r"^(\*\d+|unlabel(l)?ed([ _#:-]*\d+)?|unlabel#?\d+|unidentified([ _#:-]*\d+)?"
+                             r"|unnamed( marker)?([ _#:-]*\d+)?)$", re.IGNORECASE)
+#: Names of points that modelling software computes (never a marker on the skin): joint centres (``LHJC``,
+#: ``RKJC_CGM_2.4``, ``LeftHipCenter``), the centre of mass and its floor projection, the CGM's ``_CGM_`` outputs,
+#: global / segment axes written as ``AXISX...`` / ``ORIGIN...`` points, arch heights.
+MODEL_NAME = re.compile(r"(^[LR]?[A-Za-z]{0,4}JC\d*(_|$)|_CGM_?\d|^cent(re|er)of(mass|gravity)"
+                        r"|^(left|right)?(hip|knee|ankle|joint|shoulder|elbow|wrist)cent(er|re)"
+                        r"|^(axis[xyz]|origin)[A-Za-z]|arch.?height)", re.IGNORECASE)
+#: The points Plug-in Gait, the CGM and the Oxford foot model write for each segment's axes: the origin, anterior,
+#: lateral and proximal points, ``<segment>O`` / ``A`` / ``L`` / ``P`` (``PELO PELA PELL PELP``,
+#: ``LFEMUR_CGM_2.4O`` ...).  A name is taken as one only when all four of its segment are in the file (a lone
+#: ``LFOO`` is a foot marker in some marker sets).
+AXIS_SUFFIXES = ("O", "A", "L", "P")
+
+
+def bare_label(label: str) -> str:
+    """A label without its ``subject:`` prefix (Vicon writes ``subject:LASI``)."""
+    return str(label).rsplit(":", 1)[-1].strip()
+
+
+def point_kinds(labels: list[str]) -> list[str]:
+    """Each label's kind ("marker", "model" or "unlabelled") as its name says; "marker" where nothing does.
+
+    Unlabelled: :data:`UNLABELLED_NAME`.  Model points: :data:`MODEL_NAME`, and the four points of a segment's
+    axes (:data:`AXIS_SUFFIXES`) when all four are present.
+    """
+    bare = [bare_label(label) for label in labels]
+    present = set(bare)
+    kinds = []
+    for name in bare:
+        if UNLABELLED_NAME.match(name):
+            kinds.append("unlabelled")
+        elif MODEL_NAME.search(name) or _segment_axis(name, present):
+            kinds.append("model")
+        else:
+            kinds.append("marker")
+    return kinds
+
+
+def _segment_axis(name: str, present: set[str]) -> bool:
+    if len(name) < 4 or name[-1] not in AXIS_SUFFIXES:
+        return False
+    base = name[:-1]
+    return len(base) >= 3 and all(base + s in present for s in AXIS_SUFFIXES)
+
+
+def kind_counts(kinds: list[str]) -> dict[str, int]:
+    """How many points of each kind: ``{"marker": n, "model": n, "unlabelled": n}``."""
+    return {kind: sum(1 for k in kinds if k == kind) for kind in ("marker", "model", "unlabelled")}
+
+
+def match_label_row(cells: list[str], n_markers: int, where: str) -> tuple[list[str], str | None, bool]:
+    """Names for ``n_markers`` x/y/z triplets from a label row's cells (after its leading columns).
+
+    The non-empty names are read in place when each stands at the start of a triplet (every third cell), or in
+    order when their number is ``n_markers`` whatever the spacing.  Otherwise the row cannot be matched to the
+    columns and every marker gets "" (the caller names them ``M###``): never a name that may be another marker's.
+    Returns ``(labels, note, matched)``: ``labels`` has at least ``n_markers`` entries ("" = no name; more when an
+    aligned row names more triplets than ``n_markers``), ``note`` says what was done when the spacing was irregular
+    (``where`` names the row in it).
+    """
+    fields = [(j, c.strip()) for j, c in enumerate(cells) if c.strip()]
+    names = [c for _, c in fields]
+    if all(j % 3 == 0 for j, _ in fields):
+        labels = [""] * max(n_markers, fields[-1][0] // 3 + 1 if fields else 0)
+        for j, c in fields:
+            labels[j // 3] = c
+        return labels, None, True
+    if len(names) == n_markers:
+        return names, f"{where} spaces its {len(names)} names irregularly; they were taken in order", True
+    shown = "M001" if n_markers == 1 else f"M001-M{n_markers:03d}"
+    return ([""] * n_markers, f"{where} holds {len(names)} names, irregularly spaced, for {n_markers} markers: they "
+            f"cannot be matched to the columns; markers {shown} got placeholder names", False)

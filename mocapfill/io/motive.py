@@ -28,7 +28,7 @@ import numpy as np
 from ..errors import FormatError
 from ..markers import MarkerData
 from .csv import check_width, rate_from_times, csv_rows, frame_number, parse_numbers
-from .labels import make_unique, normalise_units, unit_name
+from .labels import make_unique, normalise_units, point_kinds, unit_name
 
 __all__ = ["read_motive"]
 
@@ -95,7 +95,8 @@ def read_motive(text: str, name: str) -> MarkerData:
     if units is None:
         units, note = normalise_units(meta.get("Length Units", ""), positions)
         notes.append(note)
-    return MarkerData(positions, labels, rate, units, first_frame, "motive-csv", None, name, notes)
+    return MarkerData(positions, labels, rate, units, first_frame, "motive-csv", None, name, notes,
+                      point_kinds(labels))
 
 
 def _rate(meta: dict, times: np.ndarray, name: str) -> float:

@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import DataWarning, FormatError
 from ..markers import MarkerData
 from .csv import frame_number, parse_numbers
-from .labels import make_unique, normalise_units
+from .labels import make_unique, match_label_row, normalise_units, point_kinds
 
 __all__ = ["read_trc", "trc_text"]
 
@@ -45,23 +45,8 @@ def read_trc(text: str, name: str) -> MarkerData:
         raise FormatError(f"{name}: TRC DataRate {rate:g} is not a positive number")
 
     label_row, axis_row = split(lines[3]), split(lines[4])
-    n_label = max(((len(label_row) - 2) + 2) // 3, 0)
     n_axis = sum(1 for c in axis_row[2:] if c[:1].upper() == "X")
-    labels = [label_row[2 + 3 * k] if 2 + 3 * k < len(label_row) else "" for k in range(max(n_label, n_axis))]
-    while labels and not labels[-1] and len(labels) > n_axis:
-        labels.pop()
-    n_markers = len(labels)
     declared = _int(meta.get("NumMarkers"))
-    if declared is not None and declared != n_markers:
-        notes.append(f"header says {declared} markers, the label row names {n_markers}")
-    unnamed = [k for k, lab in enumerate(labels) if not lab]
-    labels = [lab or f"M{k + 1:03d}" for k, lab in enumerate(labels)]
-    if unnamed:
-        notes.append(f"{len(unnamed)} marker(s) without a label named M###")
-    labels, renamed = make_unique(labels)
-    for old, new in renamed:
-        notes.append(f"duplicate label {old!r} renamed {new!r}")
-
     raw_rows: list[tuple[int, list[str]]] = []
     for number, line in enumerate(lines[5:], start=6):
         if not line.strip():
@@ -73,21 +58,21 @@ def read_trc(text: str, name: str) -> MarkerData:
             row.pop()  # rows stop early (or carry trailing tabs) when their last markers are missing
         raw_rows.append((number, row))
     longest = max((len(r) for _, r in raw_rows), default=0)
-    header_width = 2 + 3 * n_markers
-    long_rows = [(number, len(r)) for number, r in raw_rows if len(r) > header_width]
-    if len({n for _, n in long_rows}) > 1:
-        # Rows longer than the header are only believable as unnamed extra markers when they all agree.
-        number, n = long_rows[0]
-        raise FormatError(f"{name}: line {number} has {n} fields, the header has {header_width} and other rows "
-                          "differ again (ragged TRC)")
     in_rows = -(-(longest - 2) // 3) if longest > 2 else 0
-    if in_rows > n_markers:
-        # Some exporters name fewer markers than the rows hold; keep the extra columns as unnamed markers.
-        notes.append(f"the rows hold {in_rows} markers, the label row names {n_markers}; the others are named M###")
-        warnings.warn(f"{name}: the rows hold {in_rows} markers but the label row names {n_markers}",
-                      DataWarning, stacklevel=3)
-        labels, _ = make_unique(labels + [f"M{k + 1:03d}" for k in range(n_markers, in_rows)])
-        n_markers = in_rows
+    n_header = n_axis or len(_label_fields(label_row))
+    if in_rows > max(n_header, declared or 0):
+        # Rows that stop early (their last markers missing) end on a whole marker; a longer row whose values end
+        # inside a triplet is shifted, not extra markers.
+        number, n = next(((number, len(r)) for number, r in raw_rows if len(r) > 2 + 3 * n_header
+                          and (len(r) - 2) % 3), (None, 0))
+        if number is not None:
+            raise FormatError(f"{name}: line {number} has {n} fields, the header has {2 + 3 * n_header} and the "
+                              "values end inside a marker's x, y, z (ragged TRC)")
+    labels, kinds, label_notes = trc_labels(label_row, n_axis, in_rows, name)
+    notes.extend(label_notes)
+    if declared is not None and declared != len(labels) and declared != n_header:
+        notes.append(f"header says {declared} markers, the label row names {n_header}")
+    n_markers = len(labels)
     width = 2 + 3 * n_markers
     rows = [row + [""] * (width - len(row)) for _, row in raw_rows]
     first_line = raw_rows[0][0] if raw_rows else None
@@ -106,7 +91,53 @@ def read_trc(text: str, name: str) -> MarkerData:
     if note:
         notes.append(note)
     first_frame = frame_number(table[0, 0], name) if len(rows) and np.isfinite(table[0, 0]) else 1
-    return MarkerData(positions, labels, rate, units, first_frame, "trc", None, name, notes)
+    return MarkerData(positions, labels, rate, units, first_frame, "trc", None, name, notes, kinds)
+
+
+def _label_fields(label_row: list[str]) -> list[tuple[int, str]]:
+    """The non-empty names of a TRC label row after ``Frame#`` and ``Time``, with their field index (from 0)."""
+    return [(j, c) for j, c in enumerate(label_row[2:]) if c]
+
+
+def trc_labels(label_row: list[str], n_axis: int, in_rows: int, name: str
+               ) -> tuple[list[str], list[str], list[str]]:
+    """Labels, kinds and notes of the markers of a TRC, from its label row (line 4) as split fields.
+
+    The label row's non-empty names are read in order when they stand every third field (the layout) or when
+    their number matches the marker count (the ``X1 Y1 Z1`` row says how many; else the widest data row),
+    whatever the spacing.  A row that matches neither gives every marker a placeholder ``M###`` name and a
+    :class:`DataWarning` naming the line, never a name that may belong to another marker.  Columns the rows hold
+    beyond the named markers (an exporter's unnamed trajectories) are placeholder-named and of kind
+    ``"unlabelled"``; the kinds of named markers come from :func:`mocapfill.io.labels.point_kinds`.
+    """
+    n_expected = n_axis or in_rows or len(_label_fields(label_row))
+    labels, message, matched = match_label_row(label_row[2:], n_expected, "the label row (line 4)")
+    notes: list[str] = [message] if message else []
+    if not matched:
+        warnings.warn(f"{name}: {message}", DataWarning, stacklevel=4)
+    aligned = matched and message is None
+    n_named = len(labels)
+    unnamed = [k for k, lab in enumerate(labels) if not lab]
+    if unnamed and aligned:
+        notes.append(f"{len(unnamed)} marker(s) without a label named M###")
+    labels = [lab or f"M{k + 1:03d}" for k, lab in enumerate(labels)]
+    kinds = point_kinds(labels)
+    if in_rows > n_named:
+        extra = in_rows - n_named
+        message = (f"the rows hold {in_rows} markers, the label row names {n_named}; the other {extra} "
+                   f"({_placeholder_range(n_named, in_rows)}) are kept as unlabelled trajectories")
+        notes.append(message)
+        warnings.warn(f"{name}: {message}", DataWarning, stacklevel=4)
+        labels += [f"M{k + 1:03d}" for k in range(n_named, in_rows)]
+        kinds += ["unlabelled"] * extra
+    labels, renamed = make_unique(labels)
+    for old, new in renamed:
+        notes.append(f"duplicate label {old!r} renamed {new!r}")
+    return labels, kinds, notes
+
+
+def _placeholder_range(start: int, stop: int) -> str:
+    return f"M{start + 1:03d}" if stop - start == 1 else f"M{start + 1:03d}-M{stop:03d}"
 
 
 def _int(text) -> int | None:

@@ -42,7 +42,7 @@ from ..errors import DataWarning, FormatError
 from ..markers import MarkerData
 from ..units import length_factor
 from .csv import frame_number, parse_numbers
-from .labels import make_unique
+from .labels import make_unique, point_kinds
 
 __all__ = ["read_tsv", "tsv_text", "looks_like_tsv", "TSVExtra"]
 
@@ -155,7 +155,9 @@ def read_tsv(text: str, name: str) -> MarkerData:
             warnings.warn(f"{name}: header says {n_declared} frames, the file holds {len(cells)} (truncated?)",
                           DataWarning, stacklevel=3)
     extra = TSVExtra([(k, v) for k, v in header], list(labels), missing.copy())
-    return MarkerData(positions, labels, rate, "mm", first_frame, "tsv", extra, name, notes)
+    # A trajectory QTM lists without a name was never identified.
+    kinds = [kind if raw else "unlabelled" for kind, raw in zip(point_kinds(labels), raw_labels)]
+    return MarkerData(positions, labels, rate, "mm", first_frame, "tsv", extra, name, notes, kinds)
 
 
 def _int(values) -> int | None:

@@ -53,6 +53,14 @@ def render_capture_html(data, summary: dict[str, Any]) -> str:
         ("Missing throughout", ", ".join(summary["markers_missing_throughout"]) or "none"),
         ("Blackout frames (every marker missing)", str(summary["blackout_frames"])),
     ]
+    for key, what in (("model_points", "Model points (kept aside)"), ("unlabelled", "Unlabelled (kept aside)")):
+        if summary.get(key):
+            rows.append((what, f"{len(summary[key])}: {', '.join(summary[key][:30])}"
+                         + (" ..." if len(summary[key]) > 30 else "")))
+    if summary.get("held"):
+        from ..guards.held import held_line
+
+        rows.append(("Held samples", held_line(summary["held"])))
     parts = [f"<h1>mocapfill capture report<small>{escape(title)}</small></h1>",
              '<nav><a href="#player">Player</a><a href="#summary">Summary</a><a href="#markers">Markers</a></nav>']
     if summary["notes"]:

@@ -121,13 +121,18 @@ def _summary_rows(report: dict) -> list[tuple[str, str]]:
         rows.append(("Observed samples", "changed by " + ", ".join(s["observed_changed"]) if s["observed_changed"]
                      else "returned bit-identical"))
     rows += [
-        ("Outliers rejected", str(s["rejected_samples"])),
+        ("Outliers rejected" if not s.get("held") else "Rejected (outliers, held)", str(s["rejected_samples"])),
         ("Uncertainty", "yes (per-sample standard deviation)" if s["uncertainty"] else "not given by this method"),
         ("Smoothed after filling", "yes" if s["smoothed"] else "no"),
         ("Time", f"{s['seconds']:.2f} s"),
         ("Convergence", convergence),
         ("Report", f"mocapfill {report['mocapfill_version']}, {report['created']}"),
     ]
+    if s.get("points"):
+        rows.insert(4, ("Points", s["points"]))
+    if s.get("held"):
+        at = next(i for i, (key, _) in enumerate(rows) if key.startswith(("Outliers", "Rejected")))
+        rows.insert(at + 1, ("Held samples", s["held"]["line"]))
     return rows
 
 
