@@ -286,6 +286,10 @@ def widen_result(result: FillResult, columns: np.ndarray, positions: np.ndarray,
     info = dict(result.info)
     if isinstance(info.get("left_missing"), list):  # the stretches left on request, in the full capture's columns
         info["left_missing"] = [dict(r, marker=int(columns[r["marker"]])) for r in info["left_missing"]]
+    if isinstance(info.get("declined"), list):  # the gaps a method declined (``marker_index``), likewise
+        info["declined"] = [dict(r, marker_index=int(columns[r["marker_index"]]))
+                            if isinstance(r, dict) and isinstance(r.get("marker_index"), (int, np.integer)) else r
+                            for r in info["declined"]]
     records = info.get("gap_methods")
     if isinstance(records, list):  # name each gap's marker: indices would point into the fill's columns
         sub_labels = [labels[k] for k in columns]
