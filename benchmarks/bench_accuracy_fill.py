@@ -22,37 +22,29 @@ a shared machine).  The setting, the machine and its load are printed.
 
 from __future__ import annotations
 
-import os
+import harness
 
-for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+harness.pin_blas()
 
 import argparse  # noqa: E402
-import platform  # noqa: E402
-import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
-
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
 
 import mocapfill  # noqa: E402
 from mocapfill.gaps import find_gaps  # noqa: E402
 from mocapfill.methods import METHODS  # noqa: E402
 
-CLIPS = {
-    "cmu-85_02": REPO / "sample_data" / "85_02.c3d",
-    "tennis-serve": REPO / "sample_data" / "kinematics_tennis_serve.c3d",
-}
-TENNIS_NAN = REPO / "sample_data" / "kinematics_tennis_serve_nan.c3d"
-TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+CLIPS = {"cmu-85_02": harness.CLIP_85_02, "tennis-serve": harness.CLIP_TENNIS}
 
 
 def occlusion(n_frames: int, n_markers: int, rate: float, rng: np.random.Generator) -> tuple[int, int, int]:
-    """(marker, start, length) of one hidden segment of 0.5-2 s strictly inside the clip."""
+    """(marker, start, length) of one hidden segment of 0.5-2 s strictly inside the clip.
+
+    Kept as the figures were measured (and as ``tests/test_accuracy_fill.py`` draws them): the ``marker`` protocol of
+    :func:`mocapfill.evaluation.make_occlusions` draws its segments otherwise.
+    """
     marker = int(rng.integers(n_markers))
     length = int(round(rng.uniform(0.5, 2.0) * rate))
     start = int(rng.integers(1, n_frames - length - 1))
@@ -72,17 +64,12 @@ def run_fill(data, method: str, seed: int):
         return result, time.perf_counter() - started
 
 
-def machine() -> str:
-    load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
-    return (f"{platform.machine()} {platform.processor() or ''} {os.cpu_count()} CPUs, "
-            f"load {' '.join(f'{x:.2f}' for x in load)}, python {platform.python_version()}, numpy {np.__version__}, "
-            f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}")
-
-
-def single_gaps(methods: list[str], trials: int, seed: int) -> None:
+def single_gaps(methods: list[str], trials: int, seed: int, results: harness.Results) -> dict:
+    """Per clip the one-marker trials; returns {clip: {method: median RMSE mm}}."""
+    medians, rows = {}, []
     for name, path in CLIPS.items():
         data = mocapfill.read(path)
-        scale = TO_MM[data.units]
+        scale = harness.mm_per_unit(data.units)
         rng = np.random.default_rng(seed)
         errors = {m: [] for m in methods}
         seconds = {m: [] for m in methods}
@@ -104,12 +91,22 @@ def single_gaps(methods: list[str], trials: int, seed: int) -> None:
             wins = f"{np.mean(e < ref):.0%}" if ref is not None and method != "spline" else "-"
             print(f"{method:<10} {np.median(e):>10.2f} {np.mean(e):>10.2f} {wins:>13} "
                   f"{np.median(seconds[method]):>9.2f}")
+            medians.setdefault(name, {})[method] = round(float(np.median(e)), 1)
+            rows.append([name, method, round(float(np.median(e)), 2), round(float(np.mean(e)), 2),
+                         round(100 * float(np.mean(e < ref))) if ref is not None and method != "spline" else None,
+                         round(float(np.median(seconds[method])), 2)])
+            results.figure(f"{name}/{method}/median_rmse", rows[-1][2], "mm")
+    results.table("single_gaps", f"one marker hidden for 0.5-2 s, {trials} trials per clip (seed {seed}): RMSE (mm) "
+                  "over the hidden samples", ["clip", "method", "median", "mean", "beats spline %", "median s"], rows)
+    return medians
 
 
-def tennis_nan(methods: list[str], seed: int) -> None:
-    gappy = mocapfill.read(TENNIS_NAN)
+def tennis_nan(methods: list[str], seed: int, results: harness.Results) -> dict:
+    """The tennis serve's real-looking gaps against its twin; returns {method: (RMSE, max) mm}."""
+    gappy = mocapfill.read(harness.CLIP_TENNIS_NAN)
     truth = mocapfill.read(CLIPS["tennis-serve"])
-    scale = TO_MM[gappy.units]
+    scale = harness.mm_per_unit(gappy.units)
+    out = {}
     missing = gappy.missing
     print(f"\nkinematics_tennis_serve_nan.c3d: {int(missing.sum())} missing samples in {len(find_gaps(missing))} "
           "gaps, scored against the complete twin")
@@ -118,6 +115,12 @@ def tennis_nan(methods: list[str], seed: int) -> None:
         result, took = run_fill(gappy, method, seed)
         diff = np.linalg.norm(result.positions[missing] - truth.positions[missing], axis=-1) * scale
         print(f"{method:<10} {np.sqrt(np.mean(diff ** 2)):>10.2f} {np.max(diff):>10.2f} {took:>9.2f}")
+        out[method] = (round(float(np.sqrt(np.mean(diff ** 2))), 2), round(float(np.max(diff)), 2))
+        results.figure(f"tennis_nan/{method}/rmse", out[method][0], "mm")
+        results.figure(f"tennis_nan/{method}/max_error", out[method][1], "mm")
+    results.table("tennis_nan", "`kinematics_tennis_serve_nan.c3d` (145 missing samples in 10 gaps) scored against "
+                  "its complete twin, mm", ["method", "RMSE", "max"], [[m, *v] for m, v in out.items()])
+    return out
 
 
 def main() -> None:
@@ -125,12 +128,21 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=10)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--methods", default=",".join(METHODS))
+    harness.add_results_argument(parser)
     args = parser.parse_args()
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
 
-    print(machine())
-    single_gaps(methods, args.trials, args.seed)
-    tennis_nan(methods, args.seed)
+    harness.banner(__file__)
+    results = harness.Results(__file__, path=args.results, note=args.note)
+    medians = single_gaps(methods, args.trials, args.seed, results)
+    nan = tennis_nan(methods, args.seed, results)
+    order = sorted(methods, key=lambda m: medians["cmu-85_02"].get(m, float("inf")))
+    results.table("summary", f"median RMSE (mm): one marker hidden for 0.5-2 s ({args.trials} trials per clip); "
+                  "the tennis serve's ten real-looking gaps against its complete twin (RMSE / max)",
+                  ["method", "CMU 85_02, 0.5-2 s", "tennis, 0.5-2 s", "`kinematics_tennis_serve_nan.c3d` vs twin"],
+                  [[f"`{m}`", medians["cmu-85_02"][m], medians["tennis-serve"][m], f"{nan[m][0]:.1f} / {nan[m][1]:.1f}"]
+                   for m in order])
+    results.write()
 
 
 if __name__ == "__main__":

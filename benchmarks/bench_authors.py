@@ -20,18 +20,17 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import os
-import platform
 import sys
 import time
 import warnings
 from collections import defaultdict
 from pathlib import Path
 
+import harness
+
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-DATA = REPO.parent / "shared" / "data" / "bolero"
+DATA = harness.SHARED_DATA / "bolero"
 #: Our method -> the authors' method of the same algorithm in their CSV.
 AUTHORS = {"linear": "linear", "dynammo": "dynammo", "bolero-sc": "bolero_sc", "bolero-hc": "bolero_hc"}
 
@@ -63,6 +62,7 @@ def main(argv=None) -> int:
     ap.add_argument("--clips", default=None, help="comma list (default: all)")
     ap.add_argument("--protocols", default="P1,P2")
     ap.add_argument("--quiet", action="store_true", help="medians only")
+    harness.add_results_argument(ap)
     args = ap.parse_args(argv)
 
     import mocapfill
@@ -79,10 +79,7 @@ def main(argv=None) -> int:
     protocols = set(args.protocols.split(","))
     trials = [t for t in trials if (clips is None or t["clip"] in clips) and t["protocol"] in protocols]
 
-    load = os.getloadavg()
-    print(f"# machine: {platform.machine()} {os.cpu_count()} cpus, load {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}, "
-          f"python {platform.python_version()}, numpy {np.__version__}, "
-          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}", flush=True)
+    harness.banner(__file__)
     for m in methods:  # import each method's modules now: a one-off cost of the process, not of the first trial
         get_method(m).load()
     clips_data = {}
@@ -124,6 +121,8 @@ def main(argv=None) -> int:
           "of the authors' seconds / ours per trial")
     print(f"{'method':10s} {'protocol':8s} {'n':>3s} {'ours':>8s} {'authors':>8s} {'wins':>6s} {'speed':>8s} "
           f"{'min':>6s} {'our s':>7s}")
+    results = harness.Results(__file__, argv, args.results, note=args.note)
+    table = []
     for m in methods:
         for p in sorted(protocols) + ["all"]:
             keys = [k for k in ours[m] if p == "all" or k[1] == p]
@@ -132,18 +131,33 @@ def main(argv=None) -> int:
                 continue
             our = np.array([ours[m][k][0] for k in keys])
             msg = f"{m:10s} {p:8s} {len(keys):3d} {np.median(our):8.2f}"
+            row = [m, p, len(keys), round(float(np.median(our)), 2), None, None, None, None,
+                   round(float(np.median([ours[m][k][1] for k in keys])), 3), None]
+            results.figure(f"{m}/{p}/median_rmse", row[3], "mm")
             if ks:
                 a = np.array([authors[k + (AUTHORS[m],)][0] for k in ks])
                 o = np.array([ours[m][k][0] for k in ks])
                 ratios = [authors[k + (AUTHORS[m],)][1] / ours[m][k][1] for k in ks]
                 msg += (f" {np.median(a):8.2f} {100 * np.mean(o <= a):5.0f}% {np.median(ratios):7.0f}x"
                         f" {np.min(ratios):5.0f}x")
+                row[4:8] = [round(float(np.median(a)), 2), round(100 * float(np.mean(o <= a))),
+                            round(float(np.median(ratios))), round(float(np.min(ratios)))]
+                results.figure(f"{m}/{p}/wins", row[5], "% of trials", "higher")
+                results.figure(f"{m}/{p}/speed_median", row[6], "x the authors' code", "higher")
+                results.figure(f"{m}/{p}/speed_min", row[7], "x the authors' code", "higher")
             else:
                 msg += f" {'-':>8s} {'-':>6s} {'-':>8s} {'-':>6s}"
             msg += f" {np.median([ours[m][k][1] for k in keys]):7.3f}"
             if ks and len(ks) != len(keys):
                 msg += f"  (the authors ran {len(ks)} of these; ours there {np.median(o):.2f})"
+                row[9] = f"the authors ran {len(ks)}; ours there {np.median(o):.2f}"
+            table.append(row)
             print(msg)
+    results.table("medians", "median RMSE (mm over the hidden samples, the authors' score) against the authors' "
+                  "code on their trials; wins = trials where ours <= theirs; speed = the authors' CPU seconds / ours",
+                  ["method", "protocol", "trials", "ours", "authors", "wins %", "speed (median)", "speed (min)",
+                   "our s", "note"], table)
+    results.write()
     return 0
 
 

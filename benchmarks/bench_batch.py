@@ -28,13 +28,12 @@ the first run's time.  Throughput needs a quiet machine: the load average is pri
 
 from __future__ import annotations
 
-import os
+import harness
 
-for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+harness.pin_blas()
 
 import argparse  # noqa: E402
-import platform  # noqa: E402
+import os  # noqa: E402
 import shutil  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -42,13 +41,11 @@ import time  # noqa: E402
 import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-import numpy as np  # noqa: E402
-
 import mocapfill  # noqa: E402
 from mocapfill.evaluation import make_occlusions  # noqa: E402
 from mocapfill.runtime.malloc import KEEP_ENV  # noqa: E402
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+SHARED = harness.SHARED_DATA
 
 #: Clean captures the protocols make gaps in.
 CLEAN = ["cmu/85_02.c3d", "kineticstoolkit/kinematics_tennis_serve.c3d", "btk/TRCSamples/SprintMotion.trc",
@@ -168,6 +165,7 @@ def main() -> int:
                         help="also run the LocalCluster with the workers' own malloc thresholds (the cause of the "
                              "old 0.72x)")
     parser.add_argument("--keep", type=Path, default=None, help="work in this folder and keep it")
+    harness.add_results_argument(parser)
     args = parser.parse_args()
     if not SHARED.is_dir():
         print(f"needs {SHARED}", file=sys.stderr)
@@ -177,9 +175,7 @@ def main() -> int:
     if work.exists() and args.keep:
         shutil.rmtree(work)
     work.mkdir(parents=True, exist_ok=True)
-    print(f"{platform.machine()}, {os.cpu_count()} CPUs, load {' '.join(f'{x:.2f}' for x in os.getloadavg())}, "
-          f"python {platform.python_version()}, numpy {np.__version__}, "
-          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}")
+    harness.banner(__file__)
     inputs = make_inputs(work / "in", args.files, args.seed)
     sizes = [mocapfill.read(p) for p in inputs]
     print(f"{len(inputs)} inputs, {sum(d.n_frames for d in sizes)} frames, "
@@ -253,6 +249,16 @@ def main() -> int:
         tn = best["LocalCluster, malloc fix off"][0]
         print(f"LocalCluster with the workers' own malloc thresholds: {t2 / tn:.2f}x the throughput of 2 processes")
     print(f"re-run: {100 * tr / t1:.1f} % of the first run's time (target <= 10 %)")
+    results = harness.Results(__file__, path=args.results, note=args.note)
+    results.table("runs", f"{len(rows1)} inputs, method {args.method}; best of {max(1, args.repeat)} rounds per run",
+                  ["run", "seconds", "files per second"],
+                  [[label, round(seconds, 2), round(len(rows) / seconds, 2)] for label, (seconds, rows) in best.items()]
+                  + [[RERUN, round(tr, 2), round(len(rows1) / tr, 2)]])
+    results.figure("processes_2_speedup", round(t1 / t2, 2), "x the throughput of 1", "higher")
+    if "LocalCluster, 2 workers" in best:
+        results.figure("localcluster_vs_processes", round(t2 / tc, 2), "x the throughput of 2 processes", "higher")
+    results.figure("rerun_share", round(100 * tr / t1, 1), "% of the first run's time")
+    results.write()
     print(f"load after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     if not args.keep:
         shutil.rmtree(work, ignore_errors=True)

@@ -23,52 +23,14 @@ Times are CPU seconds of this process (the machine is shared; run with OPENBLAS_
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import sys
 import time
-from pathlib import Path
+
+import harness
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-FILES = {
-    "85_02": REPO / "sample_data" / "85_02.c3d",
-    "tennis": REPO / "sample_data" / "kinematics_tennis_serve.c3d",
-}
-#: The two markers of one limb hidden together, by label suffix, in order of preference.
-LIMB_PAIRS = [("RKNE", "RSHN"), ("RKNE", "RTIB")]
-
-
-def short(label: str) -> str:
-    return label.split(":")[-1].strip().upper()
-
-
-def limb_pair(labels: list[str]) -> tuple[int, int]:
-    names = [short(x) for x in labels]
-    for a, b in LIMB_PAIRS:
-        if a in names and b in names:
-            return names.index(a), names.index(b)
-    raise SystemExit("no limb pair found among the labels")
-
-
-def make_trial(truth: np.ndarray, labels: list[str], protocol: str, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Occluded copy of ``truth`` (n_frames, n_markers, 3) and the hidden mask (n_frames, n_markers)."""
-    rng = np.random.default_rng(seed)
-    n_frames, n_markers, _ = truth.shape
-    length = int(rng.integers(int(0.1 * n_frames), int(0.5 * n_frames) + 1))
-    start = int(rng.integers(0, n_frames - length + 1))
-    if protocol == "blackout":  # every marker hidden for 15-45 frames
-        length = int(rng.integers(15, 46))
-        start = int(rng.integers(1, n_frames - length))
-        markers = list(range(n_markers))
-    else:
-        markers = [int(rng.integers(n_markers))] if protocol == "marker" else list(limb_pair(labels))
-    hidden = np.zeros((n_frames, n_markers), dtype=bool)
-    hidden[start:start + length, markers] = True
-    occluded = truth.copy()
-    occluded[hidden] = np.nan
-    return occluded, hidden
+FILES = {"85_02": harness.CLIP_85_02, "tennis": harness.CLIP_TENNIS}
 
 
 def metrics(filled: np.ndarray, truth: np.ndarray, hidden: np.ndarray, pairs: np.ndarray) -> tuple[float, float]:
@@ -115,6 +77,7 @@ def main(argv=None) -> int:
     ap.add_argument("--methods", default="dynammo,bolero-sc,bolero-hc")
     ap.add_argument("--sweep-penalty", default=None, help="comma list of BoLeRO-SC weights to compare")
     ap.add_argument("--sweep-start", default=None, help="comma list of project_start values to compare (SC)")
+    harness.add_results_argument(ap)
     args = ap.parse_args(argv)
 
     from mocapfill.bones import estimate_bones
@@ -122,8 +85,7 @@ def main(argv=None) -> int:
     from mocapfill.methods.bolero import DEFAULT_MAX_ITER
 
     max_iter = args.max_iter or DEFAULT_MAX_ITER
-    print(f"# machine: {platform.node()} {platform.machine()} {os.cpu_count()} cpus, "
-          f"python {platform.python_version()}, numpy {np.__version__}")
+    harness.banner(__file__)
     print(f"# trials={args.trials} max_iter={max_iter}")
 
     variants: list[tuple[str, str, dict]] = []
@@ -142,7 +104,7 @@ def main(argv=None) -> int:
         truth, labels, units = data.positions, list(data.labels), data.units
         for protocol in args.protocols.split(","):
             for trial in range(args.trials):
-                occluded, hidden = make_trial(truth, labels, protocol, seed=1000 + trial)
+                occluded, hidden = harness.paper_trial(truth, labels, protocol, seed=1000 + trial)
                 bones = estimate_bones(occluded, units=units, labels=labels)
                 line = [f"{fname:7s} {protocol:6s} {trial:2d}"]
                 for name, method, extra in variants:
@@ -160,26 +122,48 @@ def main(argv=None) -> int:
                 print(" | ".join(line), flush=True)
 
     print("\n# summary (units of each file; RMSE and bone error are per-trial values)")
+    sweep = args.sweep_penalty or args.sweep_start
+    results = harness.Results(__file__, argv, "-" if sweep else args.results, note=args.note)
     base = rows.get("dynammo")
+    table = []
     for name, r in rows.items():
         rmse, bone, secs = (np.array(r[k]) for k in ("rmse", "bone", "time"))
         msg = f"{name:14s} median rmse-ratio "
+        row = [name] + [None] * 7
         if base and name != "dynammo":
             b_rmse, b_bone, b_time = (np.array(base[k]) for k in ("rmse", "bone", "time"))
             ratio = rmse / b_rmse
             wins = np.mean(rmse <= b_rmse * (1 + 1e-9))
             ok = np.isfinite(bone) & np.isfinite(b_bone)  # trials whose hidden marker has a bone
+            bone_mean = np.mean(b_bone[ok]) / np.mean(bone[ok])
+            bone_median = np.median(b_bone[ok] / bone[ok])
+            bone_3x = np.mean(b_bone[ok] >= 3 * bone[ok])
+            time_ratio = np.sum(secs) / np.sum(b_time)
             msg += (f"{np.median(ratio):.3f}  <=dynammo on {100 * wins:.0f}% of {len(rmse)}  bone error: mean dyn /"
-                    f" mean this {np.mean(b_bone[ok]) / np.mean(bone[ok]):.1f}x, median per-trial ratio"
-                    f" {np.median(b_bone[ok] / bone[ok]):.1f}x,"
-                    f" >=3x on {100 * np.mean(b_bone[ok] >= 3 * bone[ok]):.0f}%"
-                    f" of {ok.sum()}  CPU-time ratio {np.sum(secs) / np.sum(b_time):.2f}")
+                    f" mean this {bone_mean:.1f}x, median per-trial ratio {bone_median:.1f}x,"
+                    f" >=3x on {100 * bone_3x:.0f}% of {ok.sum()}  CPU-time ratio {time_ratio:.2f}")
+            row[1:7] = [round(float(np.median(ratio)), 3), round(100 * float(wins)), round(float(bone_mean), 1),
+                        round(float(bone_median), 1), round(100 * float(bone_3x)), round(float(time_ratio), 2)]
+            results.figure(f"{name}/median_rmse_ratio", round(float(np.median(ratio)), 3), "x dynammo")
+            results.figure(f"{name}/trials_le_dynammo", round(100 * float(wins)), "%", "higher")
+            results.figure(f"{name}/bone_error_mean_ratio", round(float(bone_mean), 1), "x lower", "higher")
+            results.figure(f"{name}/cpu_time_ratio", round(float(time_ratio), 2), "x dynammo")
         else:
             msg += "1 (baseline)"
+            row[1] = 1
         if r["hc_rel"]:
             msg += (f"  HC max rel bone error on feasible frames {max(r['hc_rel']):.2e} (infeasible frames:"
                     f" {100 * np.mean(r['hc_infeasible']):.0f}% on average, least squares there)")
+            row[7] = float(f"{max(r['hc_rel']):.2e}")
+            results.figure(f"{name}/max_rel_bone_error_feasible", row[7], "relative")
+        table.append(row)
         print(msg)
+    results.table("summary", f"{args.trials} trials x {{{args.protocols}}} x {{{args.files}}}: each method against "
+                  "DynaMMo (RMSE and bone error per trial, the file's units; CPU seconds)",
+                  ["method", "median RMSE ratio", "RMSE <= dynammo (% of trials)", "bone error: mean ratio",
+                   "bone error: median per-trial ratio", "bone error >= 3x lower (% of trials)", "CPU-time ratio",
+                   "max relative bone error (feasible frames)"], table)
+    results.write()
     return 0
 
 

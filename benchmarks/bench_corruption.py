@@ -27,23 +27,16 @@ Run from the repository root::
 
 from __future__ import annotations
 
-import os
+import harness
 
-for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+harness.pin_blas()
 
 import argparse  # noqa: E402
-import platform  # noqa: E402
-import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
 from collections import Counter  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
-
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
 
 import mocapfill  # noqa: E402
 from mocapfill.evaluation import evaluate, make_occlusions  # noqa: E402
@@ -51,10 +44,10 @@ from mocapfill.gaps import runs  # noqa: E402
 from mocapfill.guards.outliers import reject_outliers  # noqa: E402
 from mocapfill.units import length_factor  # noqa: E402
 
-SHARED = REPO.parent / "shared" / "data"
+SHARED = harness.SHARED_DATA
 CLIPS = [
-    ("cmu-85_02", REPO / "sample_data" / "85_02.c3d", None),
-    ("tennis-serve", REPO / "sample_data" / "kinematics_tennis_serve.c3d", None),
+    ("cmu-85_02", harness.CLIP_85_02, None),
+    ("tennis-serve", harness.CLIP_TENNIS, None),
     ("bolero-127_07", SHARED / "bolero" / "127_07.csv", 120.0),
     ("bolero-132_32", SHARED / "bolero" / "132_32.csv", 120.0),
 ]
@@ -108,12 +101,12 @@ def main() -> None:
     parser.add_argument("--clips", default=",".join(name for name, _, _ in CLIPS))
     parser.add_argument("--oracle", action=argparse.BooleanOptionalAction, default=True,
                         help="also fill with a perfect detector (default on)")
+    harness.add_results_argument(parser)
     args = parser.parse_args()
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    load = os.getloadavg()
-    print(f"# bench_corruption  {time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())}")
-    print(f"# machine: {platform.machine()} {os.cpu_count()} CPUs, load {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}, "
-          f"python {platform.python_version()}, numpy {np.__version__}")
+    harness.banner(__file__)
+    results = harness.Results(__file__, path=args.results, note=args.note)
+    summary_rows, detail_rows = [], []
     print(f"# protocol random (Holden's corruption with stretches), {args.trials} trials, seed {args.seed}; "
           f"reject_outliers self-referenced, then the fill; errors in mm over hidden + displaced samples")
     for name, path, rate in CLIPS:
@@ -154,20 +147,43 @@ def main() -> None:
               f"{'mean':>7s} {'s/fill':>7s}")
         summary = res.summary()
         best = {}
+        caught = round(100 * float(np.median(r)), 1)
+        summary_row = [name, caught]
+        results.figure(f"{name}/caught_median", caught, "% of displaced samples", "higher")
+        results.figure(f"{name}/precision_median", round(float(np.median(p)), 3), "", "higher")
         for method in methods:
             row = summary[method]
             med, mean = row["rmse"]["median"] * to_mm, row["rmse"]["mean"] * to_mm
             best[method] = med
             line = f"  {method:10s} {med:12.1f} {mean:10.1f}"
+            detail = [name, f"`{method}`", round(med, 1), round(mean, 1), None, None,
+                      round(row["seconds"]["median"], 2)]
+            cell = f"{med:.1f}"
+            results.figure(f"{name}/{method}/median_rmse", round(med, 1), "mm")
             if oracle is not None:
                 orow = oracle.summary()[method]
                 line += f" {orow['rmse']['median'] * to_mm:25.1f} {orow['rmse']['mean'] * to_mm:7.1f}"
+                detail[4:6] = [round(orow["rmse"]["median"] * to_mm, 1), round(orow["rmse"]["mean"] * to_mm, 1)]
+                cell += f" ({orow['rmse']['median'] * to_mm:.1f})"
             line += f" {row['seconds']['median']:7.2f}"
             print(line)
+            summary_row.append(cell)
+            detail_rows.append(detail)
+        summary_rows.append(summary_row)
         if "auto" in best and "bolero-sc" in best:
             ok = best["auto"] <= 50 and best["auto"] < best["bolero-sc"]
             print(f"  target (auto median <= 50 mm and below bolero-sc): {'met' if ok else 'NOT met'} "
                   f"({best['auto']:.1f} vs {best['bolero-sc']:.1f})")
+    results.table("summary", f"{args.trials} trials of `evaluate -p random --reject-outliers self` per clip: up to "
+                  "10 % of every marker hidden and up to 10 % displaced by up to 50 cm per axis, in stretches of "
+                  "0.05-0.5 s; "
+                  "displaced samples caught (median over trials); median trial RMSE (mm) over the hidden and displaced "
+                  "samples, in brackets with a perfect detector",
+                  ["clip", "displaced samples caught %", *(f"`{m}`" for m in methods)], summary_rows)
+    results.table("detail", "per clip and method: median and mean trial RMSE (mm) of the whole pipeline, the same "
+                  "with a perfect detector, median seconds per fill",
+                  ["clip", "method", "median", "mean", "perfect: median", "perfect: mean", "s per fill"], detail_rows)
+    results.write()
 
 
 if __name__ == "__main__":

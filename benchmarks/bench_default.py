@@ -26,35 +26,24 @@ setting is printed.
 
 from __future__ import annotations
 
-import os
+import harness
 
-for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+harness.pin_blas()
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
-import platform  # noqa: E402
-import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
 from mocapfill import api  # noqa: E402
 from mocapfill.bones import estimate_bones  # noqa: E402
-from mocapfill.evaluation import evaluate, make_occlusions, score  # noqa: E402
+from mocapfill.evaluation import evaluate, score  # noqa: E402
 from mocapfill.io import read  # noqa: E402
 from mocapfill.engines.local_pca import fill_local_pca  # noqa: E402
 
-CLIPS = {
-    "cmu-85_02": REPO / "sample_data" / "85_02.c3d",
-    "tennis-serve": REPO / "sample_data" / "kinematics_tennis_serve.c3d",
-}
-TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+CLIPS = {"cmu-85_02": harness.CLIP_85_02, "tennis-serve": harness.CLIP_TENNIS}
 #: The issue's protocol: gaps of 10-50 % of the clip, given explicitly (evaluate's defaults cap them at 1 s / 5 s on
 #: long takes, which would shorten the tennis serve's gaps).
 GAPS = {"gap_min": "10%", "gap_max": "50%"}
@@ -62,23 +51,17 @@ GAPS = {"gap_min": "10%", "gap_max": "50%"}
 PEER = {"marker": 3.7, "limb": 6.4}
 
 
-def machine() -> str:
-    load = os.getloadavg() if hasattr(os, "getloadavg") else ("?",) * 3
-    threads = os.environ.get("OPENBLAS_NUM_THREADS")
-    return (f"{platform.platform()}, Python {platform.python_version()}, NumPy {np.__version__}, "
-            f"{os.cpu_count()} CPUs, load {' '.join(f'{x:.2f}' for x in load)}, OPENBLAS_NUM_THREADS={threads}")
-
-
-def accuracy(trials: int, seed: int, extra: list[str]) -> dict:
+def accuracy(trials: int, seed: int, extra: list[str], results: harness.Results) -> dict:
     """Main table through mocapfill.evaluation; returns {(clip, protocol): {method: rmse array (mm)}}."""
     methods = ["pca", "auto", *extra]
     out = {}
+    rows = []
     print(f"\n## Accuracy: {trials} trials per protocol, seed {seed}, gaps 10-50 % of the clip (errors in mm)")
     print(f"{'clip':14s} {'protocol':8s} {'method':10s} {'median':>8s} {'mean':>8s} {'bone err':>9s} "
           f"{'s/fill':>7s} {'auto wins':>9s}")
     for clip, path in CLIPS.items():
         data = read(path)
-        k = TO_MM[data.units]
+        k = harness.mm_per_unit(data.units)
         for protocol in ("marker", "limb"):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
@@ -91,14 +74,37 @@ def accuracy(trials: int, seed: int, extra: list[str]) -> dict:
             for j, method in enumerate(methods):
                 wins = np.mean(rmse[:, methods.index("auto")] < rmse[:, j]) if method != "auto" else float("nan")
                 table[method] = rmse[:, j]
+                rows.append([clip, protocol, method, round(float(np.nanmedian(rmse[:, j])), 2),
+                             round(float(np.nanmean(rmse[:, j])), 2), round(float(np.nanmedian(bone[:, j])), 2),
+                             round(float(np.nanmedian(secs[:, j])), 3),
+                             None if method == "auto" else round(100 * float(wins))])
+                results.figure(f"{clip}/{protocol}/{method}/median_rmse", rows[-1][3], "mm")
+                results.figure(f"{clip}/{protocol}/{method}/median_bone_error", rows[-1][5], "mm")
                 print(f"{clip:14s} {protocol:8s} {method:10s} {np.nanmedian(rmse[:, j]):8.2f} "
                       f"{np.nanmean(rmse[:, j]):8.2f} {np.nanmedian(bone[:, j]):9.2f} {np.nanmedian(secs[:, j]):7.3f} "
                       f"{'' if method == 'auto' else f'{100 * wins:8.0f}%':>9s}")
             out[(clip, protocol)] = table
+    results.table("accuracy", f"{trials} trials per clip and protocol (seed {seed}), gaps of 10-50 % of the clip; "
+                  "median / mean RMSE over the hidden samples, median bone-length error, mm; share of trials where "
+                  "`auto`'s RMSE is lower", ["clip", "protocol", "method", "median", "mean", "bone error",
+                                             "s per fill", "auto wins %"], rows)
+    methods_shown = ["auto", "pca", *extra]
+    results.table("summary", "median RMSE (mm) over the hidden samples: one random marker, or two neighbouring "
+                  f"markers of one limb, hidden for 10-50 % of the clip; {trials} seeded trials per clip and protocol; "
+                  "bones estimated from the occluded input only",
+                  ["clip", "protocol", *(f"`{m}`" for m in methods_shown)],
+                  [[clip, protocol, *(round(float(np.nanmedian(out[(clip, protocol)][m])), 1) for m in methods_shown)]
+                   for clip in CLIPS for protocol in ("marker", "limb")])
     print("\nPooled over both clips (median RMSE, mm; auto vs pca):")
+    pooled = []
     for protocol in ("marker", "limb"):
         pca = np.concatenate([out[(c, protocol)]["pca"] for c in CLIPS])
         auto = np.concatenate([out[(c, protocol)]["auto"] for c in CLIPS])
+        lower = 100 * (1 - np.nanmedian(auto) / np.nanmedian(pca))
+        pooled.append(["both clips", protocol, round(float(np.nanmedian(pca)), 2), round(float(np.nanmedian(auto)), 2),
+                       round(float(lower)), round(100 * float(np.mean(auto < pca)))])
+        results.figure(f"pooled/{protocol}/auto_lower_than_pca", pooled[-1][4], "%", "higher")
+        results.figure(f"pooled/{protocol}/auto_wins", pooled[-1][5], "% of trials", "higher")
         print(f"  {protocol:6s} pca {np.nanmedian(pca):6.2f}  auto {np.nanmedian(auto):6.2f}  "
               f"({100 * (1 - np.nanmedian(auto) / np.nanmedian(pca)):.0f} % lower; auto wins "
               f"{100 * np.mean(auto < pca):.0f} % of {len(pca)} trials)  [peer: published PCA code "
@@ -106,10 +112,13 @@ def accuracy(trials: int, seed: int, extra: list[str]) -> dict:
         for clip in CLIPS:
             p, a = np.nanmedian(out[(clip, protocol)]["pca"]), np.nanmedian(out[(clip, protocol)]["auto"])
             print(f"    {clip:14s} pca {p:6.2f}  auto {a:6.2f}  ({100 * (1 - a / p):.0f} % lower)")
+            pooled.append([clip, protocol, round(float(p), 2), round(float(a), 2), round(100 * (1 - a / p)), None])
+    results.table("pooled", "median RMSE (mm), `auto` against the published weighted PCA (`pca`)",
+                  ["clips", "protocol", "`pca`", "`auto`", "auto lower by %", "auto wins % of trials"], pooled)
     return out
 
 
-def ablation(trials: int, seed: int) -> None:
+def ablation(trials: int, seed: int, results: harness.Results) -> None:
     """Same trials as :func:`accuracy`: what each step of the default adds."""
     steps = {
         "pca (published)": lambda d, y: api.fill(d.with_positions(y), "pca").positions,
@@ -119,14 +128,14 @@ def ablation(trials: int, seed: int) -> None:
     }
     print(f"\n## Ablation (same {trials} trials; median RMSE / median bone error, mm)")
     print(f"{'clip':14s} {'protocol':8s} " + " ".join(f"{name:>22s}" for name in steps))
+    rows = []
     for clip, path in CLIPS.items():
         data = read(path)
-        k = TO_MM[data.units]
+        k = harness.mm_per_unit(data.units)
         for protocol in ("marker", "limb"):
             errs = {name: [] for name in steps}
             bone = {name: [] for name in steps}
-            for trial in make_occlusions(data, protocol, trials=trials, seed=seed, **GAPS):
-                y, hidden, _ = trial.apply(data.positions)
+            for _, y, hidden in harness.occluded_trials(data, protocol, trials=trials, seed=seed, **GAPS):
                 bones = estimate_bones(y, units=data.units)
                 for name, fn in steps.items():
                     with warnings.catch_warnings():
@@ -136,22 +145,26 @@ def ablation(trials: int, seed: int) -> None:
                     bone[name].append(s["bone_error"] * k)
             print(f"{clip:14s} {protocol:8s} " + " ".join(
                 f"{np.median(errs[n]):12.2f} / {np.nanmedian(bone[n]):6.2f}" for n in steps))
+            rows.append([clip, protocol, *(f"{np.median(errs[n]):.2f} / {np.nanmedian(bone[n]):.2f}" for n in steps)])
+    results.table("ablation", f"what each step of the default adds (same {trials} trials): median RMSE / median bone "
+                  "error, mm", ["clip", "protocol", *steps], rows)
 
 
-def speed(repeats: int = 3) -> None:
+def speed(results: harness.Results, repeats: int = 3) -> None:
     """Seconds for a whole fill of a 1,500-frame, 41-marker clip."""
     data = read(CLIPS["cmu-85_02"])
-    pos = np.concatenate([data.positions, data.positions[::-1][1:]])[:1500]
+    pos = harness.palindrome(data.positions, 1500, repeat_turns=False)
     big = dataclasses.replace(data, positions=pos)
     print(f"\n## Speed: whole fill of a {pos.shape[0]}-frame, {pos.shape[1]}-marker clip "
           f"(85_02 continued by its time reverse), median of {repeats} runs")
     layouts = {"one marker": ("marker", GAPS), "one limb": ("limb", GAPS),
                "gaps in most markers": ("random", {"shift_rate": 0.0})}
+    rows = []
     for name, (protocol, opts) in layouts.items():
-        trial = make_occlusions(big, protocol, trials=1, seed=3, **opts)[0]
-        y, hidden, _ = trial.apply(pos)
+        _, y, hidden = next(harness.occluded_trials(big, protocol, trials=1, seed=3, **opts))
         gappy = int(np.isnan(y).any(axis=2).any(axis=0).sum())
         line = f"  {name:22s} ({gappy:2d} markers with gaps, {100 * np.isnan(y).any(axis=2).mean():4.1f} % missing):"
+        row = [name, gappy, round(100 * float(np.isnan(y).any(axis=2).mean()), 1)]
         for method in ("pca", "auto"):
             times = []
             for _ in range(repeats):
@@ -162,7 +175,14 @@ def speed(repeats: int = 3) -> None:
                 times.append(time.perf_counter() - t0)
             err = np.sqrt(np.mean(np.sum((res.positions[hidden] - pos[hidden]) ** 2, axis=1)))
             line += f"  {method} {np.median(times):5.2f} s (RMSE {err:5.1f} mm)"
+            row += [round(float(np.median(times)), 2), round(float(err), 1)]
+            results.figure(f"speed/{name}/{method}/seconds", row[-2], "s")
         print(line)
+        rows.append(row)
+    results.table("speed", f"whole fill of a {pos.shape[0]}-frame, {pos.shape[1]}-marker clip (85_02 continued by its "
+                  f"time reverse), median of {repeats} runs", ["gap layout", "markers with gaps", "missing %",
+                                                              "`pca` s", "`pca` RMSE mm", "`auto` s",
+                                                              "`auto` RMSE mm"], rows)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -171,15 +191,18 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--methods", default="", help="extra registered methods to compare, comma-separated")
     parser.add_argument("--skip", default="", help="comma-separated sections to skip: accuracy,ablation,speed")
+    harness.add_results_argument(parser)
     args = parser.parse_args(argv)
     skip = set(filter(None, args.skip.split(",")))
-    print(f"# bench_default  ({time.strftime('%Y-%m-%d %H:%M:%S %Z')})\nmachine: {machine()}")
+    harness.banner(__file__)
+    results = harness.Results(__file__, argv, args.results, note=args.note)
     if "accuracy" not in skip:
-        accuracy(args.trials, args.seed, [m for m in args.methods.split(",") if m])
+        accuracy(args.trials, args.seed, [m for m in args.methods.split(",") if m], results)
     if "ablation" not in skip:
-        ablation(args.trials, args.seed)
+        ablation(args.trials, args.seed, results)
     if "speed" not in skip:
-        speed()
+        speed(results)
+    results.write()
 
 
 if __name__ == "__main__":

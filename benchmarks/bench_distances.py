@@ -18,10 +18,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
+
+import harness
 
 CHILD = r"""
 import json, resource, sys, time
@@ -67,19 +68,22 @@ def main() -> None:
     parser.add_argument("--outliers", type=int, default=0, metavar="SEEDS",
                         help="also score reject_outliers on the sample captures with SEEDS corruption seeds")
     parser.add_argument("--outliers-only", action="store_true", help="skip the pair_distance_stats timing")
+    harness.add_results_argument(parser)
     args = parser.parse_args()
-    print(f"machine: {platform.machine()} {platform.processor() or ''} {os.cpu_count()} cpus, "
-          f"python {platform.python_version()}, {platform.system()} {platform.release()}")
+    harness.banner(__file__)
     import numpy
-    print(f"numpy {numpy.__version__}")
+
+    results = harness.Results(__file__, path=args.results, note=args.note)
     if args.outliers_only:
-        outlier_trials(max(1, args.outliers))
+        outlier_trials(max(1, args.outliers), results)
+        results.write()
         return
     load = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "positions.npy")
         numpy.save(path, synthetic(args.markers, args.frames, args.missing, args.seed))
-        out = subprocess.run([sys.executable, "-c", CHILD, path], capture_output=True, text=True, check=True)
+        out = subprocess.run([sys.executable, "-c", CHILD, path], capture_output=True, text=True, check=True,
+                             env={**os.environ, "PYTHONPATH": str(harness.REPO)})
     result = json.loads(out.stdout.strip().splitlines()[-1])
     print(f"pair_distance_stats: {args.markers} markers x {args.frames} frames ({result['pairs']} pairs, "
           f"{args.missing:.0%} missing, common frames per pair {result['min_count']}-{result['max_count']})")
@@ -87,8 +91,16 @@ def main() -> None:
           f"load average before the run {load[0]:.1f})")
     print(f"  peak RSS      {result['peak_rss_mb']:.0f} MB (input array {result['input_mb']:.0f} MB, "
           f"process before the call {result['rss_after_input_mb']:.0f} MB)")
+    results.table("pair_distance_stats", f"`pair_distance_stats` on {args.markers} markers x {args.frames} frames "
+                  f"({result['pairs']} pairs, {args.missing:.0%} missing), in a fresh process",
+                  ["wall s", "CPU s", "peak RSS MB", "input array MB"],
+                  [[round(result["seconds"], 1), round(result["cpu_seconds"], 1), round(result["peak_rss_mb"]),
+                    round(result["input_mb"])]])
+    results.figure("pair_distance_stats/seconds", round(result["seconds"], 1), "s")
+    results.figure("pair_distance_stats/peak_rss", round(result["peak_rss_mb"]), "MB")
     if args.outliers:
-        outlier_trials(args.outliers)
+        outlier_trials(args.outliers, results)
+    results.write()
 
 
 def corrupt(positions, seed: int, kind: str, scale: float, rate: float):
@@ -135,10 +147,9 @@ def corrupt(positions, seed: int, kind: str, scale: float, rate: float):
     return out, truth
 
 
-def outlier_trials(n_seeds: int) -> None:
+def outlier_trials(n_seeds: int, results: harness.Results) -> None:
     """reject_outliers (self-reference) on the complete sample captures: clean, and four corruptions x seeds."""
     import time
-    from pathlib import Path
 
     import numpy as np
 
@@ -146,7 +157,8 @@ def outlier_trials(n_seeds: int) -> None:
     from mocapfill.units import length_factor
     from mocapfill.guards.outliers import reject_outliers
 
-    root = Path(__file__).resolve().parents[1] / "sample_data"
+    root = harness.SAMPLE_DATA
+    rows = []
     print(f"reject_outliers (self-reference, defaults, the file's frame rate), {n_seeds} seeds per corruption")
     for name in ("85_02.c3d", "kinematics_tennis_serve.c3d"):
         data = mocapfill.read(root / name)
@@ -173,6 +185,9 @@ def outlier_trials(n_seeds: int) -> None:
             print(f"    {kind:6s} precision min {p.min():.3f} median {np.median(p):.3f}; recall min {r.min():.3f} "
                   f"median {np.median(r):.3f}; seeds with both >= 0.95: {int(((p >= 0.95) & (r >= 0.95)).sum())}"
                   f"/{n_seeds} {passed}; precision without the uncorrupted file's rejects min {min(beyond):.3f}")
+            rows.append([name, kind, round(float(p.min()), 3), round(float(np.median(p)), 3), round(float(r.min()), 3),
+                         round(float(np.median(r)), 3), f"{len(passed)}/{n_seeds}", round(float(min(beyond)), 3)])
+            results.figure(f"{name}/{kind}/seeds_passed", len(passed), f"of {n_seeds} seeds", "higher")
         # `mocapfill evaluate --protocol random`: up to 10 % of each marker's samples hidden and 10 % shifted, in
         # stretches of 0.05-0.5 s, many markers at once; shifts uniform in +-50 cm per axis
         from mocapfill.evaluation.occlusions import make_occlusions
@@ -186,6 +201,16 @@ def outlier_trials(n_seeds: int) -> None:
         print(f"    evaluate --protocol random ({n_seeds} trials, seed 0): shifted samples found median "
               f"{np.median(recall):.3f} min {min(recall):.3f}; precision median {np.median(precision):.3f} "
               f"min {min(precision):.3f}")
+        rows.append([name, "evaluate -p random (shifted samples)", round(float(min(precision)), 3),
+                     round(float(np.median(precision)), 3), round(float(min(recall)), 3),
+                     round(float(np.median(recall)), 3), None, None])
+        results.figure(f"{name}/random/recall_median", round(float(np.median(recall)), 3), "", "higher")
+        results.figure(f"{name}/clean_rejected", int(clean), "samples")
+    results.table("outliers", f"`reject_outliers` (self-reference, defaults) on corrupted copies, {n_seeds} seeds per "
+                  "corruption: precision and recall, seeds with both >= 0.95, precision without the samples the "
+                  "uncorrupted file loses", ["capture", "corruption", "precision min", "precision median",
+                                             "recall min", "recall median", "seeds >= 0.95", "precision, clean rejects "
+                                             "left out (min)"], rows)
 
 
 if __name__ == "__main__":

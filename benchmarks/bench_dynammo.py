@@ -23,15 +23,19 @@ one-iteration figure below runs the lds functions directly, inside the same limi
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
-import platform
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+import harness
+
+REPO = harness.REPO
+#: The BoLeRO authors' data (clips, occlusions.json, their results), when ``../shared/data`` is present.
+BOLERO_DATA = harness.SHARED_DATA / "bolero"
 
 
 def make_data(n_frames: int, missing: float = 0.05, seed: int = 0):
@@ -40,9 +44,7 @@ def make_data(n_frames: int, missing: float = 0.05, seed: int = 0):
 
     import mocapfill
 
-    P = mocapfill.read(REPO / "sample_data" / "85_02.c3d").positions
-    reps = -(-n_frames // (2 * len(P)))
-    P = np.concatenate([P, P[::-1]] * reps)[:n_frames]
+    P = harness.palindrome(mocapfill.read(harness.CLIP_85_02).positions, n_frames, repeat_turns=True)
     rng = np.random.default_rng(seed)
     T, M = P.shape[:2]
     mask = np.zeros((T, M), bool)
@@ -82,14 +84,16 @@ def child(n_frames: int) -> None:
                       "baseline_mb": base, "rmse_mm": float(err), "missing": float(mask.mean())}))
 
 
-def one_iteration() -> None:
+def one_iteration() -> dict:
     import warnings
 
     import numpy as np
 
-    sys.path.insert(0, str(REPO / "tests"))
-    from test_dynammo import dense_e_step, dense_m_step
-
+    # the straightforward dense reference implementation the tests check the engine with
+    spec = importlib.util.spec_from_file_location("test_dynammo", REPO / "tests" / "test_dynammo.py")
+    reference = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(reference)
+    dense_e_step, dense_m_step = reference.dense_e_step, reference.dense_m_step
     from mocapfill.runtime.blas import single_blas_thread
     from mocapfill.engines import lds
     from mocapfill.methods.dynammo import initial_params, interpolate_columns
@@ -125,6 +129,7 @@ def one_iteration() -> None:
     print(f"one EM iteration, 1500 frames x {M} markers, H=16: fast {t_fast * 1e3:.2f} ms wall, "
           f"{c_fast * 1e3:.2f} ms CPU (target <= 10 ms); dense reference {t_dense * 1e3:.0f} ms; "
           f"ratio {t_dense / t_fast:.0f}x")
+    return {"wall_ms": t_fast * 1e3, "cpu_ms": c_fast * 1e3, "dense_ms": t_dense * 1e3}
 
 
 #: Captures the uncertainty was not designed on (``../shared/data``, when present): 4 trials each of one marker and
@@ -164,17 +169,14 @@ def other_clip_trials(name, data, trials=4, seed=77):
     return out
 
 
-def short_gaps(read, run_dynammo) -> None:
+def short_gaps(read, run_dynammo) -> list:
     """Actual / predicted error on short gaps (8-47 frames): 6 trials of 3 gaps each on four captures."""
     import warnings
 
     import numpy as np
 
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    import bench_bolero
-
-    shared = REPO.parent / "shared" / "data"
-    clips = {name: bench_bolero.FILES[name] for name in ("85_02", "tennis")}
+    shared = harness.SHARED_DATA
+    clips = {"85_02": harness.CLIP_85_02, "tennis": harness.CLIP_TENNIS}
     clips.update({name: shared / OTHER_CLIPS[name] for name in ("sprint", "upper")})
     ratios: dict[str, list[tuple[int, float]]] = {"second opinion": [], "model": []}
     for name, path in clips.items():
@@ -201,15 +203,19 @@ def short_gaps(read, run_dynammo) -> None:
                     h = hidden[:, k]
                     actual = np.sqrt(np.mean((res.positions[h, k] - data.positions[h, k]) ** 2))
                     ratios[kind].append((int(h.sum()), float(actual / np.sqrt(np.mean(res.std[h, k] ** 2)))))
+    rows = []
     for kind, pairs in ratios.items():
         n = np.array([p[0] for p in pairs])
         r = np.array([p[1] for p in pairs])
         for lo, hi in ((8, 24), (24, 48)):
             sel = r[(n >= lo) & (n < hi)]
             if sel.size:
+                within = 100 * np.mean((sel >= 0.5) & (sel <= 2))
                 print(f"short gaps of {lo}-{hi - 1} frames (85_02, tennis, sprint, upper), dynammo {kind} std: "
-                      f"{sel.size} gaps, median ratio {np.median(sel):.2f}, within 0.5-2 on "
-                      f"{100 * np.mean((sel >= 0.5) & (sel <= 2)):.0f} %")
+                      f"{sel.size} gaps, median ratio {np.median(sel):.2f}, within 0.5-2 on {within:.0f} %")
+                rows.append([f"{lo}-{hi - 1} frames", f"dynammo {kind} std", int(sel.size),
+                             round(float(np.median(sel)), 2), None, round(float(within))])
+    return rows
 
 
 def uncertainty() -> None:
@@ -218,30 +224,27 @@ def uncertainty() -> None:
 
     import numpy as np
 
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    import bench_authors
-    import bench_bolero
     from mocapfill.io import read
     from mocapfill.methods.bolero import fill_bolero_sc
     from mocapfill.methods.dynammo import run_dynammo
 
     cases = []
-    occl = bench_authors.DATA / "occlusions.json"
+    occl = BOLERO_DATA / "occlusions.json"
     if occl.is_file():
-        data = read(bench_authors.DATA / "132_32.csv", rate=120.0)
+        data = read(BOLERO_DATA / "132_32.csv", rate=120.0)
         labels = list(data.labels)
         for t in json.loads(occl.read_text())["trials"]:
             if t["clip"] == "132_32":
                 hidden = np.zeros(data.positions.shape[:2], dtype=bool)
                 hidden[t["start"]:t["start"] + t["length"], [labels.index(m) for m in t["markers"]]] = True
                 cases.append(("first", f"132_32 {t['protocol']} {t['trial']}", data, hidden))
-    for name in ("85_02", "tennis"):
-        data = read(bench_bolero.FILES[name])
+    for name, path in (("85_02", harness.CLIP_85_02), ("tennis", harness.CLIP_TENNIS)):
+        data = read(path)
         for protocol in ("marker", "limb"):
             for trial in range(5):
-                _, hidden = bench_bolero.make_trial(data.positions, list(data.labels), protocol, seed=1000 + trial)
+                _, hidden = harness.paper_trial(data.positions, list(data.labels), protocol, seed=1000 + trial)
                 cases.append(("first", f"{name} {protocol} {trial}", data, hidden))
-    shared = REPO.parent / "shared" / "data"
+    shared = harness.SHARED_DATA
     for name, rel in OTHER_CLIPS.items():
         if (shared / rel).is_file():
             data = read(shared / rel)
@@ -272,15 +275,27 @@ def uncertainty() -> None:
         ratios.setdefault(group, []).append((actual / predicted, actual / old, b_actual / b_predicted))
         print(f"{name:18s} {n:6d} {actual:9.4g} {predicted:9.4g} {actual / predicted:6.2f} {old:9.4g} "
               f"{actual / old:6.2f} {b_actual:9.4g} {b_predicted:9.4g} {b_actual / b_predicted:6.2f}", flush=True)
-    short_gaps(read, run_dynammo)
+    short = short_gaps(read, run_dynammo)
     titles = {"first": "the first three clips (132_32, 85_02, tennis)", "other": "five other clips"}
+    results = harness.Results(__file__)
+    rows = []
     for group, triples in ratios.items():
         for col, what in ((0, "dynammo std (second opinion)"), (1, "dynammo model std"),
                           (2, "bolero-sc std (second opinion)")):
             r = np.array([p[col] for p in triples])
+            within = 100 * np.mean((r >= 0.5) & (r <= 2))
             print(f"{titles[group]}, {what}: {len(r)} gaps longer than 1 s, median ratio {np.median(r):.2f}, "
                   f"10th-90th percentile {np.percentile(r, 10):.2f}-{np.percentile(r, 90):.2f}, "
-                  f"within 0.5-2 on {100 * np.mean((r >= 0.5) & (r <= 2)):.0f} %")
+                  f"within 0.5-2 on {within:.0f} %")
+            rows.append([f"> 1 s, {titles[group]}", what, len(r), round(float(np.median(r)), 2),
+                         f"{np.percentile(r, 10):.2f}-{np.percentile(r, 90):.2f}", round(float(within))])
+            results.figure(f"uncertainty/{group}/{what.split(' (')[0]}/within_0.5-2", round(float(within)), "%",
+                           "higher")
+    for row in short:
+        results.figure(f"uncertainty/short {row[0]}/{row[1]}/within_0.5-2", row[5], "%", "higher")
+    results.table("uncertainty", "actual / predicted RMS error per gap (1 = honest; target 0.5-2)",
+                  ["gaps", "std", "n", "median ratio", "10th-90th percentile", "within 0.5-2 (%)"], rows + short)
+    results.write()
 
 
 def main() -> None:
@@ -290,19 +305,13 @@ def main() -> None:
     if "--uncertainty" in sys.argv:
         uncertainty()
         return
-    import numpy as np
-    import scipy
-
     quick = "--quick" in sys.argv
-    cpu = platform.processor() or ""
-    try:
-        cpu = next(line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    print(f"machine: {cpu}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} "
-          f"(1 min), Python {platform.python_version()}, NumPy {np.__version__}, SciPy {scipy.__version__}, "
-          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')} (EM runs single-threaded)")
-    one_iteration()
+    harness.banner(__file__)
+    print("(EM runs BLAS single-threaded whatever OPENBLAS_NUM_THREADS says)")
+    results = harness.Results(__file__)
+    one = one_iteration()
+    results.figure("em_iteration_1500/cpu_ms", round(one["cpu_ms"], 2), "ms")
+    results.figure("em_iteration_1500/wall_ms", round(one["wall_ms"], 2), "ms")
     sizes = [1000, 10000] if quick else [1000, 10000, 72000]
     rows = []
     for n in sizes:
@@ -316,6 +325,22 @@ def main() -> None:
               f"after EM incl. std {row['after_em_s']:.2f} s), peak RSS {row['peak_mb']:.0f} MB "
               f"(interpreter + data before the fill {row['baseline_mb']:.0f} MB), RMSE {row['rmse_mm']:.1f} mm "
               f"on {row['missing'] * 100:.1f} % missing", flush=True)
+    table = []
+    for row in rows:
+        n = row["frames"]
+        table.append([n, round(row["per_iter_ms"], 1), round(row["per_iter_ms"] / n * 1e3, 2), round(row["fill_s"], 2),
+                      row["n_iter"], round(row["peak_mb"]), round(row["rmse_mm"], 1)])
+        results.figure(f"fill_{n}/seconds", round(row["fill_s"], 2), "s")
+        results.figure(f"fill_{n}/peak_rss", round(row["peak_mb"]), "MB")
+        results.figure(f"fill_{n}/em_iteration_ms", round(row["per_iter_ms"], 1), "ms")
+    results.table("sizes", "whole default `fill_dynammo` of 85_02 tiled to n frames x 41 markers, 5 % missing",
+                  ["frames", "EM iteration ms", "us per frame", "fill s", "EM iterations", "peak RSS MB",
+                   "RMSE mm"], table)
+    results.table("iteration", "one EM iteration, 1,500 frames x 41 markers, H = 16 (target <= 10 ms)",
+                  ["CPU ms", "wall ms", "dense reference ms"],
+                  [[round(one["cpu_ms"], 2), round(one["wall_ms"], 2), round(one["dense_ms"])]])
+    if not quick:
+        results.write()
     if len(rows) >= 2:
         a, b = rows[0], rows[-1]
         print(f"per-iteration time ratio {b['frames']}/{a['frames']} frames: "

@@ -22,28 +22,23 @@ Run from the repository root::
 
 from __future__ import annotations
 
-import os
+import harness
 
-for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+harness.pin_blas()
 
 import argparse  # noqa: E402
 import json  # noqa: E402
-import platform  # noqa: E402
+import os  # noqa: E402
 import resource  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
 from functools import partial  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-CLIP = REPO / "sample_data" / "85_02.c3d"
+CLIP = harness.CLIP_85_02
 
 
 def build_take(frames: int, missing: float, seed: int):
@@ -53,8 +48,7 @@ def build_take(frames: int, missing: float, seed: int):
     from mocapfill.markers import MarkerData
 
     clip = mocapfill.read(CLIP)
-    cycle = np.concatenate([clip.positions, clip.positions[-2:0:-1]])  # no frame repeated at the turns
-    take = np.tile(cycle, (-(-frames // len(cycle)), 1, 1))[:frames]
+    take = harness.palindrome(clip.positions, frames, repeat_turns=False)
     truth = MarkerData(take, clip.labels, clip.rate, clip.units)
     trial = make_occlusions(truth, "dense", trials=1, seed=seed, missing=missing)[0]
     return truth, trial.hidden_mask(*take.shape[:2]) & ~np.isnan(take).any(axis=2)
@@ -114,17 +108,15 @@ def main() -> None:
     parser.add_argument("--overlap", type=int, default=400)
     parser.add_argument("--modes", default="part,windows,windows-2jobs,default")
     parser.add_argument("--worker", default=None, help=argparse.SUPPRESS)
+    harness.add_results_argument(parser)
     args = parser.parse_args()
     if args.worker:
         print(json.dumps(worker(args.worker, args.frames, args.part, args.missing, args.seed, args.window,
                                 args.overlap)))
         return
 
-    load = os.getloadavg()
-    print(f"# bench_long_take  {time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())}")
-    print(f"# machine: {platform.machine()} {os.cpu_count()} CPUs, load {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}, "
-          f"python {platform.python_version()}, numpy {np.__version__}, "
-          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}")
+    harness.banner(__file__)
+    results = harness.Results(__file__, path=args.results, note=args.note)
     print(f"# take: {CLIP.name} forwards and backwards to {args.frames} frames; dense protocol, {args.missing:.0%} "
           f"missing, seed {args.seed}; part = frames 0-{args.part - 1}; windows {args.window} / overlap "
           f"{args.overlap}")
@@ -133,7 +125,8 @@ def main() -> None:
         cmd = [sys.executable, __file__, "--worker", mode, "--frames", str(args.frames), "--part", str(args.part),
                "--missing", str(args.missing), "--seed", str(args.seed), "--window", str(args.window),
                "--overlap", str(args.overlap)]
-        out = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(REPO)})
+        out = subprocess.run(cmd, capture_output=True, text=True,
+                             env={**os.environ, "PYTHONPATH": str(harness.REPO)})
         if out.returncode:
             print(f"{mode}: failed\n{out.stderr[-2000:]}")
             continue
@@ -146,17 +139,33 @@ def main() -> None:
               + (f"; each of the 2 worker processes peaked at {row['worker_peak_mb']:.0f} MB"
                  if mode == "windows-2jobs" else ""), flush=True)
     part = rows.get("part")
-    for mode in ("windows", "windows-2jobs", "default"):
+    table = []
+    for mode in ("part", "windows", "windows-2jobs", "default"):
         row = rows.get(mode)
-        if not row or not part:
+        if not row:
             continue
-        ratio_t = row["seconds"] / part["seconds"]
-        ratio_e = row["median_mm"] / part["median_mm"]
         peak = row["peak_rss_mb"] + (2 * row["worker_peak_mb"] if mode == "windows-2jobs" else 0.0)
+        ratio_t = row["seconds"] / part["seconds"] if part else None
+        ratio_e = row["median_mm"] / part["median_mm"] if part else None
+        table.append([mode, row["frames"], row["windows"], round(row["seconds"], 1),
+                      None if ratio_t is None or mode == "part" else round(ratio_t, 1), round(peak),
+                      round(row["median_mm"], 2), round(row["rmse_mm"], 2),
+                      None if ratio_e is None or mode == "part" else round(ratio_e, 2)])
+        results.figure(f"{mode}/seconds", table[-1][3], "s")
+        results.figure(f"{mode}/peak_rss", table[-1][5], "MB")
+        results.figure(f"{mode}/median_error", table[-1][6], "mm")
+        if mode == "part" or not part:
+            continue
         ok = lambda b: "met" if b else "NOT met"  # noqa: E731
         print(f"# {mode}: time {row['seconds']:.1f} s <= 60 s {ok(row['seconds'] <= 60)}; {ratio_t:.1f}x the part "
               f"<= 16x {ok(ratio_t <= 16)}; peak {peak:.0f} MB (all processes) <= 1536 MB {ok(peak <= 1536)}; "
               f"median error {ratio_e:.2f}x the part's <= 1.5x {ok(ratio_e <= 1.5)}")
+    results.table("modes", f"{CLIP.name} forwards and backwards to {args.frames} frames x 41 markers, "
+                  f"{args.missing:.0%} missing (dense protocol, seed {args.seed}); part = its first {args.part} "
+                  "frames; peak RSS over all processes; errors over the hidden samples",
+                  ["mode", "frames", "windows", "seconds", "x the part's time", "peak MB", "median mm", "RMSE mm",
+                   "median x the part's"], table)
+    results.write()
 
 
 if __name__ == "__main__":

@@ -29,13 +29,13 @@ or, one clip per process, then the pooled tables::
 
 from __future__ import annotations
 
-import os
+import harness
 
-for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+harness.pin_blas()
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
+import os  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
@@ -43,11 +43,6 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "benchmarks"))
-
-from bench_default import machine  # noqa: E402
 from mocapfill import api  # noqa: E402
 from mocapfill.errors import MocapfillError  # noqa: E402
 from mocapfill.evaluation.occlusions import make_occlusions  # noqa: E402
@@ -59,10 +54,11 @@ from mocapfill.guards.plausibility import (body_centre, observed_speed, plausibi
                                             project_plausible)
 from mocapfill.units import length_factor  # noqa: E402
 
-SHARED = REPO.parent / "shared" / "data"
+REPO = harness.REPO
+SHARED = harness.SHARED_DATA
 CLIPS = {
-    "cmu-85_02": (REPO / "sample_data" / "85_02.c3d", {}),
-    "tennis-serve": (REPO / "sample_data" / "kinematics_tennis_serve.c3d", {}),
+    "cmu-85_02": (harness.CLIP_85_02, {}),
+    "tennis-serve": (harness.CLIP_TENNIS, {}),
     "bolero-132_32": (SHARED / "bolero" / "132_32.csv", {"rate": 120.0}),
     "pyorerun-example": (SHARED / "pyorerun" / "example.c3d", {}),
 }
@@ -93,7 +89,12 @@ def _row(err: np.ndarray) -> str:
     return f"{np.nanmedian(err):7.1f} / {np.sqrt(np.nanmean(err ** 2)):6.1f}"
 
 
-def dense(clips: dict, methods: list[str], trials: int, seed: int, dump: str = "", merge: str = "") -> None:
+def _cell(err: np.ndarray) -> str:
+    return f"{np.nanmedian(err):.1f} / {np.sqrt(np.nanmean(err ** 2)):.1f}"
+
+
+def dense(clips: dict, methods: list[str], trials: int, seed: int, results: harness.Results, dump: str = "",
+          merge: str = "") -> None:
     print("\n## dense: median / RMSE of the per-sample 3-D error (mm), pooled over the hidden samples", file=sys.stderr)
     print(f"{trials} trial(s) per clip and density, clips: {', '.join(clips)}", file=sys.stderr)
     pooled = {(m, f): [] for m in methods for f in DENSITIES}
@@ -132,10 +133,24 @@ def dense(clips: dict, methods: list[str], trials: int, seed: int, dump: str = "
                 np.savez(Path(dump) / f"dense-{name}.npz", **store)
     head = "| method | " + " | ".join(f"{f:.0%}" for f in DENSITIES) + " | s per fill |"
     print("\nAll clips pooled:\n" + head + "\n|---|" + "---|" * (len(DENSITIES) + 1), file=sys.stderr)
+    columns = ["method", *(f"{f:.0%}" for f in DENSITIES)]
+    rows = []
     for m in methods:
         cells = " | ".join(_row(np.concatenate(pooled[m, f])) for f in DENSITIES)
         print(f"| {m} | {cells} | {np.median(seconds[m]):.2f} |", file=sys.stderr)
+        rows.append([f"`{m}`", *(_cell(np.concatenate(pooled[m, f])) for f in DENSITIES),
+                     round(float(np.median(seconds[m])), 2)])
+        for f in DENSITIES:
+            err = np.concatenate(pooled[m, f])
+            results.figure(f"dense/{m}/{f:.0%}/median", round(float(np.nanmedian(err)), 1), "mm")
+            results.figure(f"dense/{m}/{f:.0%}/rmse", round(float(np.sqrt(np.nanmean(err ** 2))), 1), "mm")
+    results.table("dense", f"random 0.25-2 s single-marker gaps until 5-30 % of the samples are hidden ({trials} "
+                  f"trial(s) per clip and density; clips: {', '.join(clips)}): median / RMSE of the per-sample 3-D "
+                  "error (mm), pooled over the hidden samples", [*columns, "s per fill"], rows)
     for name in clips:
+        results.table(f"dense_{name}", f"as `dense`, {name} only", columns,
+                      [[f"`{m}`", *(_cell(np.concatenate(per_clip[name, m, f])) for f in DENSITIES)]
+                       for m in methods])
         print(f"\n{name}:\n" + head.replace(" s per fill |", "") + "\n|---|" + "---|" * len(DENSITIES),
               file=sys.stderr)
         for m in methods:
@@ -152,10 +167,11 @@ def dense(clips: dict, methods: list[str], trials: int, seed: int, dump: str = "
             print(f"  {f:.0%}: auto beats every other method on median and RMSE: {not worse}"
                   + (f" (not: {', '.join(worse)})" if worse else ""), file=sys.stderr)
         ratio = np.nanmedian(auto[0.20]) / np.nanmedian(auto[0.05])
+        results.figure("dense/auto/median_20_over_5", round(float(ratio), 2), "x")
         print(f"  auto median at 20 % / at 5 %: {ratio:.2f} (target <= 2)", file=sys.stderr)
 
 
-def segment(clips: dict, methods: list[str], trials: int, seed: int) -> None:
+def segment(clips: dict, methods: list[str], trials: int, seed: int, results: harness.Results) -> None:
     print("\n## segment (250 mm, 3 events of 0.5-3 s): median of the per-trial RMSE (mm)", file=sys.stderr)
     print(f"{trials} trials per clip", file=sys.stderr)
     rmse = {}
@@ -167,10 +183,17 @@ def segment(clips: dict, methods: list[str], trials: int, seed: int) -> None:
         print(f"  {name} done", file=sys.stderr, flush=True)
     print("\n| method | " + " | ".join(clips) + " | all trials |\n|---|" + "---|" * (len(clips) + 1),
           file=sys.stderr)
+    rows = []
     for m in methods:
         cells = " | ".join(f"{np.median(rmse[name, m]):.1f}" for name in clips)
         every = np.concatenate([rmse[name, m] for name in clips])
         print(f"| {m} | {cells} | {np.median(every):.1f} |", file=sys.stderr)
+        rows.append([f"`{m}`", *(round(float(np.median(rmse[name, m])), 1) for name in clips),
+                     round(float(np.median(every)), 1)])
+        results.figure(f"segment/{m}/median_rmse", rows[-1][-1], "mm")
+    results.table("segment", f"a marker and every marker within 250 mm vanish together, 3 events of 0.5-3 s "
+                  f"({trials} trials per clip): median of the per-trial RMSE (mm)", ["method", *clips, "all trials"],
+                  rows)
     if {"auto", "pca", "bolero-sc"} <= set(methods):
         med = {m: np.median(np.concatenate([rmse[name, m] for name in clips])) for m in ("auto", "pca", "bolero-sc")}
         print(f"\nTargets (all trials): auto / pca = {med['auto'] / med['pca']:.2f} (<= 0.6); auto "
@@ -187,7 +210,7 @@ def _captures() -> list[Path]:
     return found
 
 
-def plausibility_scan(only: str = "", all_points: bool = False) -> None:
+def plausibility_scan(results: harness.Results, only: str = "", all_points: bool = False) -> None:
     """``only``: comma-separated substrings of the captures to scan (default all); ``all_points``: fill every point
     as the default did before model points and unlabelled trajectories were kept aside (issue 23)."""
     print("\n## plausibility of the default's fills on every capture with real gaps", file=sys.stderr)
@@ -200,6 +223,7 @@ def plausibility_scan(only: str = "", all_points: bool = False) -> None:
           "forced samples | extent, step / max(own, body) without them | s |\n|---|---|---|---|---|---|---|---|---|",
           file=sys.stderr)
     worst = {"extent": 0.0, "speed": 0.0, "body": 0.0, "extent_free": 0.0, "body_free": 0.0}
+    rows = []
     wanted = [w for w in only.split(",") if w]
     for path in _captures():
         if wanted and not any(w in str(path) for w in wanted):
@@ -251,9 +275,20 @@ def plausibility_scan(only: str = "", all_points: bool = False) -> None:
         print(f"| {rel} | {shape} | {missing.mean():.1%} | {ratios['extent']:.2f} | "
               f"{ratios['speed']:.2f} | {body_ratio:.2f} | {int(forced.sum())} of {int(filled.sum())} | "
               f"{ext_free:.2f}, {body_free:.2f} | {sec:.2f} |", file=sys.stderr, flush=True)
+        rows.append([str(rel), f"{pos.shape[0]} x {pos.shape[1]}", f"{missing.mean():.1%}",
+                     round(float(ratios["extent"]), 2), round(float(ratios["speed"]), 2), round(body_ratio, 2),
+                     f"{int(forced.sum())} of {int(filled.sum())}", f"{ext_free:.2f}, {body_free:.2f}"])
     print(f"\nWorst: extent {worst['extent']:.2f}, step / own {worst['speed']:.2f}, step / max(own, body) "
           f"{worst['body']:.2f}; without forced runs: extent {worst['extent_free']:.2f}, step / max(own, body) "
           f"{worst['body_free']:.2f}", file=sys.stderr)
+    results.table("plausibility", "the default's fills of every capture with real gaps: extent = largest filled "
+                  "distance from the body's median centre / farthest observed (<= 1.1); step = largest step touching a "
+                  "filled sample / its marker's largest observed step (own), or / the larger of that and the body's "
+                  "(<= 1.5); forced = filled samples in runs whose observed ends are too far apart for the bounds",
+                  ["capture", "frames x markers", "missing", "extent", "step / own", "step / max(own, body)",
+                   "forced samples", "extent, step / max(own, body) without them"], rows)
+    results.figure("plausibility/worst_extent_unforced", round(worst["extent_free"], 2), "x")
+    results.figure("plausibility/worst_step_unforced", round(worst["body_free"], 2), "x")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -266,25 +301,31 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--dump", default="", help="directory: save each clip's dense errors there (npz)")
     parser.add_argument("--merge", default="", help="directory: dense tables from the errors --dump runs saved")
     parser.add_argument("--skip", default="", help="comma-separated sections to skip: dense,segment,plausibility")
+    parser.add_argument("--without-auto", action="store_true",
+                        help="run only the named methods (auto is otherwise added first, as the reference)")
     parser.add_argument("--only", default="", help="plausibility: comma-separated substrings of the captures to scan")
     parser.add_argument("--all-points", action="store_true",
                         help="plausibility: fill model points and unlabelled trajectories too (as before issue 23)")
+    harness.add_results_argument(parser)
     args = parser.parse_args(argv)
     methods = list(METHODS) if args.methods == "all" else args.methods.split(",")
-    methods = ["auto"] + [m for m in methods if m != "auto"]
+    if not args.without_auto:
+        methods = ["auto"] + [m for m in methods if m != "auto"]
     skip = set(filter(None, args.skip.split(",")))
-    print(f"# bench_messy ({machine()})", file=sys.stderr)
+    harness.banner(__file__, file=sys.stderr)
+    results = harness.Results(__file__, argv, "-" if args.dump else args.results, note=args.note)
     clips = _clips()
     if args.clips:
         clips = {k: v for k, v in clips.items() if k in args.clips.split(",")}
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()
     if "dense" not in skip:
-        dense(clips, methods, args.trials, args.seed, args.dump, args.merge)
+        dense(clips, methods, args.trials, args.seed, results, args.dump, args.merge)
     if "segment" not in skip:
-        segment(clips, methods, args.segment_trials, args.seed)
+        segment(clips, methods, args.segment_trials, args.seed, results)
     if "plausibility" not in skip:
-        plausibility_scan(args.only, args.all_points)
+        plausibility_scan(results, args.only, args.all_points)
+    results.write()
     print(f"\n{time.perf_counter() - t0:.0f} s in all; load now {os.getloadavg()[0]:.2f}", file=sys.stderr)
 
 

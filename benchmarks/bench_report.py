@@ -14,12 +14,13 @@ from __future__ import annotations
 import argparse
 import glob
 import os
-import platform
 import re
 import tempfile
 import time
 import warnings
 from pathlib import Path
+
+import harness
 
 import numpy as np
 
@@ -30,16 +31,13 @@ from mocapfill.pipeline import FillSettings, fill_capture, write_fill_report
 from mocapfill.report.capture_html import write_capture_report
 from mocapfill.summary import summarize
 
-ROOT = Path(__file__).resolve().parents[1]
 MB = 1e6
 
 
 def tiled(data, n_frames: int, missing: float, seed: int = 0):
     """``data`` played forwards, backwards, forwards ... up to ``n_frames`` frames, with gaps of 0.5-2 s hidden at
     random (``seed``) until ``missing`` percent of the samples are missing."""
-    both = np.concatenate([data.positions, data.positions[::-1]])
-    reps = -(-n_frames // len(both))
-    pos = np.tile(both, (reps, 1, 1))[:n_frames].copy()
+    pos = harness.palindrome(data.positions, n_frames, repeat_turns=True)
     rng = np.random.default_rng(seed)
     hidden = np.zeros(pos.shape[:2], dtype=bool)
     target = missing / 100 * hidden.size
@@ -88,16 +86,15 @@ def main() -> None:
     parser.add_argument("--long-method", default=None, help="fill method of the long take (default: --method)")
     parser.add_argument("--skip-long", action="store_true")
     parser.add_argument("extra", nargs="*", help="more captures to measure (after the bundled samples)")
+    harness.add_results_argument(parser)
     args = parser.parse_args()
     warnings.simplefilter("ignore")
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, load average {load:.1f} "
-          f"(1 min) at the start, Python {platform.python_version()}, NumPy {np.__version__}; fill method "
-          f"{args.method}")
-    paths = sorted(glob.glob(str(ROOT / "sample_data" / "*.c3d"))) + list(args.extra)
+    harness.banner(__file__)
+    print(f"# fill method {args.method}")
+    paths = sorted(glob.glob(str(harness.SAMPLE_DATA / "*.c3d"))) + list(args.extra)
     captures = [(Path(p).name, read(p)) for p in paths]
     if not args.skip_long:
-        base = read(str(ROOT / "sample_data" / "85_02.c3d"))
+        base = read(str(harness.CLIP_85_02))
         captures.append((f"85_02 tiled, {args.long_frames} frames, {args.long_missing:g} % hidden",
                          tiled(base, args.long_frames, args.long_missing)))
     rows = []
@@ -118,6 +115,21 @@ def main() -> None:
               f"{r['info_mb']:.2f} |")
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"\nload average {load:.1f} (1 min) at the end")
+    results = harness.Results(__file__, path=args.results, note=args.note)
+    table = []
+    for r in rows:
+        shown = "all" if r["stride"] == "1" else f"every {r['stride']}th"
+        table.append([r["name"], f"{r['frames']} x {r['markers']}", round(r["missing"], 1), round(r["report_s"], 2),
+                      round(r["report_mb"], 2), round(r["player_mb"], 2), shown, round(r["info_s"], 2),
+                      round(r["info_mb"], 2)])
+        results.figure(f"{r['name']}/fill_report", table[-1][4], "MB")
+        results.figure(f"{r['name']}/info_report", table[-1][8], "MB")
+    results.table("reports", "HTML report size and build time (the fill not counted): the fill report "
+                  "(`write_fill_report`: bones, JSON record, plots, player) and the raw capture's page "
+                  "(`info --report`)",
+                  ["capture", "frames x markers", "missing %", "fill report s", "fill report MB", "of it the player MB",
+                   "frames shown", "info report s", "info report MB"], table)
+    results.write()
 
 
 if __name__ == "__main__":

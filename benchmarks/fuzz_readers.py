@@ -27,15 +27,14 @@ Run from the repository root::
 
 from __future__ import annotations
 
-import os
+import harness
 
-for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+harness.pin_blas()
 
 import argparse  # noqa: E402
 import io  # noqa: E402
 import multiprocessing as mp  # noqa: E402
-import platform  # noqa: E402
+import os  # noqa: E402
 import queue  # noqa: E402
 import re  # noqa: E402
 import sys  # noqa: E402
@@ -47,14 +46,10 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
-
 from mocapfill.errors import MocapfillError  # noqa: E402
 
-TEST_DATA = REPO / "tests" / "data"
-SAMPLE_DATA = REPO / "sample_data"
+TEST_DATA = harness.REPO / "tests" / "data"
+SAMPLE_DATA = harness.SAMPLE_DATA
 
 
 def seed_files() -> list[tuple[str, str, bytes]]:
@@ -299,12 +294,13 @@ def main(argv=None) -> int:
     parser.add_argument("--jobs", type=int, default=1, help="worker processes")
     parser.add_argument("--timeout", type=float, default=20.0, help="seconds a case may take")
     parser.add_argument("--save", type=Path, default=None, help="directory for the bytes of crashing cases")
+    harness.add_results_argument(parser)
     args = parser.parse_args(argv)
 
     seeds = seed_files()
+    harness.banner(__file__)
     print(f"fuzz_readers: {args.n} cases from {len(seeds)} seed files, seed {args.seed}, {args.jobs} worker(s), "
-          f"{args.timeout:g} s per case; python {platform.python_version()}, numpy {np.__version__}, "
-          f"load average {os.getloadavg()[0]:.2f}", flush=True)
+          f"{args.timeout:g} s per case", flush=True)
     for name, fmt, raw in seeds:
         print(f"  seed {name} ({fmt}, {len(raw):,} bytes)")
     workers = [Worker(args.seed) for _ in range(max(1, args.jobs))]
@@ -360,6 +356,18 @@ def main(argv=None) -> int:
     c = counts
     print(f"{'all':<12} {sum(c.values()):>6} {c['ok']:>6} {c['rejected']:>9} {c['crash']:>6} {c['hang']:>5}")
     print(f"crashes: {c['crash']}, hangs: {c['hang']}")
+    results = harness.Results(__file__, argv, args.results, note=args.note)
+    OUTCOMES = ("ok", "rejected", "crash", "hang")  # noqa: N806
+    results.table("outcomes", f"{sum(c.values())} mutated files (seed {args.seed}), read, filled with `linear` and "
+                  f"written in every writable format; {args.timeout:g} s a case at most",
+                  ["format", "cases", "ok", "rejected", "crash", "hang"],
+                  [[fmt, sum(by_format[fmt].values()), *(by_format[fmt][k] for k in OUTCOMES)]
+                   for fmt in sorted(by_format)] + [["all", sum(c.values()), c["ok"], c["rejected"], c["crash"],
+                                                     c["hang"]]])
+    results.figure("crashes", c["crash"], "cases")
+    results.figure("hangs", c["hang"], "cases")
+    results.figure("slowest_case", round(slowest[0], 2), "s")
+    results.write()
     return 1 if c["crash"] or c["hang"] else 0
 
 

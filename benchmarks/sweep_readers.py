@@ -1,6 +1,6 @@
 """What the readers find in every capture of ../shared/data: markers, model points, unlabelled trajectories, held runs.
 
-    python benchmarks/sweep_readers.py [--data ../shared/data] [--json benchmarks/results/sweep_readers.json]
+    python benchmarks/sweep_readers.py [--data ../shared/data] [--results benchmarks/results/sweep_readers.json]
 
 Prints one row per file (markers / model points / unlabelled / held, zero and edge runs / notes that concern labels
 or the parameter chain) and checks the issue's rules: no parameter-chain note anywhere, no held or zero sample in
@@ -10,22 +10,15 @@ the complete captures and the static trials (:data:`NO_HELD`).  Exits 1 when a r
 from __future__ import annotations
 
 import argparse
-import datetime as _dt
-import json
-import os
-import platform
 import sys
 import time
 import warnings
 from pathlib import Path
 
-import numpy as np
+import harness
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-import mocapfill  # noqa: E402
-from mocapfill.guards.held import find_held, held_summary  # noqa: E402
+import mocapfill
+from mocapfill.guards.held import find_held, held_summary
 
 #: Tables that are not captures.
 NOT_CAPTURES = {"bolero/authors-code-results.csv"}
@@ -97,13 +90,14 @@ def check(rows: list[dict]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", default=str(ROOT.parent / "shared" / "data"))
-    parser.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "sweep_readers.json"))
+    parser.add_argument("--data", default=str(harness.SHARED_DATA))
+    harness.add_results_argument(parser)
     args = parser.parse_args(argv)
     data_dir = Path(args.data)
     if not data_dir.is_dir():
         print(f"no data folder {data_dir}", file=sys.stderr)
         return 2
+    harness.banner(__file__)
     rows = [sweep_file(data_dir / rel, rel) for rel in captures(data_dir)]
     head = f"{'file':<70} {'mark':>5} {'model':>5} {'unlab':>5} {'held':>4} {'zero':>4} {'edge':>4}  notes"
     print(head)
@@ -123,31 +117,20 @@ def main(argv: list[str] | None = None) -> int:
           f"{sum(1 for r in rows if r.get('chain_notes'))} files with a parameter-chain note")
     for failure in failures:
         print(f"FAIL {failure}")
-    result = {
-        "script": "sweep_readers.py",
-        "command": "python benchmarks/sweep_readers.py",
-        "machine": f"{platform.machine()} {os.cpu_count()} CPUs, python {platform.python_version()}, "
-                   f"numpy {np.__version__}",
-        "date": _dt.date.today().isoformat(),
-        "tables": {"files": {
-            "title": "What the readers find in ../shared/data (held runs on the markers only)",
-            "columns": ["file", "markers", "model points", "unlabelled", "held runs", "zero runs", "edge runs",
-                        "held samples", "notes"],
-            "rows": [[r["file"], r.get("markers"), r.get("model"), r.get("unlabelled"), r.get("held_runs"),
-                      r.get("zero_runs"), r.get("edge_runs"), r.get("held_samples"),
-                      "; ".join(r.get("chain_notes", []) + r.get("label_notes", [])) or r.get("error", "")]
-                     for r in rows]}},
-        "figures": {"files": {"value": len(rows), "unit": "files", "better": "higher"},
-                    "chain_notes": {"value": sum(1 for r in rows if r.get("chain_notes")), "unit": "files",
-                                    "better": "lower"},
-                    "held_in_complete_or_static": {"value": sum(r.get("held_samples", 0) for r in rows
-                                                                if r["file"].startswith(NO_HELD)),
-                                                   "unit": "samples", "better": "lower"},
-                    "rule_failures": {"value": len(failures), "unit": "failures", "better": "lower"}},
-    }
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(result, indent=1) + "\n")
+    results = harness.Results(__file__, argv, args.results, note=args.note)
+    results.table("files", "What the readers find in ../shared/data (held runs on the markers only)",
+                  ["file", "markers", "model points", "unlabelled", "held runs", "zero runs", "edge runs",
+                   "held samples", "notes"],
+                  [[r["file"], r.get("markers"), r.get("model"), r.get("unlabelled"), r.get("held_runs"),
+                    r.get("zero_runs"), r.get("edge_runs"), r.get("held_samples"),
+                    "; ".join(r.get("chain_notes", []) + r.get("label_notes", [])) or r.get("error", "")]
+                   for r in rows])
+    results.figure("files", len(rows), "files", "higher")
+    results.figure("chain_notes", sum(1 for r in rows if r.get("chain_notes")), "files")
+    results.figure("held_in_complete_or_static", sum(r.get("held_samples", 0) for r in rows
+                                                     if r["file"].startswith(NO_HELD)), "samples")
+    results.figure("rule_failures", len(failures), "failures")
+    results.write()
     return 1 if failures else 0
 
 

@@ -22,11 +22,15 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import bench_bolero as bench  # noqa: E402
+import harness  # noqa: E402
 
 from mocapfill.bones import estimate_bones  # noqa: E402
 from mocapfill.io import read  # noqa: E402
 from mocapfill.methods.bolero import fill_bolero_hc, fill_bolero_sc  # noqa: E402
 from mocapfill.methods.dynammo import fill_dynammo  # noqa: E402
+
+#: Accuracy thresholds on real captures: not in a bare `pytest`; `pytest -m accuracy` (and .ci/run) runs them.
+pytestmark = pytest.mark.accuracy
 
 TRIAL = 1
 HC_MAX_ITER = 40
@@ -40,7 +44,7 @@ def results(sample_data):
     for name, protocol, trial in CASES:
         data = read(sample_data / name)
         truth = data.positions
-        occluded, hidden = bench.make_trial(truth, list(data.labels), protocol, seed=1000 + trial)
+        occluded, hidden = harness.paper_trial(truth, list(data.labels), protocol, seed=1000 + trial)
         bones = estimate_bones(occluded, units=data.units, labels=data.labels)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")

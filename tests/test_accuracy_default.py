@@ -27,6 +27,9 @@ import pytest
 import mocapfill
 from mocapfill.evaluation import evaluate
 
+#: Accuracy thresholds on real captures: not in a bare `pytest`; `pytest -m accuracy` (and .ci/run) runs them.
+pytestmark = pytest.mark.accuracy
+
 TRIALS = 20
 SEED = 0
 

@@ -15,6 +15,9 @@ import pytest
 
 import mocapfill
 
+#: Accuracy thresholds on real captures: not in a bare `pytest`; `pytest -m accuracy` (and .ci/run) runs them.
+pytestmark = pytest.mark.accuracy
+
 TRIALS = 7
 SEED = 0
 

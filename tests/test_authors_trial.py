@@ -10,8 +10,12 @@ import csv
 import warnings
 
 import numpy as np
+import pytest
 
 from mocapfill.methods.dynammo import fill_dynammo
+
+#: Accuracy thresholds on real captures: not in a bare `pytest`; `pytest -m accuracy` (and .ci/run) runs them.
+pytestmark = pytest.mark.accuracy
 
 
 def authors_rmse(folder, clip, protocol, trial, method):

@@ -14,25 +14,14 @@ from mocapfill.methods import DEFAULT_METHOD, get_method
 from mocapfill.methods.auto import fill_auto
 from mocapfill.bones.refinement import refine_bones
 from mocapfill.engines.local_pca import edge_shift, fill_local_pca, kabsch_rotations
+from synthetic import moving_body, rot_x, rot_z
 
 
 def tumbling_body(n_frames: int = 300, n_markers: int = 9, seed: int = 2) -> np.ndarray:
     """A rigid marker cloud (mm) tumbling through full turns about two axes while it travels: a linear map in the
     laboratory frame cannot follow it, one in the body's frame can.  (n_frames, n_markers, 3)."""
-    rng = np.random.default_rng(seed)
-    body = rng.normal(scale=120.0, size=(n_markers, 3))
-    t = np.arange(n_frames) / 100.0
-    a, b = 2 * np.pi * 0.4 * t, 2 * np.pi * 0.25 * t
-    rz = np.zeros((n_frames, 3, 3))
-    rz[:, 0, 0] = rz[:, 1, 1] = np.cos(a)
-    rz[:, 0, 1], rz[:, 1, 0] = -np.sin(a), np.sin(a)
-    rz[:, 2, 2] = 1
-    rx = np.zeros((n_frames, 3, 3))
-    rx[:, 1, 1] = rx[:, 2, 2] = np.cos(b)
-    rx[:, 1, 2], rx[:, 2, 1] = -np.sin(b), np.sin(b)
-    rx[:, 0, 0] = 1
-    rot = rx @ rz
-    return np.einsum("fij,mj->fmi", rot, body) + np.stack([300 * t, 0 * t, 1000 + 0 * t], axis=1)[:, None, :]
+    return moving_body(n_frames, n_markers, seed=seed, spread=120.0, rate=100.0,
+                       rotation=lambda t: rot_x(2 * np.pi * 0.25 * t) @ rot_z(2 * np.pi * 0.4 * t))
 
 
 def test_auto_is_the_default_and_registered():

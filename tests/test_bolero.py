@@ -11,6 +11,7 @@ from mocapfill.bones import BoneSet
 from mocapfill.errors import MethodError
 from mocapfill.methods.bolero import fill_bolero_hc, fill_bolero_sc
 from mocapfill.methods.dynammo import fill_dynammo
+from synthetic import moving_body, rot_x, rot_z
 
 # Two rigid segments of three markers each, joined at a hinge, plus a free marker; the whole body drifts.
 SEG_A = np.array([[0.0, 0.0, 0.0], [120.0, 10.0, 0.0], [60.0, 80.0, 20.0]])
@@ -20,18 +21,15 @@ BONES = np.array([[0, 1], [0, 2], [1, 2], [3, 4], [3, 5], [4, 5], [2, 3]])
 
 def _body(n_frames=120):
     t = np.arange(n_frames) / 40.0
-    angle = 0.8 * np.sin(2 * np.pi * 0.7 * t)
-    yaw = 0.3 * np.sin(2 * np.pi * 0.2 * t)
-    pos = np.zeros((n_frames, 7, 3))
-    for f in range(n_frames):
-        ca, sa, cy, sy = np.cos(angle[f]), np.sin(angle[f]), np.cos(yaw[f]), np.sin(yaw[f])
-        hinge = np.array([[1, 0, 0], [0, ca, -sa], [0, sa, ca]])
-        turn = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
-        shift = np.array([300 * t[f], 20 * np.sin(3 * t[f]), 900.0])
-        pos[f, :3] = SEG_A @ turn.T + shift
-        pos[f, 3:6] = (SEG_B @ hinge.T) @ turn.T + shift
-        pos[f, 6] = shift + [50 * np.cos(5 * t[f]), 400, 50 * np.sin(4 * t[f])]
-    return pos
+
+    def path(t):
+        return np.stack([300 * t, 20 * np.sin(3 * t), 900.0 + 0 * t], axis=1)
+
+    segments = moving_body(n_frames, body=np.vstack([SEG_A, SEG_B]), rate=40.0, path=path,
+                           hinge=(slice(3, 6), lambda t: rot_x(0.8 * np.sin(2 * np.pi * 0.7 * t)), [0, 0, 0]),
+                           rotation=lambda t: rot_z(0.3 * np.sin(2 * np.pi * 0.2 * t)))
+    free = path(t) + np.stack([50 * np.cos(5 * t), 400 + 0 * t, 50 * np.sin(4 * t)], axis=1)  # no bone
+    return np.concatenate([segments, free[:, None]], axis=1)
 
 
 def _bones(pos):

@@ -10,6 +10,7 @@ import pytest
 import mocapfill
 from mocapfill.bones import BoneSet, estimate_bones, load_bones, pair_scores, save_bones
 from mocapfill.errors import FormatError, MocapfillError
+from synthetic import moving_body, rot_z
 
 HEAD = {"LFHD", "RFHD", "LBHD", "RBHD"}
 PELVIS = {"LFWT", "RFWT", "LBWT", "RBWT"}
@@ -120,14 +121,9 @@ def _two_bodies(seed: int, n_frames: int = 300) -> np.ndarray:
     """Two rigid 4-marker bodies joined at a rotating hinge, plus 0.5 mm noise; shape (n_frames, 8, 3) in mm."""
     rng = np.random.default_rng(seed)
     body = rng.normal(0, 60, (4, 3))
-    t = np.linspace(0, 4 * np.pi, n_frames)
-    out = np.empty((n_frames, 8, 3))
-    for f, angle in enumerate(t):
-        c, s = np.cos(angle), np.sin(angle)
-        rot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
-        out[f, :4] = body + [f * 0.5, 0, 0]
-        out[f, 4:] = (body + [200, 0, 0]) @ rot.T + [f * 0.5 + 200, 0, 0]
-    return out + rng.normal(0, 0.5, out.shape)
+    return moving_body(n_frames, rng=rng, body=np.vstack([body, body + [200, 0, 0]]), rate=1.0, noise=0.5,
+                       hinge=(slice(4, 8), lambda t: rot_z(t * 4 * np.pi / (n_frames - 1)), [200, 0, 0]),
+                       path=lambda t: np.stack([0.5 * t, 0 * t, 0 * t], axis=1))
 
 
 def test_synthetic_rigid_bodies():

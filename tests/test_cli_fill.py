@@ -135,7 +135,16 @@ def test_bones_option(runner, sample_data, tmp_path):
     assert result.exit_code == 0, result.output
     doc = json.loads(report.read_text())
     assert doc["summary"]["settings"]["bones"] == str(bones_path)
-    assert doc["bones"]
+    # the report checks every bone of the file, and lists exactly the knee's bones (the filled marker) with the
+    # frames it was filled in and a length error the soft constraints kept small
+    assert doc["bones"]["total"] == len(bones)
+    knee_bones = {frozenset((data.labels[a], data.labels[b])) for a, b in bones.pairs if knee in (a, b)}
+    touching = doc["bones"]["touching_filled"]
+    assert knee_bones and {frozenset(t["markers"]) for t in touching} == knee_bones
+    for record in touching:
+        assert record["filled_frames"] == 100
+        assert 0 <= record["mean_error"] <= record["max_error"] < 0.5 * record["length"]
+        assert record["mean_error"] < 10.0  # mm
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
     result = runner.invoke(cli, ["fill", str(source), str(tmp_path / "o.c3d"), "--bones", str(bad)])
@@ -208,4 +217,15 @@ def test_report_checks_bones_estimated_from_the_observed_frames(runner, gappy, t
     result = runner.invoke(cli, ["fill", str(gappy), str(tmp_path / "o.c3d"), "-m", "spline", "--report",
                                  str(report), "-q"])
     assert result.exit_code == 0, result.output
-    assert json.loads(report.read_text())["bones"]
+    checked = json.loads(report.read_text())["bones"]
+    # the bones are the ones the input's observed frames give, and the report lists each that touches a filled
+    # sample, with the frames where either end was filled
+    from mocapfill.bones import estimate_bones
+
+    data = mocapfill.read(gappy)
+    bones = estimate_bones(data.positions, units=data.units, labels=data.labels)
+    assert checked["total"] == len(bones) > 0
+    missing = data.missing
+    expected = {frozenset((data.labels[a], data.labels[b])): int((missing[:, a] | missing[:, b]).sum())
+                for a, b in bones.pairs if (missing[:, a] | missing[:, b]).any()}
+    assert expected and {frozenset(t["markers"]): t["filled_frames"] for t in checked["touching_filled"]} == expected

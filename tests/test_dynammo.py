@@ -263,6 +263,7 @@ def test_convergence_warning_at_the_cap():
         run_dynammo(with_gaps(P), hidden=3, max_iter=2, tol=0.0)
 
 
+@pytest.mark.accuracy
 def test_beats_spline_on_real_capture(sample_data):
     import mocapfill
 

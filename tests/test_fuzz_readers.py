@@ -5,6 +5,7 @@ worker process with a time limit) is the benchmark."""
 from __future__ import annotations
 
 import importlib.util
+import sys
 from pathlib import Path
 
 import pytest
@@ -12,6 +13,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 _PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "fuzz_readers.py"
+if str(_PATH.parent) not in sys.path:  # the script imports the benchmarks' harness, as when run from benchmarks/
+    sys.path.insert(0, str(_PATH.parent))
 
 
 @pytest.fixture(scope="module")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+import pytest
 
 from mocapfill.engines import gap_uncertainty as gu
 from mocapfill.methods.dynammo import run_dynammo
@@ -86,6 +87,7 @@ def test_dynammo_std_follows_the_error_on_a_long_gap():
         assert 0.2 < err / std < 5
 
 
+@pytest.mark.accuracy
 def test_honest_on_the_authors_two_marker_trial_where_the_model_was_8x_overconfident(authors_trial):
     """132_32 P2 3: knee and shin hidden for 270 frames; DynaMMo misses by ~94 mm where its posterior said ~11."""
     data, occluded, hidden = authors_trial("132_32", "P2", 3)

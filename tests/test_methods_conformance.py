@@ -22,6 +22,7 @@ import pytest
 
 import mocapfill
 from mocapfill.methods import METHODS
+from synthetic import moving_body, rot_z
 
 #: Methods allowed to leave whole-body blackout frames unfilled (name -> reason).  None today.
 BLACKOUT_EXEMPT: dict[str, str] = {}
@@ -44,16 +45,10 @@ def _fill(positions: np.ndarray, name: str, *, seed=0, rate=60.0, units="mm", la
 
 def synthetic(n_frames: int = 90, n_markers: int = 8, seed: int = 3) -> np.ndarray:
     """A rigid marker cloud walking and turning, in mm: shape (n_frames, n_markers, 3), complete."""
-    rng = np.random.default_rng(seed)
-    body = rng.normal(scale=150.0, size=(n_markers, 3))
-    t = np.arange(n_frames) / 60.0
-    angle = 0.8 * np.sin(2 * np.pi * 0.5 * t)
-    rot = np.zeros((n_frames, 3, 3))
-    rot[:, 0, 0] = rot[:, 1, 1] = np.cos(angle)
-    rot[:, 0, 1], rot[:, 1, 0] = -np.sin(angle), np.sin(angle)
-    rot[:, 2, 2] = 1.0
-    root = np.stack([800 * t, 100 * np.sin(2 * np.pi * 0.7 * t), 900 + 30 * np.sin(2 * np.pi * 1.3 * t)], axis=1)
-    return np.einsum("fij,mj->fmi", rot, body) + root[:, None, :]
+    return moving_body(n_frames, n_markers, seed=seed, rate=60.0,
+                       rotation=lambda t: rot_z(0.8 * np.sin(2 * np.pi * 0.5 * t)),
+                       path=lambda t: np.stack([800 * t, 100 * np.sin(2 * np.pi * 0.7 * t),
+                                                900 + 30 * np.sin(2 * np.pi * 1.3 * t)], axis=1))
 
 
 def with_gaps(truth: np.ndarray) -> np.ndarray:

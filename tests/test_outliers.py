@@ -8,6 +8,7 @@ import pytest
 import mocapfill
 from mocapfill.errors import MocapfillError
 from mocapfill.guards.outliers import reject_outliers, shifted_runs
+from synthetic import moving_body, rot_x, rot_z
 
 
 @pytest.fixture(scope="module")
@@ -67,6 +68,7 @@ def test_clean_capture_loses_nothing(cmu):
     np.testing.assert_array_equal(result.positions, cmu.positions)
 
 
+@pytest.mark.accuracy
 @pytest.mark.parametrize("seed", [0, 1, 2, 3, 4])
 def test_detects_the_papers_corruption(cmu, seed):
     corrupted, truth = corrupt(cmu.positions, seed)
@@ -79,6 +81,7 @@ def test_detects_the_papers_corruption(cmu, seed):
     np.testing.assert_array_equal(result.positions[keep], corrupted[keep])
 
 
+@pytest.mark.accuracy
 # seeds 1, 9, 15, 16 of the benchmark miss one stretch each (recall 0.86-0.93), see benchmarks/bench_distances.py
 @pytest.mark.parametrize("seed", [0, 2, 3, 4])
 def test_detects_persistent_shifts(cmu, seed):
@@ -88,6 +91,7 @@ def test_detects_persistent_shifts(cmu, seed):
     assert precision >= 0.95 and recall >= 0.95, (precision, recall)
 
 
+@pytest.mark.accuracy
 # seeds 5, 6, 12 of the benchmark fall short (overlapping swaps, one during the flip)
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
 def test_detects_label_swaps(cmu, seed):
@@ -175,15 +179,9 @@ def test_units_scale_only_the_margin_floor(cmu):
 
 def _rigid_cloud(seed: int, n_frames: int = 200, n_markers: int = 6) -> np.ndarray:
     """One rigid body tumbling and translating, 0.2 mm noise; (n_frames, n_markers, 3) in mm."""
-    rng = np.random.default_rng(seed)
-    body = rng.normal(0, 80, (n_markers, 3))
-    out = np.empty((n_frames, n_markers, 3))
-    for t in range(n_frames):
-        a, b = 0.05 * t, 0.03 * t
-        rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
-        rx = np.array([[1, 0, 0], [0, np.cos(b), -np.sin(b)], [0, np.sin(b), np.cos(b)]])
-        out[t] = body @ (rz @ rx).T + [2.0 * t, 0, 1000]
-    return out + rng.normal(0, 0.2, out.shape)
+    return moving_body(n_frames, n_markers, seed=seed, spread=80.0, rate=1.0, noise=0.2,
+                       rotation=lambda t: rot_z(0.05 * t) @ rot_x(0.03 * t),
+                       path=lambda t: np.stack([2.0 * t, 0 * t, 1000 + 0 * t], axis=1))
 
 
 def test_the_thrown_marker_goes_not_its_partners():

@@ -19,11 +19,13 @@ from mocapfill.methods.auto import MIN_SPEED_MM, fill_auto, mix_by_uncertainty
 from mocapfill.guards.plausibility import (body_centre, implausible, observed_speed, plausibility,
                                             project_plausible)
 from mocapfill.units import length_factor
+from synthetic import moving_body
 
 GAPPY = [("sample_data", "kinematics_tennis_serve_nan.c3d"), ("sample_data", "markers_analogs.c3d"),
          ("test_data", "ADemo1_rewrite_c3d_pc_float.c3d"), ("test_data", "kinematics_racing_full.c3d")]
 
 
+@pytest.mark.accuracy
 @pytest.mark.parametrize("where,name", GAPPY)
 def test_default_fills_of_real_gaps_are_plausible(where, name, request):
     data = mocapfill.read(request.getfixturevalue(where) / name)
@@ -54,6 +56,7 @@ def test_plausibility_measures_extent_and_speed():
     assert ratios["extent"] > 2.0 and ratios["speed"] > 10.0
 
 
+@pytest.mark.accuracy
 def test_dense_gaps_learn_from_incomplete_frames(sample_data):
     # 20 % of the CMU clip's samples hidden in 0.25-2 s single-marker gaps leaves 2 % of the frames complete; the
     # local models then keep the nearest observed neighbours (measured: median / RMSE 9.6 / 26 mm; 169 / 331 mm
@@ -71,9 +74,9 @@ def test_dense_gaps_learn_from_incomplete_frames(sample_data):
 
 def _circling(n_markers: int = 9, n_frames: int = 300) -> np.ndarray:
     """Markers on a line circling a point: (n_frames, n_markers, 3), 5 mm per frame."""
-    t = np.arange(n_frames)[:, None]
-    k = np.arange(n_markers)[None, :] - n_markers // 2
-    return np.stack([np.sin(t / 20) * 100 + k * 20, np.cos(t / 20) * 100 + 0 * k, 0.0 * t + k], axis=2)
+    k = np.arange(n_markers) - n_markers // 2
+    return moving_body(n_frames, body=np.stack([k * 20, 0 * k, k], axis=1), rate=1.0,
+                       path=lambda t: np.stack([np.sin(t / 20) * 100, np.cos(t / 20) * 100, 0 * t], axis=1))
 
 
 def test_projection_keeps_the_bounds_and_moves_little():

@@ -8,14 +8,16 @@ from scipy.signal import savgol_filter
 
 from mocapfill.errors import MocapfillError
 from mocapfill.guards.smooth import default_window, savgol_smooth
+from synthetic import moving_body
 
 
 def _noisy(seed: int = 0, n_frames: int = 200, n_markers: int = 3) -> tuple[np.ndarray, np.ndarray]:
-    rng = np.random.default_rng(seed)
-    t = np.arange(n_frames)[:, None, None] / 100.0
-    clean = np.concatenate([np.sin(2 * np.pi * t * (1 + k)) * 100 + k for k in range(3)], axis=2)
-    clean = np.repeat(clean, n_markers, axis=1)
-    return clean, clean + rng.normal(0, 1.0, clean.shape)
+    def body(noise):
+        return moving_body(n_frames, seed=seed, body=np.zeros((n_markers, 3)), rate=100.0, noise=noise,
+                           path=lambda t: np.stack([np.sin(2 * np.pi * t * (1 + k)) * 100 + k for k in range(3)],
+                                                   axis=1))
+
+    return body(0.0), body(1.0)
 
 
 def test_reduces_noise_and_keeps_shape():

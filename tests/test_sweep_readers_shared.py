@@ -5,6 +5,7 @@ trajectories never filled unless named.  Skips without ../shared/data."""
 from __future__ import annotations
 
 import importlib.util
+import sys
 import warnings
 from pathlib import Path
 
@@ -17,6 +18,8 @@ from mocapfill.pipeline import FillSettings, fill_capture
 pytestmark = pytest.mark.shared
 
 _PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "sweep_readers.py"
+if str(_PATH.parent) not in sys.path:  # the script imports the benchmarks' harness, as when run from benchmarks/
+    sys.path.insert(0, str(_PATH.parent))
 
 
 def _sweep():

@@ -61,6 +61,7 @@ def test_windowed_linear_equals_the_whole_linear_fill(long_take):
     np.testing.assert_allclose(win.positions, whole.positions, rtol=0, atol=1e-9)
 
 
+@pytest.mark.accuracy
 def test_windowed_pca_is_as_accurate_and_keeps_per_gap_info(long_take):
     pos = _with_gaps(long_take, 1)
     missing = np.isnan(pos).any(axis=2)

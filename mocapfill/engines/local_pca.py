@@ -241,6 +241,101 @@ def observed_groups(missing: np.ndarray, m: int, frames: np.ndarray, near: np.nd
     return out
 
 
+def _edge_samples(info: dict, m: int, group: np.ndarray, train: np.ndarray, est_train: np.ndarray,
+                  std_train: np.ndarray, width: int) -> None:
+    """Store the reconstruction at the training frames within ``width`` frames of each run of ``group`` (marker
+    ``m``) in ``info["edge_estimate"]`` / ``info["edge_std"]``; est_train (n_train, 3), std_train (n_train,)."""
+    from ..gaps import runs
+
+    n_frames = info["edge_std"].shape[0]
+    mark = np.zeros(n_frames, dtype=bool)
+    gap = np.zeros(n_frames, dtype=bool)
+    gap[group] = True
+    for start, length in runs(gap):
+        mark[max(start - width, 0):start] = True
+        mark[start + length:start + length + width] = True
+    keep = mark[train]
+    info["edge_estimate"][train[keep], m] = est_train[keep]
+    info["edge_std"][train[keep], m] = std_train[keep]
+
+
+def marker_weights(dist: np.ndarray, m: int, scales: tuple[float, ...], align_scale: float, missing_weight: float
+                   ) -> tuple[list[np.ndarray], np.ndarray]:
+    """Gaussian weights (n_markers,) of every marker for target ``m``, one array per width in ``scales`` (the target
+    itself weighs ``missing_weight``), and the alignment weights; dist (n_markers,) mean distances to ``m``."""
+    weights = []
+    for width in scales:
+        w = gaussian_weights(dist, width)
+        w[m] = missing_weight
+        weights.append(w)
+    return weights, gaussian_weights(dist, align_scale)
+
+
+def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np.ndarray, train: np.ndarray,
+                weights: list[np.ndarray], align_weight: np.ndarray, dist: np.ndarray, scales: tuple[float, ...], *,
+                reach: float, normalise: bool, folds: int, knn: int):
+    """One local model of marker ``m``: fitted on ``train`` frames, evaluated on ``train`` then ``group`` frames.
+
+    positions (n_frames, n_markers, 3) finite at ``m`` on ``train`` and at ``predictors`` on every frame used;
+    weights one (n_markers,) array per width in ``scales``; align_weight / dist (n_markers,).  Returns the
+    reconstruction (n_train + n_group, 3) in the laboratory frame, the leverage (n_train + n_group,), the mixed
+    cross-validated RMS, components and RMS per width, the anchor markers of the local frame and the sensitivity
+    (n_markers,): an error of variance v per coordinate in marker j's sample adds sensitivity[j] v to the variance
+    per coordinate of the reconstruction (rotations and the nearest-pose correction left out).
+    """
+    n_markers = positions.shape[1]
+    needed = np.concatenate([[m], predictors])
+    anchors = _anchor_set(predictors, align_weight)
+    used = np.concatenate([train, group])
+    n_train = len(train)
+    centre, rot = local_frames(positions, used, anchors, align_weight[anchors], np.arange(n_train))
+    local = np.full((len(used), n_markers, 3), np.nan)
+    local[:, needed] = np.einsum("tjc,tcd->tjd", positions[used][:, needed] - centre[:, None, :], rot)
+    flat = local.reshape(len(used), 3 * n_markers)
+    tr = np.arange(n_train)
+    target = np.array([m])
+    ests, rmss, levs, ks, sens = [], [], [], [], []
+    for w, width in zip(weights, scales):
+        # markers beyond ``reach`` widths weigh < 0.012: leaving them out changed no median, only the cost
+        pred = predictors[dist[predictors] <= reach * width]
+        if len(pred) < 3:
+            pred = predictors[np.argsort(dist[predictors])[:3]]
+        curve = cv_curve(flat, tr, target, pred, w, normalise=normalise, folds=folds)
+        if curve is None:
+            k, rms = None, np.nan
+        else:
+            k = int(np.argmin(curve[0])) + 1
+            rms = float(np.sqrt(curve[0, k - 1]))
+        model = fit_model(flat, tr, target, pred, w, normalise=normalise, components=k)
+        est_local, leverage = predict(model, flat)
+        if knn:
+            est_local = est_local + knn_correction(model, flat, est_local, n_train, knn)
+        ests.append(est_local)
+        rmss.append(rms)
+        levs.append(leverage)
+        ks.append(int(model.basis.shape[1]))
+        # d target / d predictor coordinate (q_p, 3): how an error in a predictor moves the reconstruction
+        nt = model.n_target
+        gain = (model.weight[nt:] / model.scale[nt:])[:, None] * (model.basis[nt:] @ model.basis[:nt].T) \
+            * (model.scale[:nt] / model.weight[:nt])[None, :]
+        full = np.zeros((3 * n_markers, 3))
+        full[model.columns[nt:]] = gain
+        sens.append(full)
+    rmss_a = np.asarray(rmss)
+    if np.isfinite(rmss_a).all() and (rmss_a > 0).all():
+        mix = 1.0 / rmss_a ** 2
+    else:
+        mix = np.ones(len(ests))
+    mix = mix / mix.sum()
+    est_local = np.einsum("s,std->td", mix, np.stack(ests))
+    leverage = np.einsum("s,st->t", mix, np.stack(levs))
+    rms_mix = float(np.dot(mix, rmss_a)) if np.isfinite(rmss_a).all() else np.nan
+    # back to the laboratory frame: x = local R^T + centre
+    est_all = np.einsum("tc,tdc->td", est_local, rot) + centre
+    sensitivity = (np.einsum("s,sqc->qc", mix, np.stack(sens)) ** 2).reshape(n_markers, 9).sum(axis=1) / 3.0
+    return est_all, leverage, rms_mix, ks, rmss, anchors, sensitivity
+
+
 def reconstruct_local(
     positions: np.ndarray,
     *,
@@ -254,6 +349,8 @@ def reconstruct_local(
     reach: float = 3.0,
     max_patterns: int = 3,
     min_train: int = MIN_TRAIN_WANTED,
+    edge_frames: int = 0,
+    context: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """Estimate every missing sample with the weighted PCA in each missing marker's local frame.
 
@@ -272,6 +369,14 @@ def reconstruct_local(
     max_patterns : cost bound: a marker's gap frames are split by which predictors are observed there, the
         ``max_patterns - 1`` largest patterns get their own model and the remaining frames share one model whose
         predictors are observed in all of them.
+    edge_frames : when > 0, ``info["edge_estimate"]`` (n_frames, n_markers, 3) and ``info["edge_std"]`` (n_frames,
+        n_markers) hold the model's reconstruction (and its uncertainty) at up to this many observed training frames
+        on either side of each gap run (NaN elsewhere): what a smoother needs to learn the model's error at a gap's
+        ends instead of the ``edge`` bridge.
+    context : ndarray (n_frames, n_markers, 3) or None: the take with the missing samples a previous estimate
+        trusts filled (NaN elsewhere); when given, a marker's predictors are read from it (its own samples still
+        from ``positions``): one EM-style imputation step, in which frames where a neighbour was missing but is
+        now estimated become training and prediction frames.
 
     Returns
     -------
@@ -285,67 +390,35 @@ def reconstruct_local(
     estimate = positions.copy()
     std = np.where(missing, np.nan, 0.0)
     info: dict[str, Any] = {"fallback": [], "groups": [], "anchors": np.zeros((n_frames, n_markers), dtype=int)}
+    if edge_frames:
+        info["edge_estimate"] = np.full((n_frames, n_markers, 3), np.nan)
+        info["edge_std"] = np.full((n_frames, n_markers), np.nan)
     gap_markers = np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0))
+    if context is not None:
+        ctx_missing = np.isnan(context).any(axis=2)
     for m in gap_markers:
         frames = np.flatnonzero(missing[:, m])
-        dist = mean_distances(positions, m)
-        weights = []
-        for width in scales:
-            w = gaussian_weights(dist, width)
-            w[m] = missing_weight
-            weights.append(w)
-        align_weight = gaussian_weights(dist, align_scale)
+        src, miss = positions, missing
+        if context is not None:  # predictors from the context, the target's own samples as observed
+            src, miss = context.copy(), ctx_missing.copy()
+            src[:, m], miss[:, m] = positions[:, m], missing[:, m]
+        dist = mean_distances(src, m)
+        weights, align_weight = marker_weights(dist, m, scales, align_scale, missing_weight)
         others = np.ones(n_markers, dtype=bool)
         others[m] = False
         other_idx = np.flatnonzero(others)
         near = other_idx[np.isfinite(dist[other_idx]) & (dist[other_idx] <= reach * max(scales))]
         near = near[np.argsort(dist[near], kind="stable")]
-        for group, predictors, train in observed_groups(missing, m, frames, near, max_patterns, min_train):
-            needed = np.concatenate([[m], predictors])
+        for group, predictors, train in observed_groups(miss, m, frames, near, max_patterns, min_train):
             if len(predictors) < 3 or len(train) < MIN_TRAINING_FRAMES:
                 info["fallback"].append(int(m))
                 estimate[group, m] = linear_fallback(positions[:, m], missing[:, m])[group]
                 continue
-            anchors = _anchor_set(predictors, align_weight)
-            used = np.concatenate([train, group])
+            est_all, leverage, rms_mix, ks, rmss, anchors, _ = group_model(
+                src, m, group, predictors, train, weights, align_weight, dist, scales, reach=reach,
+                normalise=normalise, folds=folds, knn=knn)
             n_train = len(train)
-            centre, rot = local_frames(positions, used, anchors, align_weight[anchors], np.arange(n_train))
-            local = np.full((len(used), n_markers, 3), np.nan)
-            local[:, needed] = np.einsum("tjc,tcd->tjd", positions[used][:, needed] - centre[:, None, :], rot)
-            flat = local.reshape(len(used), 3 * n_markers)
-            tr = np.arange(n_train)
-            target = np.array([m])
-            ests, rmss, levs, ks = [], [], [], []
-            for w, width in zip(weights, scales):
-                # markers beyond ``reach`` widths weigh < 0.012: leaving them out changed no median, only the cost
-                pred = predictors[dist[predictors] <= reach * width]
-                if len(pred) < 3:
-                    pred = predictors[np.argsort(dist[predictors])[:3]]
-                curve = cv_curve(flat, tr, target, pred, w, normalise=normalise, folds=folds)
-                if curve is None:
-                    k, rms = None, np.nan
-                else:
-                    k = int(np.argmin(curve[0])) + 1
-                    rms = float(np.sqrt(curve[0, k - 1]))
-                model = fit_model(flat, tr, target, pred, w, normalise=normalise, components=k)
-                est_local, leverage = predict(model, flat)
-                if knn:
-                    est_local = est_local + knn_correction(model, flat, est_local, n_train, knn)
-                ests.append(est_local)
-                rmss.append(rms)
-                levs.append(leverage)
-                ks.append(int(model.basis.shape[1]))
-            rmss_a = np.asarray(rmss)
-            if np.isfinite(rmss_a).all() and (rmss_a > 0).all():
-                mix = 1.0 / rmss_a ** 2
-            else:
-                mix = np.ones(len(ests))
-            mix = mix / mix.sum()
-            est_local = np.einsum("s,std->td", mix, np.stack(ests))
-            leverage = np.einsum("s,st->t", mix, np.stack(levs))
-            rms_mix = float(np.dot(mix, rmss_a)) if np.isfinite(rmss_a).all() else np.nan
-            # back to the laboratory frame: x = local R^T + centre
-            est_all = np.einsum("tc,tdc->td", est_local, rot) + centre
+            used = np.concatenate([train, group])
             est = est_all[n_train:]
             factor = np.ones(len(group))
             if edge is not None:
@@ -354,11 +427,84 @@ def reconstruct_local(
                 est, factor = edge_corrected(positions[:, m], pred, group, tau=edge)
             estimate[group, m] = est
             std[group, m] = rms_mix * np.sqrt((1.0 + leverage[n_train:]) * factor)
+            if edge_frames:
+                _edge_samples(info, m, group, train, est_all[:n_train], rms_mix * np.sqrt(1.0 + leverage[:n_train]),
+                              edge_frames)
             info["anchors"][group, m] = len(anchors)
             info["groups"].append({"marker": int(m), "frames": int(len(group)), "components": ks,
                                    "cv_rms": [float(r) for r in rmss]})
     info["fallback"] = sorted(set(info["fallback"]))
     return estimate, std, info
+
+
+def reconstruct_completed(
+    positions: np.ndarray,
+    completed: np.ndarray,
+    completed_std: np.ndarray,
+    *,
+    scales: tuple[float, ...],
+    align_scale: float,
+    missing_weight: float = 0.02,
+    normalise: bool = True,
+    folds: int = 5,
+    knn: int = 10,
+    reach: float = 3.0,
+    edge_frames: int = 0,
+    reference: np.ndarray | None = None,
+    leverage_weight: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The local model refitted on a completed take (one EM-style imputation step).
+
+    positions (n_frames, n_markers, 3) the input, NaN = missing; completed the same with the missing samples
+    estimated (NaN for markers never observed), completed_std (n_frames, n_markers) their std per coordinate (0 where
+    observed).  For each marker with gaps, ONE model whose predictors are all its near markers (within ``reach``
+    times the largest width), trained on every frame where the marker is observed (the neighbours' missing samples
+    taken from ``completed``), predicts all its missing samples; the predictors' uncertainty is propagated into the
+    prediction's (``sensitivity`` of :func:`group_model`).  reference (n, n_markers, 3) or None: frames of other takes
+    added to the training frames where the marker and its predictors are finite.  Returns estimate (n_frames,
+    n_markers, 3) and std (n_frames, n_markers) at the missing samples (NaN elsewhere and where no model could be
+    fitted), and the reconstruction / std at up to ``edge_frames`` observed frames either side of each gap.
+    ``leverage_weight`` scales how much a frame's leverage grows its std (1: as :func:`reconstruct_local`).
+    """
+    n_frames, n_markers, _ = positions.shape
+    missing = np.isnan(positions).any(axis=2)
+    data = completed if reference is None else np.concatenate([completed, reference])
+    var = np.nan_to_num(completed_std, nan=np.inf) ** 2
+    if reference is not None:
+        var = np.concatenate([var, np.zeros(reference.shape[:2])])
+    known = np.concatenate([~missing, np.isfinite(reference).all(axis=2)]) if reference is not None else ~missing
+    finite = np.isfinite(data).all(axis=2)
+    estimate = np.full((n_frames, n_markers, 3), np.nan)
+    std = np.full((n_frames, n_markers), np.nan)
+    info = {"edge_estimate": np.full((n_frames, n_markers, 3), np.nan),
+            "edge_std": np.full((n_frames, n_markers), np.nan)}
+    for m in np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0)):
+        group = np.flatnonzero(missing[:, m])
+        dist = mean_distances(np.where(known[..., None], data, np.nan), m)
+        weights, align_weight = marker_weights(dist, m, scales, align_scale, missing_weight)
+        others = np.flatnonzero(np.arange(n_markers) != m)
+        near = others[np.isfinite(dist[others]) & (dist[others] <= reach * max(scales))
+                      & finite[group][:, others].all(axis=0)]
+        near = near[np.argsort(dist[near], kind="stable")]
+        train = np.flatnonzero(known[:, m] & finite[:, near].all(axis=1)) if len(near) else np.zeros(0, int)
+        if len(near) < 3 or len(train) < MIN_TRAINING_FRAMES:
+            continue
+        est_all, leverage, rms_mix, _, _, _, sens = group_model(
+            data, m, group, near, train, weights, align_weight, dist, scales, reach=reach, normalise=normalise,
+            folds=folds, knn=knn)
+        n_train = len(train)
+        with np.errstate(invalid="ignore"):
+            spread = var[group][:, near] @ sens[near]  # propagated predictor variance (n_group,)
+        estimate[group, m] = est_all[n_train:]
+        std[group, m] = np.sqrt(rms_mix ** 2 * (1.0 + leverage_weight * leverage[n_train:]) + spread)
+        if edge_frames:
+            own = train < n_frames
+            with np.errstate(invalid="ignore"):
+                spread_t = var[train[own]][:, near] @ sens[near]
+            _edge_samples(info, m, group, train[own], est_all[:n_train][own],
+                          np.sqrt(rms_mix ** 2 * (1.0 + leverage_weight * leverage[:n_train][own]) + spread_t),
+                          edge_frames)
+    return estimate, std, info["edge_estimate"], info["edge_std"]
 
 
 def fill_local_pca(

@@ -49,6 +49,8 @@ METHODS: dict[str, MethodSpec] = {
         MethodSpec("bilinear", "bilinear:fill_bilinear", "DCT-conditioned bilinear spatiotemporal basis", False),
         MethodSpec("pca", "pca:fill_pca", "distance-weighted PCA (Gloersen & Federolf 2016)", True),
         MethodSpec("auto", "auto:fill_auto", "the most accurate combination measured (default)", True),
+        MethodSpec("auto-next", "auto_next:fill_auto_next", "local weighted PCA fused with a white-jerk motion "
+                   "model by one smoother", True),
     ]
 }
 

@@ -1,0 +1,357 @@
+"""One model for the default fill: a spatial prediction and a motion prior, joined by one smoother.
+
+The model (equations in ``ARCHITECTURE.md``, "The default's model"), each stage a pure function with its own test:
+
+1. :func:`spatial_stage`: every missing sample gets a prediction and its standard deviation from the local,
+   rotation-aligned, distance-weighted PCA (:func:`mocapfill.engines.local_pca.reconstruct_local`), which learns
+   from incomplete frames (each model conditions on the markers observed where it predicts).  The same model's
+   reconstruction at the observed frames next to each gap is kept: the smoother learns the prediction's error there.
+   Frames of other takes of the same marker set (``reference_frames``) join the training frames.
+2. :func:`bone_stage` (optional): each frame's predictions move to the most probable positions given their
+   standard deviations and the bone lengths' spread (:func:`mocapfill.bones.refinement.refine_bones`).
+3. :func:`temporal_stage`: per marker, a damped white-jerk state-space model with the spatial prediction's
+   correlated error in its state (:mod:`mocapfill.engines.motion_smoother`); the observations and the spatial
+   predictions are its measurements; one Rauch-Tung-Striebel smoother gives the fill (posterior mean) and its
+   standard deviation (posterior sd).  The jerk density is learnt from the capture's observed third differences,
+   scaled at each frame by how fast the body moves then.  Samples of observed fragments of 1-2 frames between
+   gaps count as noisy measurements (the output keeps them).  Where the spatial model has nothing, the dynamics
+   bridge the gap and the standard deviation grows.  (Optionally, ``reweight_passes``: predictions far off the
+   smoothed path are down-weighted and the smoother runs again; off by default, as measured.)
+4. :func:`impute_stage` (EM-style): the spatial model is fitted again on the take completed by step 3 (every frame
+   where the marker is observed is a training frame, its neighbours taken from the completed take, their posterior
+   variance propagated into the prediction's), and step 3 runs again on its predictions.  (The first pass then only
+   seeds it: one weight width, no nearest-pose correction.)
+
+Status (issue 21): registered as ``auto-next`` beside ``auto``; ``auto`` stays the default until ``auto-next``
+holds every floor (see the branch report / ``benchmarks/README.md``).
+5. :func:`gap_records`: one record per gap, what filled it and whether a person should review it (its largest
+   posterior standard deviation above :attr:`ModelConfig.review_sd_mm`), the reason text formatted from the config.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import partial
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..engines.local_pca import reconstruct_local
+from ..engines.motion_smoother import MotionModel, jerk_density, jerk_gain, smooth
+from ..errors import MethodError
+from ..gaps import find_gaps
+from ..guards.windows import DEFAULT_WINDOW, fill_in_windows
+from ..runtime.blas import single_blas_thread
+from ..units import length_factor
+from .base import FillResult, check_positions, finish
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Every tunable of the default's model, once (lengths in mm, times in seconds; converted on use)."""
+
+    #: Widths of the spatial model's distance weights, one reconstruction each, averaged by inverse CV variance.
+    scales_mm: tuple[float, ...] = (150.0, 200.0, 300.0)
+    #: The first pass only seeds the refit on the completed take (stage 4), which makes the prediction: one width and
+    #: no nearest-pose correction there (a third of the cost on captures with gaps everywhere).
+    seed_scales_mm: tuple[float, ...] = (200.0,)
+    seed_knn: int = 0
+    #: Width of the weights of the local frame's alignment (Kabsch) on the neighbours.
+    align_mm: float = 200.0
+    #: Nearest training poses whose mean residual corrects the linear reconstruction (0: none).
+    knn: int = 10
+    #: How much a frame's leverage grows the spatial std the smoother weighs (85_02 one-marker, 10 trials: median
+    #: 13.6 mm with 1, 11.4 with 0: a high-leverage pose is not a worse prediction there, the dynamics were).
+    leverage_weight: float = 0.0
+    #: Observed frames on either side of a gap where the spatial model's error is measured for the smoother.
+    edge_frames: int = 3
+    #: Correlation time of the spatial prediction's error (the old edge bridge's 30 frames at 120 Hz).
+    bias_seconds: float = 1.0
+    #: Share of the spatial prediction's variance that is white from frame to frame (the rest is correlated).
+    white_share: float = 0.2
+    #: The jerk density learnt from the observed third differences is multiplied by this (a fill may follow the
+    #: spatial prediction through motions a little faster than the average observed).
+    jerk_scale: float = 1.0
+    #: Window over which the body's jerk power sets the moment's jerk density (a flip is faster than a stand).
+    gain_seconds: float = 0.1
+    #: Smallest jerk gain: a still moment must not pin a fill that has to move.
+    gain_floor: float = 0.05
+    #: Relaxation time of velocity and acceleration: far from any measurement a fill comes to rest.
+    rest_seconds: float = 0.5
+    #: Standard deviation of an observed sample (mm): sub-millimetre camera noise.
+    obs_sd_mm: float = 0.5
+    #: Standard deviation of a sample in an observed fragment of at most ``fragment_frames`` frames between missing
+    #: ones (mm): such flickering samples are often the worst of a take (the output keeps them; the fill need not
+    #: pass through them).
+    fragment_sd_mm: float = 20.0
+    fragment_frames: int = 2
+    #: Smallest jerk density (mm^2 / frame^5): a marker that never moved must not pin its fill.
+    jerk_floor_mm2: float = 1e-6
+    #: A spatial prediction more than this many standard deviations off the smoothed path is down-weighted.
+    outlier: float = 3.0
+    #: Smoother passes with down-weighted outliers after the first (0: measured better; tennis serve at 5 % dense,
+    #: a wrist gap: 124 mm largest error without, 171 with outlier 8, 803 with 3: fast true motion looked like
+    #: outlying predictions to the jerk prior).
+    reweight_passes: int = 0
+    #: Fit the spatial model again on the completed take (EM-style imputation) this many times.
+    impute_passes: int = 1
+    #: The spatial std is multiplied by this before the bone refinement weighs it against the bones' spread.
+    bone_trust: float = 0.5
+    #: Smallest bone spread in the refinement (a bone is never an exact constraint).
+    spread_floor_mm: float = 1.0
+    #: A gap whose fill has a posterior standard deviation above this (per coordinate) is flagged for review.
+    review_sd_mm: float = 25.0
+    #: Frame rate assumed when the capture has none.
+    default_rate: float = 100.0
+
+
+DEFAULT_CONFIG = ModelConfig()
+
+
+def fill_auto_next(
+    positions: np.ndarray,
+    *,
+    seed: int | None = None,
+    units: str = "mm",
+    labels: Sequence[str] | None = None,
+    rate: float | None = None,
+    bones: Any = None,
+    refine: bool = True,
+    reference_frames: np.ndarray | None = None,
+    config: ModelConfig = DEFAULT_CONFIG,
+    jobs: int | None = None,
+) -> FillResult:
+    """Fill gaps with the default's model (see the module docstring).
+
+    Parameters
+    ----------
+    positions : ndarray (n_frames, n_markers, 3), NaN = missing
+    seed : ignored (deterministic); accepted for a uniform signature.
+    units : "mm", "cm" or "m"; converts every length of ``config``.
+    labels : marker labels (n_markers,), for ``info["gap_methods"]``.
+    rate : frame rate (Hz); converts the config's times (``config.default_rate`` without it).
+    bones : BoneSet, None (estimate from the observed frames) or False (no bone stage).
+    refine : run the bone stage (same as ``bones=False`` when False).
+    reference_frames : ndarray (n, n_markers, 3) or None: frames of other takes of the same marker set, added to
+        the spatial model's training frames (NaN allowed).
+    config : ModelConfig
+    jobs : worker processes for the windows of a take longer than :data:`~mocapfill.guards.windows.DEFAULT_WINDOW`
+        frames (None: 1; the output does not depend on it).
+
+    Returns
+    -------
+    FillResult with ``std`` the posterior standard deviation per coordinate, ``info["gap_methods"]`` one record per
+    gap (``marker``, ``marker_index``, ``start``, ``length``, ``method``, ``reason``, ``review``, ``max_std``).
+    """
+    del seed
+    positions = check_positions(positions)
+    if labels is not None and len(labels) != positions.shape[1]:
+        raise MethodError(f"{len(labels)} labels for {positions.shape[1]} markers")
+    if reference_frames is not None:
+        reference_frames = np.asarray(reference_frames, dtype=np.float64)
+        if reference_frames.ndim != 3 or reference_frames.shape[1:] != positions.shape[1:]:
+            raise MethodError(f"reference_frames must have shape (n, {positions.shape[1]}, 3), got "
+                              f"{reference_frames.shape}")
+    core = partial(model_fill, units=units, labels=labels, rate=rate, bones=bones, refine=refine,
+                   reference_frames=reference_frames, config=config)
+    with single_blas_thread():
+        if positions.shape[0] > DEFAULT_WINDOW:  # long takes: overlapping windows, time linear in frames
+            return fill_in_windows(positions, core, jobs=1 if jobs is None else max(1, int(jobs)))
+        return core(positions)
+
+
+def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine: bool,
+               reference_frames: np.ndarray | None, config: ModelConfig) -> FillResult:
+    """The model on one (already validated) array: stages 1-5 of the module docstring."""
+    mm = length_factor("mm", units)
+    rate = float(rate) if rate and np.isfinite(rate) and rate > 0 else config.default_rate
+    missing = np.isnan(positions).any(axis=2)
+    pred, pred_sd, edge, edge_sd, sinfo = spatial_stage(positions, config, mm, reference_frames=reference_frames)
+    info: dict[str, Any] = {"pipeline": "local weighted PCA + white-jerk smoother", "fallback": sinfo["fallback"]}
+    boneset = None
+    if refine and bones is not False:
+        from ..bones.boneset import resolve_bones
+        boneset = resolve_bones(positions, bones, units=units, labels=labels)
+        if len(boneset) and np.isfinite(pred_sd).any():
+            pred = bone_stage(positions, pred, pred_sd, boneset, config, mm)
+    info["bones"] = 0 if boneset is None else int(len(boneset))
+    model = motion_model(positions, missing, config, mm, rate)
+    fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate)
+    for _ in range(config.impute_passes):
+        pred, pred_sd, edge, edge_sd = impute_stage(positions, fill, sd, config, mm,
+                                                       reference_frames=reference_frames)
+        if boneset is not None and len(boneset):
+            pred = bone_stage(positions, pred, pred_sd, boneset, config, mm)
+        fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate)
+    spatial = missing & np.isfinite(pred_sd)
+    info["gap_methods"] = gap_records(missing, sd, spatial, outliers, config, mm, units, labels, boneset)
+    info["review"] = [i for i, r in enumerate(info["gap_methods"]) if r["review"]]
+    return finish(positions, fill, std=sd, info=info)
+
+
+def spatial_stage(positions: np.ndarray, config: ModelConfig, mm: float, *,
+                  reference_frames: np.ndarray | None = None):
+    """Stage 1: the local weighted PCA's prediction of every missing sample.
+
+    positions (n_frames, n_markers, 3); mm data units per millimetre; reference_frames (n, n_markers, 3) or None.
+    Returns pred (n_frames, n_markers, 3) (NaN where no model), sd (n_frames, n_markers) per coordinate (NaN where
+    no model), the reconstruction at observed frames next to gaps (n_frames, n_markers, 3) and its sd, and info.
+    """
+    n = len(positions)
+    data = positions if reference_frames is None else np.concatenate([positions, reference_frames])
+    scales, knn = (config.scales_mm, config.knn) if config.impute_passes == 0 else (config.seed_scales_mm,
+                                                                                     config.seed_knn)
+    pred, sd, info = reconstruct_local(data, scales=tuple(np.asarray(scales) * mm),
+                                       align_scale=config.align_mm * mm, knn=knn, edge=None,
+                                       edge_frames=config.edge_frames)
+    missing = np.isnan(positions).any(axis=2)
+    pred, sd = pred[:n], sd[:n]
+    sd = np.where(missing, sd, np.nan)
+    pred = np.where(np.isfinite(sd)[..., None], pred, np.nan)
+    return pred, sd, info["edge_estimate"][:n], info["edge_std"][:n], info
+
+
+def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, config: ModelConfig, mm: float, *,
+                 reference_frames: np.ndarray | None = None):
+    """Stage 4: the spatial model fitted again with the neighbours taken from the completed take.
+
+    positions (n_frames, n_markers, 3) the input (NaN = missing); completed the same filled by stage 3, sd
+    (n_frames, n_markers) its posterior sd (0 observed).  One model per marker with gaps, trained on every frame
+    where it is observed, every near marker a predictor (:func:`mocapfill.engines.local_pca.reconstruct_completed`;
+    a filled neighbour's sd is propagated into the prediction's).  Returns pred, sd, edge, edge_sd as
+    :func:`spatial_stage`.
+    """
+    from ..engines.local_pca import reconstruct_completed
+
+    return reconstruct_completed(positions, completed, sd, scales=tuple(np.asarray(config.scales_mm) * mm),
+                                 align_scale=config.align_mm * mm, knn=config.knn, edge_frames=config.edge_frames,
+                                 reference=reference_frames, leverage_weight=config.leverage_weight)
+
+
+def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset, config: ModelConfig, mm: float
+               ) -> np.ndarray:
+    """Stage 2: predictions (n_frames, n_markers, 3) moved to the most probable positions given the bones.
+
+    sd (n_frames, n_markers) the predictions' standard deviations (NaN: not moved); boneset a BoneSet.
+    """
+    from ..bones.refinement import refine_bones
+
+    est = np.where(np.isnan(positions), pred, positions)
+    refined, _ = refine_bones(est, positions, sd * config.bone_trust, boneset.pairs, boneset.lengths,
+                              boneset.spread, spread_floor=config.spread_floor_mm * mm)
+    return np.where(np.isfinite(pred), refined, np.nan)
+
+
+def motion_model(positions: np.ndarray, missing: np.ndarray, config: ModelConfig, mm: float, rate: float
+                 ) -> MotionModel:
+    """The smoother's parameters for this capture: the jerk density per marker (n_markers,) from its observed
+    third differences (:func:`~mocapfill.engines.motion_smoother.jerk_density`), the config's times in frames."""
+    q = jerk_density(positions, missing, floor=config.jerk_floor_mm2 * mm ** 2) * config.jerk_scale
+    gain = jerk_gain(positions, missing, q, window=int(round(config.gain_seconds * rate)), floor=config.gain_floor)
+    return MotionModel(q=q, rho=float(np.exp(-1.0 / (config.rest_seconds * rate))),
+                       phi=float(np.exp(-1.0 / (config.bias_seconds * rate))), r_obs=(config.obs_sd_mm * mm) ** 2,
+                       gain=gain)
+
+
+def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, edge: np.ndarray,
+                   edge_sd: np.ndarray, model: MotionModel, config: ModelConfig, mm: float, rate: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stage 3: the smoother's posterior mean and sd for every marker with gaps.
+
+    positions / pred / edge (n_frames, n_markers, 3); pred_sd / edge_sd (n_frames, n_markers) (NaN: no spatial
+    measurement there); model with q (n_markers,).  Returns fill (n_frames, n_markers, 3) (the input where
+    observed; NaN for markers never observed), sd (n_frames, n_markers) (0 observed) and the (n_frames, n_markers)
+    mask of spatial predictions down-weighted as outliers.
+    """
+    missing = np.isnan(positions).any(axis=2)
+    todo = np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0))
+    fill = positions.copy()
+    sd_out = np.where(missing, np.nan, 0.0)
+    outliers = np.zeros_like(missing)
+    if not len(todo):
+        return fill, sd_out, outliers
+    obs = positions[:, todo]
+    sp = np.where(missing[:, todo, None], pred[:, todo], edge[:, todo])
+    sp_sd = np.where(missing[:, todo], pred_sd[:, todo], edge_sd[:, todo])
+    sp = np.where(np.isfinite(sp_sd)[..., None], sp, np.nan)
+    white = sp_sd * np.sqrt(config.white_share)
+    bias = sp_sd * np.sqrt(1.0 - config.white_share)
+    sub = model._replace(q=model.q[todo])
+    obs_var = np.where(fragments(missing[:, todo], config.fragment_frames), (config.fragment_sd_mm * mm) ** 2,
+                       model.r_obs)
+    inflate = np.ones_like(sp_sd)
+    for attempt in range(config.reweight_passes + 1):
+        mean, sd = smooth(obs, sp, white * np.sqrt(inflate), bias * np.sqrt(inflate), sub, obs_var=obs_var)
+        if attempt == config.reweight_passes:
+            break
+        with np.errstate(invalid="ignore"):
+            z = np.sqrt(np.sum((sp - mean) ** 2, axis=2) / 3.0) / sp_sd
+        bad = np.nan_to_num(z) > config.outlier
+        if not bad.any():
+            break
+        inflate = np.where(bad, np.maximum(inflate, (z / config.outlier) ** 2 * 10.0), inflate)
+    outliers[:, todo] = inflate > 1.0
+    fill[:, todo] = np.where(missing[:, todo, None], mean, positions[:, todo])
+    sd_out[:, todo] = np.where(missing[:, todo], sd, 0.0)
+    return fill, sd_out, outliers
+
+
+def fragments(missing: np.ndarray, longest: int) -> np.ndarray:
+    """(n_frames, n_markers) bool: observed samples in runs of at most ``longest`` frames with a missing sample on
+    both sides; missing (n_frames, n_markers)."""
+    from ..gaps import runs
+
+    out = np.zeros_like(missing)
+    n = len(missing)
+    for m in np.flatnonzero(missing.any(axis=0)):
+        for start, length in runs(~missing[:, m]):
+            if length <= longest and start > 0 and start + length < n:
+                out[start:start + length, m] = True
+    return out
+
+
+def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outliers: np.ndarray,
+                config: ModelConfig, mm: float, units: str, labels, boneset) -> list[dict]:
+    """Stage 5: one JSON-ready record per gap (run of missing frames of one marker).
+
+    missing / sd / spatial / outliers (n_frames, n_markers): the input's mask, the posterior sd, where the spatial
+    model predicted, where its prediction was down-weighted.  ``review`` is True when the gap's largest sd exceeds
+    ``config.review_sd_mm`` (or nothing could be filled); every number in ``reason`` comes from ``config``.
+    """
+    limit = config.review_sd_mm * mm
+    out = []
+    for gap in find_gaps(missing):
+        m, sl = gap.marker, slice(gap.start, gap.stop)
+        rec: dict[str, Any] = {"marker": labels[m] if labels is not None else int(m), "marker_index": int(m),
+                               "start": int(gap.start), "length": int(gap.length)}
+        if missing[:, m].all():
+            rec.update(method="none", reason="marker missing in every frame: nothing to learn from", review=True,
+                       max_std=None)
+            out.append(rec)
+            continue
+        worst = float(np.nanmax(sd[sl, m])) if np.isfinite(sd[sl, m]).any() else float("nan")
+        share = float(spatial[sl, m].mean())
+        if share == 0:
+            method = "motion"
+            reason = ("no spatial prediction (fewer than 3 observed neighbours or too few training frames): the "
+                      "white-jerk motion model bridges the gap from its ends")
+        else:
+            method = "local-pca+motion"
+            reason = (f"local weighted PCA predicted {share:.0%} of the frames, fused with the white-jerk motion "
+                      f"model by the smoother")
+            if share < 1:
+                reason += "; the motion model bridges the rest"
+            if boneset is not None and len(boneset):
+                reason += "; predictions refined with the bone lengths"
+            n_out = int(outliers[sl, m].sum())
+            if n_out:
+                reason += (f"; {n_out} prediction(s) more than {config.outlier:g} sd off the smoothed path "
+                           f"down-weighted")
+        review = not np.isfinite(worst) or worst > limit
+        reason += (f"; largest posterior sd {worst / mm:.1f} mm" + (f" > {config.review_sd_mm:g} mm: review this gap"
+                                                                  if review else ""))
+        rec.update(method=method, reason=reason, review=bool(review),
+                   max_std=None if not np.isfinite(worst) else worst)
+        out.append(rec)
+    del units
+    return out

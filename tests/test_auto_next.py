@@ -1,0 +1,179 @@
+"""The default's model (``auto-next``): each stage on its own small case, then the whole fill."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mocapfill.engines.motion_smoother import (JERK_GAIN, MotionModel, jerk_density, jerk_gain, smooth,
+                                               transition)
+from mocapfill.errors import MethodError
+from test_auto import tumbling_body  # the tests folder is on sys.path (no package)
+from mocapfill.methods import get_method
+from mocapfill.methods.auto_next import (DEFAULT_CONFIG, ModelConfig, fill_auto_next, gap_records, motion_model,
+                                         spatial_stage, temporal_stage)
+
+
+def model(n_series: int, q: float = 1e-3, gain=None) -> MotionModel:
+    return MotionModel(q=np.full(n_series, q), rho=np.exp(-1 / 50), phi=np.exp(-1 / 30), r_obs=0.01, gain=gain)
+
+
+def test_registered():
+    assert get_method("auto-next").load() is fill_auto_next
+
+
+def test_transition_is_the_white_jerk_model():
+    F, Q = transition(model(2, q=2.0))
+    assert F.shape == (4, 4) and Q.shape == (2, 4, 4)
+    assert Q[0, 2, 2] == pytest.approx(2.0) and Q[0, 0, 0] == pytest.approx(2.0 / 20)
+    assert Q[0, 3, 3] == pytest.approx(1 - np.exp(-2 / 30))
+    assert np.all(np.linalg.eigvalsh(Q[0]) > 0)
+
+
+def test_jerk_density_recovers_simulated_white_jerk():
+    rng = np.random.default_rng(0)
+    q = 0.5
+    jerk = rng.normal(scale=np.sqrt(q), size=(20000, 2, 3))
+    x = np.cumsum(np.cumsum(np.cumsum(jerk, axis=0), axis=0), axis=0)
+    est = jerk_density(x, np.zeros((20000, 2), bool), floor=1e-9)
+    # discrete white jerk: Var(third difference) = q, so the estimate is q / JERK_GAIN
+    assert np.allclose(est * JERK_GAIN, q, rtol=0.05)
+    gain = jerk_gain(x, np.zeros((20000, 2), bool), est, window=10, floor=0.05)
+    assert gain.shape == (20000,) and abs(np.median(gain) - 1.0) < 0.2
+
+
+def test_smoother_keeps_observations_and_bridges_a_gap_smoothly():
+    t = np.arange(300, dtype=float)
+    truth = np.stack([100 * np.sin(t / 40), 50 * np.cos(t / 25), 0.5 * t], axis=1)[:, None, :]
+    obs = truth.copy()
+    obs[120:160] = np.nan
+    none = np.full((300, 1, 3), np.nan)
+    nosd = np.full((300, 1), np.nan)
+    q = jerk_density(truth, np.zeros((300, 1), bool), floor=1e-9)
+    mean, sd = smooth(obs, none, nosd, nosd, model(1, q=float(q[0])))
+    assert np.abs(mean[:100] - truth[:100]).max() < 0.5  # observations kept (r_obs small)
+    assert np.abs(mean[120:160] - truth[120:160]).max() < 15.0
+    assert sd[140, 0] > sd[121, 0] > sd[100, 0]  # uncertainty grows into the gap
+    acc = np.linalg.norm(np.diff(mean[:, 0], 2, axis=0), axis=1)
+    assert acc[115:165].max() < 2 * np.linalg.norm(np.diff(truth[:, 0], 2, axis=0), axis=1).max()
+
+
+def test_smoother_uses_spatial_predictions_by_their_variance():
+    t = np.arange(200, dtype=float)
+    truth = np.stack([80 * np.sin(t / 15), 0 * t, 0 * t], axis=1)[:, None, :]
+    obs = truth.copy()
+    obs[60:140] = np.nan
+    rng = np.random.default_rng(1)
+    sp = np.where(np.isnan(obs), truth + rng.normal(scale=2.0, size=truth.shape), np.nan)
+    sd = np.where(np.isnan(obs[..., 0]), 2.0, np.nan)
+    q = jerk_density(truth, np.zeros((200, 1), bool), floor=1e-9)
+    mean, post = smooth(obs, sp, sd, 0.5 * sd, model(1, q=float(q[0])))
+    err = np.sqrt(np.mean((mean[60:140] - truth[60:140]) ** 2))
+    assert err < 2.0  # better than the predictions themselves (2 per coordinate)
+    assert np.all(post[60:140, 0] < 2.5)
+
+
+def test_temporal_stage_down_weights_a_jumping_prediction():
+    pos = tumbling_body()
+    gapped = pos.copy()
+    gapped[100:160, 0] = np.nan
+    missing = np.isnan(gapped).any(axis=2)
+    pred = np.where(missing[..., None], pos, np.nan)
+    pred[130, 0] += 500.0  # one prediction half a metre off
+    sd = np.where(missing, 3.0, np.nan)
+    none = np.full_like(pos, np.nan)
+    config = ModelConfig(reweight_passes=2)
+    mdl = motion_model(gapped, missing, config, 1.0, 100.0)
+    fill, post, outliers = temporal_stage(gapped, pred, sd, none, np.full_like(sd, np.nan), mdl, config, 1.0, 100.0)
+    assert outliers[130, 0]
+    assert np.linalg.norm(fill[130, 0] - pos[130, 0]) < 30.0
+    assert np.array_equal(fill[~missing], gapped[~missing])
+
+
+def test_spatial_stage_predicts_a_rigid_marker():
+    pos = tumbling_body()
+    gapped = pos.copy()
+    gapped[100:160, 0] = np.nan
+    pred, sd, edge, edge_sd, _ = spatial_stage(gapped, DEFAULT_CONFIG, 1.0)
+    assert np.abs(pred[100:160, 0] - pos[100:160, 0]).max() < 5.0
+    assert np.isfinite(sd[100:160, 0]).all() and np.isnan(sd[:100]).all()
+    assert np.isfinite(edge[97:100, 0]).all() and np.isnan(edge[:90, 0]).all()
+
+
+def test_gap_records_flag_uncertain_gaps_with_the_config_number():
+    missing = np.zeros((50, 2), bool)
+    missing[10:20, 0] = missing[30:35, 1] = True
+    sd = np.where(missing, 1.0, 0.0)
+    sd[15, 0] = 80.0
+    spatial = missing.copy()
+    config = ModelConfig(review_sd_mm=40.0)
+    recs = gap_records(missing, sd, spatial, np.zeros_like(missing), config, 1.0, "mm", ["a", "b"], None)
+    assert [r["review"] for r in recs] == [True, False]
+    assert "40 mm" in recs[0]["reason"] and recs[0]["marker"] == "a"
+
+
+def test_fill_keeps_observed_samples_and_gives_std():
+    pos = tumbling_body()
+    gapped = pos.copy()
+    gapped[100:160, 0] = np.nan
+    gapped[50:70, 3] = np.nan
+    res = fill_auto_next(gapped, rate=100.0)
+    missing = np.isnan(gapped).any(axis=2)
+    assert np.array_equal(res.positions[~missing], gapped[~missing])
+    assert np.isfinite(res.positions).all() and np.isfinite(res.std[missing]).all()
+    assert np.sqrt(np.mean((res.positions[missing] - pos[missing]) ** 2)) < 10.0
+    assert len(res.info["gap_methods"]) == 2
+
+
+def test_reference_frames_hook():
+    pos = tumbling_body()
+    gapped = pos.copy()
+    gapped[:, 0] = np.nan
+    gapped[100:160, 0] = np.nan
+    gapped[:60, 0] = pos[:60, 0]  # the marker seen only in 60 frames of the take
+    ref = tumbling_body(seed=2)[150:]
+    res = fill_auto_next(gapped, rate=100.0, reference_frames=ref)
+    missing = np.isnan(gapped).any(axis=2)
+    assert np.isfinite(res.positions[missing]).all()
+    with pytest.raises(MethodError):
+        fill_auto_next(gapped, reference_frames=ref[:, :3])
+
+
+def test_fragments_are_short_observed_runs_between_gaps():
+    from mocapfill.methods.auto_next import fragments
+
+    missing = np.array([[0, 1, 0, 1, 1, 0, 0, 1, 0, 0, 0, 1, 0]], bool).T
+    frag = fragments(missing, 2)[:, 0]
+    assert list(np.flatnonzero(frag)) == [2, 5, 6]  # not the run at the start, nor the 3-frame run
+
+
+def _accelerations(before: np.ndarray, after: np.ndarray) -> tuple[float, float]:
+    """Largest |x[t+1] - 2 x[t] + x[t-1]| over fully observed triples, and over triples with a filled sample (those
+    touching an observed fragment of 1-2 frames left out, as the issue's measure does)."""
+    from mocapfill.methods.auto_next import fragments
+
+    missing = np.isnan(before).any(axis=2)
+    acc = np.linalg.norm(after[2:] - 2 * after[1:-1] + after[:-2], axis=2)
+    frag = fragments(missing, 2)
+    any_missing = missing[2:] | missing[1:-1] | missing[:-2]
+    any_frag = frag[2:] | frag[1:-1] | frag[:-2]
+    observed = acc[~any_missing & np.isfinite(acc)]
+    filled = acc[any_missing & ~any_frag & np.isfinite(acc)]
+    return float(observed.max()), float(filled.max()) if filled.size else 0.0
+
+
+@pytest.mark.parametrize("name", ["newwalk.c3d", "MACsample.c3d", "ADemo1_rewrite_c3d_pc_float.c3d",
+                                  "qtm_JaneDoe_Dynamic_2.tsv", "kinematics_racing_full.c3d"])
+def test_no_filled_acceleration_above_the_observed_on_committed_captures(test_data, name):
+    import warnings
+
+    import mocapfill
+    from mocapfill.io import read
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        data = read(test_data / name)
+        res = mocapfill.fill(data, method="auto-next")
+    keep = np.array([k == "marker" for k in data.kinds]) if data.kinds is not None else slice(None)
+    observed, filled = _accelerations(data.positions[:, keep], res.positions[:, keep])
+    assert filled <= observed
