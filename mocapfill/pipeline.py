@@ -52,6 +52,7 @@ class FillSettings:
     smooth_window: int | None = None
     smooth_order: int | None = None
     keep_held: bool = False
+    ik_model: str | None = None  # a scaled OpenSim model, for the kinematic fill (opensim-ik)
     max_gap: str | int | None = None
     edges: str = "fill"
     min_fragment: int | None = None
@@ -404,7 +405,8 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: MarkerD
 
     accepted = get_method(settings.method).parameters()
     options = {key: value for key, value in (("hidden", settings.hidden), ("max_iter", settings.max_iter),
-                                              ("tol", settings.tol), ("seed", settings.seed), ("bones", bones))
+                                              ("tol", settings.tol), ("seed", settings.seed), ("bones", bones),
+                                              ("ik_model", settings.ik_model))
                if value is not None}
     record.update({k: v for k, v in options.items() if k != "bones"})
     if settings.bones is not None:

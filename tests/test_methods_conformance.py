@@ -11,6 +11,10 @@ and msvd bridge them by interpolation, and the others build on these).  A method
 
 Iterative methods run with a small iteration cap (``max_iter``) so the whole file takes seconds; the conformance
 properties do not depend on convergence.
+
+Methods that need a model (``MethodSpec.requires``: the kinematic fill ``opensim-ik`` and its ``ik_model``) run with
+one built in the test through the ``opensim`` API: one body on a free joint carrying the clip's markers (exact for
+the synthetic rigid cloud, a rough fit to the tennis serve); they skip where ``opensim`` cannot be imported.
 """
 
 from __future__ import annotations
@@ -23,9 +27,13 @@ import pytest
 import mocapfill
 from mocapfill.methods import METHODS
 from synthetic import moving_body, rot_z
+from mocapfill.units import length_factor
 
 #: Methods allowed to leave whole-body blackout frames unfilled (name -> reason).  None today.
 BLACKOUT_EXEMPT: dict[str, str] = {}
+
+#: The labels the synthetic cloud's markers carry when a method needs them (the model's marker names).
+SYNTHETIC_LABELS = [f"M{k + 1}" for k in range(8)]
 
 FAST = {"max_iter": 15}
 
@@ -37,10 +45,17 @@ def _options(name: str) -> dict:
     return {k: v for k, v in FAST.items() if k in accepted}
 
 
-def _fill(positions: np.ndarray, name: str, *, seed=0, rate=60.0, units="mm", labels=None):
+def _fill(positions: np.ndarray, name: str, *, seed=0, rate=60.0, units="mm", labels=None, request=None,
+          clip="synthetic"):
+    extra = {}
+    if METHODS[name].requires == "ik_model":  # a model built in the test (skips without opensim)
+        extra["ik_model"] = request.getfixturevalue("ik_models")[clip]
+        if labels is None:
+            labels = SYNTHETIC_LABELS[:positions.shape[1]]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return mocapfill.fill(positions, name, seed=seed, rate=rate, units=units, labels=labels, **_options(name))
+        return mocapfill.fill(positions, name, seed=seed, rate=rate, units=units, labels=labels, **_options(name),
+                              **extra)
 
 
 def synthetic(n_frames: int = 90, n_markers: int = 8, seed: int = 3) -> np.ndarray:
@@ -74,6 +89,24 @@ def real_clip(sample_data):
     return pos, data.rate, data.units, list(data.labels)
 
 
+@pytest.fixture(scope="module")
+def ik_models(tmp_path_factory, real_clip) -> dict[str, str]:
+    """Free-body OpenSim models carrying the synthetic cloud's and the tennis clip's markers (paths by clip)."""
+    osim = pytest.importorskip("opensim")
+    import osim_models
+
+    osim.Logger.setLevelString("off")
+    osim.Logger.removeFileSink()
+    folder = tmp_path_factory.mktemp("ik_models")
+    cloud = synthetic(n_frames=1)[0]
+    osim_models.rigid_model(str(folder / "synthetic.osim"), SYNTHETIC_LABELS, (cloud - cloud.mean(axis=0)) / 1000)
+    pos, _, units, labels = real_clip
+    complete = pos[np.flatnonzero(~np.isnan(pos).any(axis=(1, 2)))[0]]
+    osim_models.rigid_model(str(folder / "real.osim"), labels,
+                            (complete - complete.mean(axis=0)) * length_factor(units, "m"))
+    return {"synthetic": str(folder / "synthetic.osim"), "real": str(folder / "real.osim")}
+
+
 def check_contract(original: np.ndarray, result, name: str) -> None:
     """Shapes, bit-identical observed samples, filled mask, std, fills every fillable sample."""
     n_frames, n_markers, _ = original.shape
@@ -103,40 +136,40 @@ def check_contract(original: np.ndarray, result, name: str) -> None:
 
 
 @pytest.mark.parametrize("name", list(METHODS))
-def test_synthetic_gaps(name):
+def test_synthetic_gaps(name, request):
     original = with_gaps(synthetic())
-    check_contract(original, _fill(original, name), name)
+    check_contract(original, _fill(original, name, request=request), name)
 
 
 @pytest.mark.parametrize("name", list(METHODS))
-def test_real_clip(name, real_clip):
+def test_real_clip(name, real_clip, request):
     original, rate, units, labels = real_clip
-    result = _fill(original, name, rate=rate, units=units, labels=labels)
+    result = _fill(original, name, rate=rate, units=units, labels=labels, request=request, clip="real")
     check_contract(original, result, name)
 
 
 @pytest.mark.parametrize("name", list(METHODS))
-def test_one_frame(name):
+def test_one_frame(name, request):
     original = synthetic(n_frames=1)
     original[0, 2] = np.nan
-    result = _fill(original, name)
+    result = _fill(original, name, request=request)
     check_contract(original, result, name)
     assert np.isnan(result.positions[0, 2]).all()  # a single frame gives nothing to fill a marker from
 
 
 @pytest.mark.parametrize("name", list(METHODS))
-def test_nothing_missing(name):
+def test_nothing_missing(name, request):
     original = synthetic(n_frames=30)
-    result = _fill(original, name)
+    result = _fill(original, name, request=request)
     check_contract(original, result, name)
     assert not result.filled.any()
 
 
 @pytest.mark.parametrize("name", list(METHODS))
-def test_deterministic_under_seed(name):
+def test_deterministic_under_seed(name, request):
     original = with_gaps(synthetic())
-    first = _fill(original, name, seed=7)
-    second = _fill(original, name, seed=7)
+    first = _fill(original, name, seed=7, request=request)
+    second = _fill(original, name, seed=7, request=request)
     assert np.array_equal(first.positions, second.positions, equal_nan=True)
     if first.std is not None:
         assert np.array_equal(first.std, second.std, equal_nan=True)

@@ -123,6 +123,9 @@ def fill_options(func: Callable) -> Callable:
                           "after a Subject: prefix; every marker still informs the fill."),
         click.option("--exclude", type=str, default=None, metavar="PATTERNS",
                      help="Do not fill these markers (same forms as --markers)."),
+        click.option("--ik-model", "ik_model", type=str, default=None, metavar="MODEL.osim",
+                     help="Scaled OpenSim model whose markers carry the capture's labels, for --method opensim-ik "
+                          "(the kinematic fill; needs the extra mocapfill[opensim])."),
     ]
     for option in reversed(options):
         wrapper = option(wrapper)

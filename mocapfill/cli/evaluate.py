@@ -13,7 +13,7 @@ import click
 import numpy as np
 from rich.table import Table
 
-from ..errors import MocapfillError
+from ..errors import MethodError, MocapfillError
 from . import cli
 from .bones import parse_length
 from .common import ReadOptions, input_options, console, quiet_option, read_input, show_warnings
@@ -48,12 +48,16 @@ def _parse_options(pairs: tuple[str, ...]) -> dict:
     return out
 
 
-def _default_methods() -> tuple[list[str], list[str]]:
-    """Every registered method that can be loaded in this build, and those that cannot."""
+def _default_methods(given: set[str] = frozenset()) -> tuple[list[str], list[str]]:
+    """Every registered method that can be loaded in this build and whose required option is in ``given``, and
+    those that cannot run."""
     from ..methods import METHODS
 
     ok, missing = [], []
     for name, spec in METHODS.items():
+        if spec.requires and spec.requires not in given:
+            missing.append(f"{name} (needs --{spec.requires.replace('_', '-')})")
+            continue
         try:
             spec.load()
         except (ImportError, AttributeError):
@@ -92,8 +96,12 @@ def _show(result, quiet: bool) -> None:
                   title_justify="left")
     table.add_column("method")
     honesty = any(summary[m]["error_ratio"]["median"] is not None for m in result.methods)
+    ik = result.ik is not None
     for head in ("RMSE mean", "RMSE median", "max error", "MSE", "bone error", "seconds") + ("err/std",) * honesty:
         table.add_column(head, justify="right")
+    if ik:  # joint angles beside the millimetres: medians over trials of the median and worst coordinate
+        for head in ("angle med \u00b0", "angle worst \u00b0", f"transl. med {units}", f"transl. worst {units}"):
+            table.add_column(head, justify="right")
     any_problem = any(summary[m]["failures"] or summary[m]["unfilled"] or summary[m]["not_converged"]
                       for m in result.methods)
     if any_problem:
@@ -105,6 +113,9 @@ def _show(result, quiet: bool) -> None:
                  _fmt(row["mse"]["mean"]), _fmt(row["bone_error"]["mean"]), _fmt(row["seconds"]["mean"])]
         if honesty:
             cells.append(_fmt(row["error_ratio"]["median"]))
+        if ik:
+            cells += [_fmt(row[m]["median"]) for m in ("angle_median", "angle_worst", "translation_median",
+                                                         "translation_worst")]
         problems = []
         if row["failures"]:
             problems.append(f"{row['failures']} failed")
@@ -116,8 +127,18 @@ def _show(result, quiet: bool) -> None:
         if any_problem:
             cells.append(", ".join(problems))
         table.add_row(method, *cells, style=style)
+    if ik:
+        left = result.left_missing_summary()
+        cells = [""] * (6 + honesty) + [_fmt(left[m]["median"]) for m in ("angle_median", "angle_worst",
+                                                                          "translation_median", "translation_worst")]
+        table.add_row("(left missing)", *cells + [""] * any_problem, style="italic")
     out.print(table)
-
+    if ik:
+        out.print(f"joint angles: RMSE over the frames with a hidden sample of OpenSim IK ({result.ik['frames']} frames,"
+                  f" {sum(k == 'rotational' for k in result.ik['coordinates'].values())} rotational coordinates) on "
+                  "the fill against IK on the complete capture; median over trials of the median and worst "
+                  "coordinate. '(left missing)': the hidden markers left out of IK where they are missing.",
+                  highlight=False)
     if len(result.methods) > 1:
         rates = result.win_rates("rmse")
         wins = Table(title="win rate by RMSE: row beats column",
@@ -146,6 +167,22 @@ def _show(result, quiet: bool) -> None:
     for message in errors[:10]:
         out.print(f"[yellow]failure[/yellow] {message}", highlight=False)
     out.print(f"best by mean RMSE: [bold]{ranking[0]}[/bold]")
+    if ik:
+        out.print(angle_headline(result))
+
+
+def angle_headline(result) -> str:
+    """One line: which method is best for joint angles, against leaving the markers missing."""
+    best = result.best_for_angles()
+    left = result.left_missing_summary()
+    lm, lw = left["angle_median"]["median"], left["angle_worst"]["median"]
+    if best is None:
+        return "best for joint angles: none (IK failed on every fill)"
+    row = result.summary()[best]
+    med, worst = row["angle_median"]["median"], row["angle_worst"]["median"]
+    versus = (f"; leaving the markers missing: {_fmt(lm)}\u00b0 / {_fmt(lw)}\u00b0" if lm is not None else "")
+    return (f"best for joint angles: [bold]{best}[/bold] (median coordinate {_fmt(med)}\u00b0, worst coordinate "
+            f"{_fmt(worst)}\u00b0, medians over trials{versus})")
 
 
 def _renamed(ctx: click.Context, param: click.Parameter, value) -> None:
@@ -204,6 +241,15 @@ def _renamed(ctx: click.Context, param: click.Parameter, value) -> None:
               help="Run outlier rejection on each corrupted clip before filling (for the random protocol): "
                    "'self' uses the corrupted clip as its own reference (as fill does), 'clean' uses the clean "
                    "file as Holden's reference take.")
+@click.option("--ik", "ik_setup", type=str, default=None, metavar="SETUP.xml",
+              help="Also score joint angles: OpenSim inverse kinematics with this IK setup on each fill, on the "
+                   "capture with the hidden markers left missing, and on the complete capture (needs the extra "
+                   "mocapfill[opensim]).")
+@click.option("--ik-model", type=str, default=None, metavar="MODEL.osim",
+              help="The scaled OpenSim model for --ik (where the setup names none or another) and for the "
+                   "opensim-ik method.")
+@click.option("--report", "report_path", type=str, default=None, metavar="PATH.html|PATH.json",
+              help="Write the evaluation as a self-contained HTML page or as JSON (by extension).")
 @click.option("--json", "as_json", is_flag=True, help="Print every trial as JSON on stdout.")
 @click.option("--csv", "as_csv", is_flag=True, help="Print every trial as CSV on stdout.")
 @input_options
@@ -213,6 +259,7 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
              limb_size: int, missing: float, radius: str | None,
              events: int, occlusions: str | None,
              save_occlusions: str | None, jobs: int, option_pairs: tuple[str, ...], reject_outliers: str | None,
+             ik_setup: str | None, ik_model: str | None, report_path: str | None,
              as_json: bool, as_csv: bool, reading: ReadOptions, quiet: bool) -> None:
     """Score fill methods on CLEAN_FILE: hide samples it has, fill them with each method, compare with the truth.
 
@@ -221,7 +268,7 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
     frames (bones estimated from the occluded input), seconds, and for methods that say how sure they are, the RMS
     error per coordinate over the RMS of their predicted std ("err/std": 1 = honest, 2 = twice as wrong as
     they said).  The table on stderr gives the mean and median per method (err/std: the median) and how often
-    each method beats each other one.
+    each method beats each other one.  With --ik SETUP.xml, also the joint-angle errors (degrees) of OpenSim IK.
     """
     from ..evaluation import evaluate as run_evaluation
     from ..methods import get_method
@@ -230,8 +277,11 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
         raise click.UsageError("choose one of --json and --csv")
     options = _parse_options(option_pairs)
     out = console(quiet)
+    if report_path is not None and not report_path.lower().endswith((".html", ".htm", ".json")):
+        raise click.BadParameter("the report's name must end in .html or .json", param_hint="'--report'")
+    given = {"ik_model"} if (ik_model or ik_setup) else set()
     if methods is None:
-        names, unavailable = _default_methods()
+        names, unavailable = _default_methods(given)
         if unavailable:
             out.print(f"not available in this build, skipped: {', '.join(unavailable)}", highlight=False)
     else:
@@ -239,7 +289,13 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
         if not names:
             raise click.BadParameter("give at least one method", param_hint="'--methods'")
         for name in names:
-            get_method(name)  # unknown names fail here, before the file is read
+            spec = get_method(name)  # unknown names fail here, before the file is read
+            if spec.requires and spec.requires not in given:
+                raise MethodError(f"method {name!r} needs --{spec.requires.replace('_', '-')} MODEL.osim")
+    if ik_setup or any(get_method(n).requires == "ik_model" for n in names):
+        from ..kinematics.opensim_ik import require_opensim
+
+        require_opensim()  # one line naming the extra, before the file is read
     data = read_input(clean_file, reading, quiet=quiet)
     if data.missing.all():
         raise MocapfillError(f"{clean_file}: every sample is missing; nothing to hide")
@@ -264,12 +320,17 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
                                     occlusion_min=occlusion_min, occlusion_max=occlusion_max, max_gap=max_gap,
                                     edges=edges, jobs=jobs, options=options,
                                     reject_outliers=reject_outliers, progress=progress,
-                                    save_occlusions=save_occlusions,
+                                    save_occlusions=save_occlusions, ik=ik_setup, ik_model=ik_model,
                                     **protocol_options)
     show_warnings(caught, quiet)
     if save_occlusions:
         out.print(f"occlusions written to {save_occlusions}", highlight=False)
     _show(result, quiet)
+    if report_path is not None:
+        from ..report.evaluation_html import write_evaluation_report
+
+        write_evaluation_report(result, report_path)
+        out.print(f"report written to {report_path}", highlight=False)
     if as_json:
         sys.stdout.write(json.dumps(result.to_dict(), indent=1, allow_nan=False) + "\n")
     elif as_csv:

@@ -28,17 +28,22 @@ from ..report.json_report import jsonable
 from .metrics import bone_error, point_errors, score
 from .occlusions import (DEFAULT_GAPS, PROTOCOLS, Occlusion, Shift, Trial, gap_range, make_occlusions,
                          parse_length, rigid_partners)
-from .runner import RunConfig, TrialScore, run_trial, run_trials
+from .runner import LEFT_MISSING, RunConfig, TrialScore, run_trial, run_trials
 from .spec import SPEC_FORMAT, load_spec, save_spec, spec_of, trials_from_spec
 
 __all__ = [
     "evaluate", "EvaluationResult", "TrialScore", "METRICS", "make_occlusions", "Trial", "Occlusion", "Shift",
     "PROTOCOLS", "DEFAULT_GAPS", "parse_length", "gap_range", "rigid_partners", "load_spec", "save_spec",
     "spec_of", "trials_from_spec", "SPEC_FORMAT", "score", "point_errors", "bone_error", "run_trial", "run_trials",
+    "IK_METRICS", "LEFT_MISSING",
 ]
 
 #: Metrics per trial and method, all "lower is better".
 METRICS = ("rmse", "max_error", "mse", "bone_error", "seconds", "error_ratio")
+
+#: Joint-angle metrics (evaluate with ``ik=``): median / worst coordinate over the model's rotational coordinates
+#: (degrees) and translational ones (the clip's units), each the RMSE over the frames with a scored sample.
+IK_METRICS = ("angle_median", "angle_worst", "translation_median", "translation_worst", "ik_seconds")
 
 EVALUATION_SCHEMA = "mocapfill-evaluation/1"
 
@@ -75,23 +80,50 @@ class EvaluationResult:
     seed: int | None
     data: MarkerData
     settings: dict[str, Any] = field(default_factory=dict)
+    left_missing: list[TrialScore] = field(default_factory=list)
+    ik: dict[str, Any] | None = None
+
+    def metrics(self) -> tuple[str, ...]:
+        """The metrics of this evaluation: :data:`METRICS`, and :data:`IK_METRICS` when it ran IK."""
+        return METRICS + IK_METRICS if self.ik is not None else METRICS
 
     def values(self, metric: str = "rmse") -> np.ndarray:
         """(n_trials, n_methods) float array of ``metric`` (NaN where a method failed or nothing was scored)."""
-        if metric not in METRICS:
-            raise MocapfillError(f"unknown metric {metric!r}; choose one of {', '.join(METRICS)}")
+        if metric not in self.metrics():
+            raise MocapfillError(f"unknown metric {metric!r}; choose one of {', '.join(self.metrics())}")
         arr = np.array([getattr(s, metric) for s in self.scores], dtype=float)
         return arr.reshape(len(self.trials), len(self.methods))
+
+    def left_missing_summary(self) -> dict[str, dict[str, Any]] | None:
+        """With IK: ``{metric: {"mean", "median"}}`` over trials for the markers left missing (OpenSim skipping
+        them frame by frame), for every metric of :data:`IK_METRICS`; None without IK."""
+        if self.ik is None:
+            return None
+        return {m: {"mean": _nan_stat(np.array([getattr(s, m) for s in self.left_missing], float), np.mean),
+                    "median": _nan_stat(np.array([getattr(s, m) for s in self.left_missing], float), np.median)}
+                for m in IK_METRICS}
+
+    def best_for_angles(self) -> str | None:
+        """The method with the lowest median over trials of the median rotational-coordinate error (ties: the
+        worst coordinate); None without IK or when no method has an angle."""
+        if self.ik is None:
+            return None
+        summ = self.summary()
+        scored = [m for m in self.methods if summ[m]["angle_median"]["median"] is not None]
+        if not scored:
+            return None
+        return min(scored, key=lambda m: (summ[m]["angle_median"]["median"], summ[m]["angle_worst"]["median"] or 0))
 
     def summary(self) -> dict[str, dict[str, Any]]:
         """Per method: ``{metric: {"mean": x, "median": x}}`` for every metric, plus ``failures`` (trials where
         the method raised), ``unfilled`` (scored samples left missing, summed) and ``not_converged``."""
         out: dict[str, dict[str, Any]] = {}
-        table = {m: self.values(m) for m in METRICS}
+        metrics = self.metrics()
+        table = {m: self.values(m) for m in metrics}
         for k, method in enumerate(self.methods):
             mine = [s for s in self.scores if s.method == method]
             row: dict[str, Any] = {m: {"mean": _nan_stat(table[m][:, k], np.mean),
-                                       "median": _nan_stat(table[m][:, k], np.median)} for m in METRICS}
+                                       "median": _nan_stat(table[m][:, k], np.median)} for m in metrics}
             row["failures"] = sum(1 for s in mine if s.error)
             row["unfilled"] = sum(s.unfilled for s in mine if not s.error)
             row["not_converged"] = sum(1 for s in mine if not s.error and not s.converged)
@@ -142,7 +174,12 @@ class EvaluationResult:
                 d.pop("method")
                 scores[s.method] = {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
                                     for k, v in d.items()}
-            records.append({"trial": t + 1, **trial_spec, "scores": scores})
+            record = {"trial": t + 1, **trial_spec, "scores": scores}
+            if self.ik is not None and t < len(self.left_missing):
+                base = self.left_missing[t]
+                record["left_missing"] = {k: jsonable(getattr(base, k))
+                                          for k in IK_METRICS + ("ik_errors", "warnings")}
+            records.append(record)
         return records
 
     def to_dict(self) -> dict[str, Any]:
@@ -160,9 +197,12 @@ class EvaluationResult:
             "seed": self.seed,
             "methods": list(self.methods),
             "settings": jsonable(self.settings),
-            "metrics": list(METRICS),
+            "metrics": list(self.metrics()),
             "summary": self.summary(),
-            "win_rates": {m: self.win_rates(m) for m in ("rmse", "bone_error")},
+            "win_rates": {m: self.win_rates(m) for m in ("rmse", "bone_error")
+                          + (("angle_median", "angle_worst") if self.ik is not None else ())},
+            **({"ik": jsonable({**self.ik, "left_missing": self.left_missing_summary(),
+                                "best_for_angles": self.best_for_angles()})} if self.ik is not None else {}),
             "trials": self.trial_records(),
         }
 
@@ -175,7 +215,7 @@ class EvaluationResult:
         writer = csv.writer(buf, lineterminator="\n")
         writer.writerow(["trial", "method", "markers", "first_frame", "length", "n_scored", "rmse", "max_error",
                          "mse", "bone_error", "seconds", "unfilled", "n_iter", "converged", "detected", "error",
-                         "error_ratio"])
+                         "error_ratio"] + (list(IK_METRICS) if self.ik is not None else []))
         n = len(self.methods)
         for t, trial in enumerate(self.trials):
             occ = trial.occlusions
@@ -184,12 +224,15 @@ class EvaluationResult:
                 where, length = str(first + occ[0].start), str(occ[0].length)
             else:  # several stretches (random protocol): see n_scored, and the JSON output for the details
                 where, length = "", ""
-            for s in self.scores[t * n:(t + 1) * n]:
+            extra = [self.left_missing[t]] if self.ik is not None and t < len(self.left_missing) else []
+            for s in self.scores[t * n:(t + 1) * n] + extra:  # IK's left-missing baseline: angles only
                 row = [t + 1, s.method, markers, where, length, s.n_scored]
                 row += ["" if not math.isfinite(v) else f"{v:.6g}"
                         for v in (s.rmse, s.max_error, s.mse, s.bone_error, s.seconds)]
                 row += [s.unfilled, s.n_iter, s.converged, "" if s.detected is None else f"{s.detected:.4g}",
                         s.error or "", "" if not math.isfinite(s.error_ratio) else f"{s.error_ratio:.4g}"]
+                if self.ik is not None:
+                    row += ["" if not math.isfinite(getattr(s, m)) else f"{getattr(s, m):.6g}" for m in IK_METRICS]
                 writer.writerow(row)
         return buf.getvalue()
 
@@ -217,6 +260,7 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
              = None, occlusion_min=None, occlusion_max=None, jobs: int = 1, options: dict[str, Any] | None = None,
              method_options: dict[str, dict[str, Any]] | None = None, reject_outliers: bool | str | None = None,
              progress: Callable[[int, int], None] | None = None, save_occlusions: str | os.PathLike | None = None,
+             ik: str | os.PathLike | None = None, ik_model: str | os.PathLike | None = None,
              max_gap: int | str | None = None, edges: str = "fill", **protocol_options: Any) -> EvaluationResult:
     """Score ``methods`` on ``data`` by hiding known samples and filling them.
 
@@ -255,6 +299,13 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
     save_occlusions : path, optional
         Write the trials as a spec file (:func:`save_spec`) before running them, so that an interrupted run can be
         replayed.
+    ik : path of an OpenSim IK setup XML, optional
+        Also score joint angles (needs ``opensim``, the extra ``mocapfill[opensim]``): per trial, OpenSim's
+        InverseKinematicsTool with this setup on each method's fill, on the clip with the hidden markers left
+        missing (the ``left_missing`` baseline) and once on the complete clip; per method the RMSE over the frames
+        with a scored sample of each coordinate (:data:`IK_METRICS`).  IK runs inside each trial's task (``jobs``).
+    ik_model : path of a scaled OpenSim model (.osim), optional
+        The model for ``ik`` where the setup names none (or another), and for the ``opensim-ik`` method.
     max_gap, edges
         Given to every fill (:func:`mocapfill.fill`): gaps longer than ``max_gap`` (frames or ``"0.5s"``) and, with
         ``edges="leave"``, gaps at the clip's edges stay missing, so the hidden samples in them count as
@@ -290,15 +341,32 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
     if reject_outliers not in (None, False, "self", "clean"):
         raise MocapfillError(f"reject_outliers must be None, 'self' or 'clean', got {reject_outliers!r}")
     reject_outliers = reject_outliers or None
+    from ..methods import get_method
+
     accepted = _method_parameters(methods)
+    ik_setup = None
+    if ik is not None:
+        from ..kinematics.opensim_ik import load_setup
+
+        ik_setup = load_setup(ik, ik_model)
     per_method: dict[str, dict[str, Any]] = {}
     for name in methods:
         merged = {k: v for k, v in (options or {}).items() if v is not None}
+        if "ik_model" in accepted[name]:  # the kinematic fill takes the evaluation's model (and setup's weights)
+            if ik_setup is not None:
+                merged.setdefault("ik_model", ik_setup.model)
+                if ik_setup.setup and "ik_setup" in accepted[name]:
+                    merged.setdefault("ik_setup", ik_setup.setup)
+            elif ik_model is not None:
+                merged.setdefault("ik_model", os.fspath(ik_model))
         merged.update((method_options or {}).get(name, {}))
         ignored = sorted(k for k in merged if k not in accepted[name])
         if ignored:  # once here, not once per trial
             warnings.warn(f"method {name!r} ignores option(s): {', '.join(ignored)}", UserWarning, stacklevel=2)
         per_method[name] = {k: v for k, v in merged.items() if k in accepted[name]}
+        required = get_method(name).requires
+        if required and per_method[name].get(required) is None:
+            raise MethodError(f"method {name!r} needs --{required.replace('_', '-')} (evaluate(..., {required}=...))")
     seeded = frozenset(name for name in methods if "seed" in accepted[name])
     settings: dict[str, Any] = {"options": dict(options or {}), "method_options": dict(method_options or {}),
                                 "reject_outliers": reject_outliers}
@@ -331,6 +399,19 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
         save_spec(trial_list, data, save_occlusions, source=source)
     # Method seeds: one per trial, from a stream independent of the occlusions' streams.
     seeds = [int(s.generate_state(1, np.uint32)[0]) for s in np.random.SeedSequence([seed, 1]).spawn(len(trial_list))]
-    config = RunConfig(tuple(methods), per_method, reject_outliers, seeded, limits)
+    ik_record = None
+    truth_angles = None
+    if ik_setup is not None:
+        from ..kinematics.opensim_ik import run_ik
+
+        truth_angles = run_ik(ik_setup, data)
+        ik_record = {"setup": ik_setup.setup, "model": ik_setup.model, "time_range": ik_setup.time_range,
+                     "truth_seconds": truth_angles.seconds, "frames": int(len(truth_angles.frames)),
+                     "coordinates": dict(zip(truth_angles.names, truth_angles.kinds))}
+        settings["ik"] = {"setup": ik_setup.setup, "model": ik_setup.model}
+    config = RunConfig(tuple(methods), per_method, reject_outliers, seeded, ik_setup, truth_angles,
+                       limits)
     scores = run_trials(data, trial_list, seeds, config, jobs=jobs, progress=progress)
-    return EvaluationResult(methods, protocol, trial_list, scores, seed, data, settings)
+    left = [s for s in scores if s.method == LEFT_MISSING]
+    scores = [s for s in scores if s.method != LEFT_MISSING]
+    return EvaluationResult(methods, protocol, trial_list, scores, seed, data, settings, left, ik_record)

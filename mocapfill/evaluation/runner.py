@@ -42,6 +42,15 @@ class TrialScore:
     error: str | None = None  # the MocapfillError message when the method failed on this trial
     warnings: list[str] = field(default_factory=list)
     error_ratio: float = float("nan")  # RMS error per coordinate / RMS std (metrics.py); NaN without a std
+    # Joint angles (evaluate with an IK setup; NaN without): over the frames with a scored sample, the RMSE per
+    # coordinate of IK on the filled capture against IK on the complete one; median and worst coordinate,
+    # rotational (degrees) and translational (the clip's units) apart.
+    angle_median: float = float("nan")
+    angle_worst: float = float("nan")
+    translation_median: float = float("nan")
+    translation_worst: float = float("nan")
+    ik_seconds: float = float("nan")
+    ik_errors: dict[str, float | None] | None = None  # per coordinate (None where IK failed)
 
 
 @dataclass(frozen=True)
@@ -52,7 +61,37 @@ class RunConfig:
     options: dict[str, dict[str, Any]]  # per method: the keyword options for mocapfill.api.fill
     reject_outliers: str | None = None  # None, "self" (the corrupted clip is its own reference) or "clean"
     seeded: frozenset = frozenset()  # methods that take a ``seed``: they get the trial's seed
+    ik: Any = None  # mocapfill.kinematics.opensim_ik.IKSetup: score joint angles too (needs opensim)
+    ik_truth: Any = None  # mocapfill.kinematics.angles.IKAngles of the complete clip
     limits: dict[str, Any] = field(default_factory=dict)  # ``max_gap`` / ``edges`` for every method (api.fill)
+
+
+#: The pseudo-method of a trial's IK with the hidden markers left out (empty TRC cells), as OpenSim does with gaps.
+LEFT_MISSING = "left missing"
+
+
+def score_angles(entry: TrialScore, data: MarkerData, frames: np.ndarray, config: RunConfig) -> None:
+    """IK on ``data`` (the filled or gappy clip, positions (n_frames, n_markers, 3)); the joint-angle errors
+    against ``config.ik_truth`` over ``frames`` ((n_frames,) bool) go into ``entry``.  An IK failure becomes a
+    warning of the entry, with NaN angles."""
+    from ..kinematics.angles import coordinate_errors, summarise_errors
+    from ..kinematics.opensim_ik import run_ik
+
+    truth = config.ik_truth
+    try:
+        angles = run_ik(config.ik, data)
+    except MocapfillError as exc:
+        entry.warnings.append(f"IK: {exc}")
+        return
+    errors = coordinate_errors(truth, angles, frames)
+    summary = summarise_errors(errors, dict(zip(truth.names, truth.kinds)))
+    nan = float("nan")
+    entry.angle_median = summary["rotational"]["median"] if summary["rotational"]["n"] else nan
+    entry.angle_worst = summary["rotational"]["worst"] if summary["rotational"]["n"] else nan
+    entry.translation_median = summary["translational"]["median"] if summary["translational"]["n"] else nan
+    entry.translation_worst = summary["translational"]["worst"] if summary["translational"]["n"] else nan
+    entry.ik_seconds = angles.seconds
+    entry.ik_errors = {k: (v if np.isfinite(v) else None) for k, v in errors.items()}
 
 
 def _bones(positions: np.ndarray, units: str, labels: list[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -106,6 +145,12 @@ def run_trial(truth: MarkerData, index: int, trial: Trial, method_seed: int, con
         out.append(TrialScore(index, method, m["rmse"], m["max_error"], m["mse"], m["bone_error"], seconds,
                               m["n_scored"], m["unfilled"], int(result.n_iter), bool(result.converged), detected,
                               None, messages, m["error_ratio"]))
+        if config.ik is not None:
+            score_angles(out[-1], truth.with_positions(result.positions), scored.any(axis=1), config)
+    if config.ik is not None:  # the baseline: OpenSim leaves the hidden markers out where they are missing
+        baseline = TrialScore(index, LEFT_MISSING, *(float("nan"),) * 5, int(scored.sum()), int(scored.sum()))
+        score_angles(baseline, data, scored.any(axis=1), config)
+        out.append(baseline)
     return out
 
 

@@ -152,7 +152,8 @@ def _num(value: float) -> str:
 
 
 def trc_text(data: MarkerData, name: str = "out.trc") -> str:
-    """TRC text of ``data`` (tab-separated, shortest exact numbers, empty fields for missing samples)."""
+    """TRC text of ``data`` (tab-separated, shortest exact numbers, empty fields for missing samples; a row whose last
+    marker is missing ends with an extra tab, so that OpenSim counts its columns right)."""
     for label in data.labels:
         if "\t" in label or "\n" in label:
             raise FormatError(f"{name}: label {label!r} contains a tab or newline, which TRC cannot hold")
@@ -170,5 +171,8 @@ def trc_text(data: MarkerData, name: str = "out.trc") -> str:
     times = data.times.tolist()
     for t in range(n):
         cells = ["" if v != v else repr(v) for v in flat[t]]
-        lines.append("\t".join([str(data.first_frame + t), repr(times[t])] + cells))
+        row = "\t".join([str(data.first_frame + t), repr(times[t])] + cells)
+        # OpenSim's reader drops the empty field after a row's last tab and then finds a column short: a row whose
+        # last marker is missing ends with one more tab (our reader, and OpenSim's, ignore trailing empty fields)
+        lines.append(row + "\t" if cells and not cells[-1] else row)
     return "\n".join(lines) + "\n"

@@ -26,6 +26,7 @@ class MethodSpec(NamedTuple):
     target: str  # "module:function", module relative to mocapfill.methods
     summary: str
     uncertainty: bool  # whether the method returns a per-sample std
+    requires: str | None = None  # an option the method cannot run without (the CLI names it when it is missing)
 
     def load(self) -> Callable[..., FillResult]:
         module_name, func_name = self.target.split(":")
@@ -51,6 +52,9 @@ METHODS: dict[str, MethodSpec] = {
         MethodSpec("auto", "auto:fill_auto", "the most accurate combination measured (default)", True),
         MethodSpec("auto-next", "auto_next:fill_auto_next", "local weighted PCA fused with a white-jerk motion "
                    "model by one smoother", True),
+        MethodSpec("opensim-ik", "kinematic:fill_opensim_ik", "kinematic fill: OpenSim IK on the observed markers, "
+                   "the missing ones read off the fitted model (needs --ik-model; extra mocapfill[opensim])", True,
+                   "ik_model"),
     ]
 }
 
