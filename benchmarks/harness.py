@@ -82,6 +82,21 @@ def utc_now() -> str:
     return time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
 
 
+def git_commit() -> str:
+    """The checkout's short commit, with ``+dirty`` when ``mocapfill/`` has uncommitted changes ("unknown" without git):
+    what made a cached result."""
+    import subprocess
+
+    try:
+        head = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "--", "mocapfill"],
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + ("+dirty" if dirty else "")
+
+
 def banner(script: str, file=None) -> None:
     """Print the run's first two lines: the script and the time, then :func:`machine`."""
     print(f"# {Path(script).stem}  {utc_now()}\n# machine: {machine()}", file=file or sys.stdout, flush=True)
