@@ -297,3 +297,18 @@ def test_batch_takes_donors_and_lowpass(sample_data, tmp_path):
     doc = json.loads(Path(rows[0].report).read_text())
     settings = doc["summary"]["settings"]
     assert settings["donors"] == "RSHO,LSHO" and settings["lowpass"]["per"] == "take"
+
+
+def test_status_marks_declined_gaps_and_lowpassed_observed_samples(sample_data):
+    from mocapfill.pipeline import FillSettings, fill_capture
+    from mocapfill.status import Status
+
+    data = mocapfill.read(sample_data / "kinematics_tennis_serve.c3d")
+    positions = data.positions.copy()
+    positions[2:30, 6] = np.nan  # 2 valid frames before: woltring declines it
+    positions[300:320, 9] = np.nan
+    outcome = fill_capture(data.with_positions(positions), FillSettings(method="woltring", lowpass=6.0).check())
+    status = outcome.status
+    assert (status[2:30, 6] == Status.MISSING_DECLINED).all()
+    assert (status[300:320, 9] == Status.FILLED).all()
+    assert (status[100:200, 0] == Status.SMOOTHED).all()

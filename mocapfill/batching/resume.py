@@ -36,6 +36,7 @@ def settings_digest(task: FileTask) -> str:
 
     report = None if task.report is None else Path(task.report).suffix
     doc: dict[str, Any] = {"mocapfill": __version__, "fill": task.settings.as_dict(), "report": report,
+                           "status": task.status is not None,
                            "reading": [task.input_format, task.rate, task.override_rate],
                            "format": task.output_format}
     for name in ("bones", "reference", "model"):
@@ -71,7 +72,8 @@ def row_from_state(entry: dict[str, Any], task: FileTask, seconds: float) -> Bat
     from .task import BatchRow
 
     return BatchRow(task.input, task.output, "skipped", method=task.settings.method, seconds=seconds,
-                    report=task.report or "", **known)
+                    report=task.report or "", left_samples=entry["row"].get("left_samples"),
+                    status_csv=task.status or "", **known)
 
 
 def compact_state(path: Path, state: dict[str, dict[str, Any]]) -> None:

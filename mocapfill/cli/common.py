@@ -70,8 +70,13 @@ def fill_options(func: Callable) -> Callable:
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
         settings = FillSettings(**{name: kwargs.pop(name) for name in names})
+        option_name = lambda field: "--" + field.replace("_", "-")  # noqa: E731
         try:
-            settings.check(name=lambda field: "--" + field.replace("_", "-"))
+            settings.check_values(name=option_name)
+        except MethodError as exc:  # a malformed value: one line
+            raise click.ClickException(str(exc)) from None
+        try:
+            settings.check(name=option_name)
         except MethodError as exc:
             raise click.UsageError(str(exc)) from None
         return func(*args, fill_settings=settings, **kwargs)
@@ -112,6 +117,19 @@ def fill_options(func: Callable) -> Callable:
                      help="Smoothing window in frames, odd (default about 1/15 s)."),
         click.option("--smooth-order", type=click.IntRange(min=0), default=None,
                      help="Smoothing polynomial order (3)."),
+        click.option("--max-gap", "max_gap", type=str, default=None, metavar="DURATION",
+                     help="Leave gaps longer than this missing: frames (40) or seconds (0.5s). The reports list "
+                          "them as left missing."),
+        click.option("--edges", type=click.Choice(["fill", "leave"]), default="fill", show_default=True,
+                     help="Fill or leave the gaps that touch the first or last frame."),
+        click.option("--min-fragment", type=click.IntRange(min=1), default=None, metavar="FRAMES",
+                     help="Observed stretches shorter than this between two gaps join the gap around them and are "
+                          "filled with it (changes observed samples; the report counts them)."),
+        click.option("--markers", type=str, default=None, metavar="PATTERNS",
+                     help="Fill only these markers: labels or shell patterns, comma-separated (L*,R*), matched "
+                          "after a Subject: prefix; every marker still informs the fill."),
+        click.option("--exclude", type=str, default=None, metavar="PATTERNS",
+                     help="Do not fill these markers (same forms as --markers)."),
         click.option("--ik-model", "ik_model", type=str, default=None, metavar="MODEL.osim",
                      help="Scaled OpenSim model whose markers carry the capture's labels, for --method opensim-ik "
                           "(the kinematic fill; needs the extra mocapfill[opensim])."),

@@ -65,6 +65,7 @@ class RunConfig:
     referenced: frozenset = frozenset()  # methods that take ``reference_frames``: they get the references
     ik: Any = None  # mocapfill.kinematics.opensim_ik.IKSetup: score joint angles too (needs opensim)
     ik_truth: Any = None  # mocapfill.kinematics.angles.IKAngles of the complete clip
+    limits: dict[str, Any] = field(default_factory=dict)  # ``max_gap`` / ``edges`` for every method (api.fill)
 
 
 #: The pseudo-method of a trial's IK with the hidden markers left out (empty TRC cells), as OpenSim does with gaps.
@@ -134,7 +135,7 @@ def run_trial(truth: MarkerData, index: int, trial: Trial, method_seed: int, con
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:
-                result = fill(data, method, **opts)
+                result = fill(data, method, **config.limits, **opts)
             except MocapfillError as exc:
                 result, error = None, str(exc)
             else:
