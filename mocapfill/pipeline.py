@@ -43,9 +43,9 @@ class FillSettings:
     ``max_gap``: gaps longer than this stay missing (frames, or seconds as ``"0.5s"``); ``edges``: ``"fill"`` or
     ``"leave"`` the gaps touching the first or last frame; ``min_fragment``: observed stretches of fewer frames
     between two gaps join the gap around them; ``markers`` / ``exclude``: comma-separated labels or shell patterns of
-    the markers to fill / not to fill (:func:`select_markers`).  ``donors``: the donors of ``pattern`` / ``rigid`` as ``--donors`` writes them
-    (``"MARKER=D1,D2;D3,D4"``, see :mod:`mocapfill.methods.suite`; a list of labels is joined).  ``lowpass``: a
-    Butterworth low-pass after the fill, a cutoff in Hz, ``"auto"`` or ``"auto-marker"``
+    the markers to fill / not to fill (:func:`select_markers`).  ``donors``: the donors of ``pattern`` / ``rigid``
+    as ``--donors`` writes them (``"MARKER=D1,D2;D3,D4"``, see :mod:`mocapfill.methods.suite`; a list of labels is
+    joined).  ``lowpass``: a Butterworth low-pass after the fill, a cutoff in Hz, ``"auto"`` or ``"auto-marker"``
     (:mod:`mocapfill.guards.lowpass`).
     """
 
