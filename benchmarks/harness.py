@@ -41,6 +41,16 @@ CLIP_TENNIS = SAMPLE_DATA / "kinematics_tennis_serve.c3d"
 #: The tennis serve with ten real-looking gaps (145 missing samples), the complete twin of :data:`CLIP_TENNIS`.
 CLIP_TENNIS_NAN = SAMPLE_DATA / "kinematics_tennis_serve_nan.c3d"
 
+#: Complete real captures by name (no gaps: ground truth to occlude): the two bundled clips and, when
+#: ``SHARED_DATA`` is present, Vicon Nexus's arm + robot (33 markers, 800 frames at 100 Hz) and the BTK sprint (59
+#: markers, 788 frames at 250 Hz).  Scripts skip the paths that do not exist.
+COMPLETE_CLIPS = {
+    "85_02": CLIP_85_02,
+    "tennis": CLIP_TENNIS,
+    "pyorerun-example": SHARED_DATA / "pyorerun" / "example.c3d",
+    "sprint": SHARED_DATA / "btk" / "TRCSamples" / "SprintMotion.trc",
+}
+
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 

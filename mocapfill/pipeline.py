@@ -43,7 +43,10 @@ class FillSettings:
     ``max_gap``: gaps longer than this stay missing (frames, or seconds as ``"0.5s"``); ``edges``: ``"fill"`` or
     ``"leave"`` the gaps touching the first or last frame; ``min_fragment``: observed stretches of fewer frames
     between two gaps join the gap around them; ``markers`` / ``exclude``: comma-separated labels or shell patterns of
-    the markers to fill / not to fill (:func:`select_markers`).
+    the markers to fill / not to fill (:func:`select_markers`).  ``donors``: the donors of ``pattern`` / ``rigid``
+    as ``--donors`` writes them (``"MARKER=D1,D2;D3,D4"``, see :mod:`mocapfill.methods.suite`; a list of labels is
+    joined).  ``lowpass``: a Butterworth low-pass after the fill, a cutoff in Hz, ``"auto"`` or ``"auto-marker"``
+    (:mod:`mocapfill.guards.lowpass`).
     """
 
     method: str = DEFAULT_METHOD
@@ -67,6 +70,12 @@ class FillSettings:
     min_fragment: int | None = None
     markers: str | None = None
     exclude: str | None = None
+    donors: str | None = None
+    lowpass: str | float | None = None
+
+    def __post_init__(self) -> None:
+        if self.donors is not None and not isinstance(self.donors, str):
+            object.__setattr__(self, "donors", ",".join(str(d) for d in self.donors))
 
     def check(self, *, name: Callable[[str], str] = str) -> "FillSettings":
         """Raise MethodError for an unknown method, an option whose step is off or a malformed value; return self.
@@ -82,6 +91,12 @@ class FillSettings:
         for options, step in ((("smooth_window", "smooth_order"), "smooth"),):
             if any(getattr(self, option) is not None for option in options) and not getattr(self, step):
                 raise MethodError(f"{name(options[0])} and {name(options[1])} only apply with {name(step)}")
+        if self.donors is not None and "donors" not in get_method(self.method).parameters():
+            raise MethodError(f"{name('donors')} applies to the methods pattern and rigid, not {self.method}")
+        if self.lowpass is not None:
+            from .guards.lowpass import parse_cutoff
+
+            parse_cutoff(self.lowpass)
         return self
 
     def check_values(self, *, name: Callable[[str], str] = str) -> "FillSettings":
@@ -304,16 +319,17 @@ def widen_result(result: FillResult, columns: np.ndarray, positions: np.ndarray,
     info = dict(result.info)
     if isinstance(info.get("left_missing"), list):  # the stretches left on request, in the full capture's columns
         info["left_missing"] = [dict(r, marker=int(columns[r["marker"]])) for r in info["left_missing"]]
-    if isinstance(info.get("declined"), list):  # the gaps a method declined (``marker_index``), likewise
-        info["declined"] = [dict(r, marker_index=int(columns[r["marker_index"]]))
-                            if isinstance(r, dict) and isinstance(r.get("marker_index"), (int, np.integer)) else r
-                            for r in info["declined"]]
     records = info.get("gap_methods")
     if isinstance(records, list):  # name each gap's marker: indices would point into the fill's columns
         sub_labels = [labels[k] for k in columns]
         info["gap_methods"] = [dict(r, marker=sub_labels[r["marker"]]) if isinstance(r, dict)
                                and isinstance(r.get("marker"), (int, np.integer))
                                and 0 <= r["marker"] < len(sub_labels) else r for r in records]
+    for key in ("gap_methods", "declined"):  # per-gap records' marker_index: a column of the whole capture
+        if isinstance(info.get(key), list):
+            info[key] = [dict(r, marker_index=int(columns[r["marker_index"]])) if isinstance(r, dict)
+                         and isinstance(r.get("marker_index"), (int, np.integer))
+                         and 0 <= r["marker_index"] < len(columns) else r for r in info[key]]
     return FillResult(full, filled, std, result.n_iter, result.converged, list(result.objective), info)
 
 
@@ -457,6 +473,9 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
     record.update({k: v for k, v in options.items() if k != "bones"})
     if settings.bones is not None:
         record["bones"] = settings.bones
+    if settings.donors is not None:
+        options["donors"] = settings.donors
+        record["donors"] = settings.donors
     if progress is not None and "progress" in accepted:
         options["progress"] = progress
     if "jobs" in accepted:
@@ -509,6 +528,17 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
         smoothed = np.flatnonzero(chosen)  # the chosen markers only
         positions[:, smoothed] = savgol_smooth(positions[:, smoothed], **smooth_options)
         record["smooth"] = {"window": settings.smooth_window, "order": settings.smooth_order}
+    if settings.lowpass is not None:
+        from .guards.lowpass import describe, lowpass, parse_cutoff
+
+        cutoff, per = parse_cutoff(settings.lowpass)
+        filtered = lowpass(positions[:, columns], data.rate, cutoff, per=per, observed=~work.missing[:, columns])
+        positions = positions.copy()
+        positions[:, columns] = filtered.positions
+        record["lowpass"] = {"asked": str(settings.lowpass), "cutoff_hz": filtered.cutoff, "per": per,
+                             "used": describe(filtered.cutoff),
+                             "filter": "Butterworth, 2nd order run forward and backward (zero lag, 4th-order "
+                                       "response, gain 0.5 at the cutoff)"}
 
     output = data.with_positions(positions)
     dropped = either(either(either(rejected, held), repaired), fragments)
@@ -559,9 +589,10 @@ def sample_status(outcome: FillOutcome) -> np.ndarray:
                        (outcome.held, Status.REJECTED_HELD), (outcome.fragments, Status.REJECTED_FRAGMENT)):
         if mask is not None:
             status[np.asarray(mask, dtype=bool) & ~now_missing] = code
-    declined = outcome.result.info.get("declined") if isinstance(outcome.result.info, dict) else None
-    if isinstance(declined, np.ndarray) and declined.shape == status.shape:
-        status[declined.astype(bool) & now_missing] = Status.MISSING_DECLINED
+    if isinstance(outcome.result.info, dict):  # the gaps a method declined (the suites' fills)
+        from .methods.base import declined_mask
+
+        status[declined_mask(outcome.result.info, status.shape) & now_missing] = Status.MISSING_DECLINED
     if outcome.left is not None:
         left = np.asarray(outcome.left)
         status[left != 0] = left[left != 0]

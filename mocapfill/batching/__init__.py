@@ -77,7 +77,8 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
         The fill options of :class:`mocapfill.pipeline.FillSettings` (``hidden``, ``max_iter``, ``tol``, ``seed``,
         ``bones``, ``reject_outliers``, ``delta``, ``reference`` (paths of reference takes), ``model``,
         ``denoise``, ``smooth``, ``smooth_window``, ``smooth_order``, ``max_gap``, ``edges``, ``min_fragment``,
-        ``markers``, ``exclude``).
+        ``markers``, ``exclude``, ``donors``,
+        ``lowpass``).
 
     Returns
     -------

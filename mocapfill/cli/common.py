@@ -133,6 +133,15 @@ def fill_options(func: Callable) -> Callable:
         click.option("--ik-model", "ik_model", type=str, default=None, metavar="MODEL.osim",
                      help="Scaled OpenSim model whose markers carry the capture's labels, for --method opensim-ik "
                           "(the kinematic fill; needs the extra mocapfill[opensim])."),
+        click.option("--donors", multiple=True, metavar="[MARKER=]D1,D2,...",
+                     callback=lambda ctx, param, value: ";".join(value) if value else None,
+                     help="Donor markers of --method pattern / rigid, by label: MARKER=D1,D2 for one marker "
+                          "(repeatable), D1,D2 for every marker (default: per gap, the markers whose distance to "
+                          "the gapped one varies least)."),
+        click.option("--lowpass", type=str, default=None, metavar="HZ|auto|auto-marker",
+                     help="Zero-lag 4th-order Butterworth low-pass after the fill (gain 0.5 at HZ), each continuous "
+                          "stretch alone; 'auto' picks the cutoff by Winter's residual analysis for the take, "
+                          "'auto-marker' per marker.  Changes observed samples; the report gives the cutoff."),
     ]
     for option in reversed(options):
         wrapper = option(wrapper)

@@ -100,7 +100,7 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
 
         if report_path is not None:
             write_fill_report(outcome, report_path, method=method, input_path=input_path, output_path=output_path,
-                              smoothed=settings.smooth)
+                              smoothed=settings.smooth or settings.lowpass is not None)
         if status_path is not None:
             write_status_csv(outcome, status_path)
 
@@ -164,6 +164,9 @@ def _summary(outcome, method: str, report_path, status_path, quiet: bool) -> Non
                      f"{fragments['frames']} frames filled over")
     if "smooth" in outcome.settings:
         parts.append("output smoothed")
+    lowpass = outcome.settings.get("lowpass")
+    if lowpass:
+        parts.append(f"low-passed at {lowpass['used']}")
     if report_path:
         parts.append(f"report {report_path}")
     if status_path:
@@ -187,6 +190,14 @@ def _summary(outcome, method: str, report_path, status_path, quiet: bool) -> Non
     changed = outcome.observed_changed()
     out.print("observed samples changed by: " + ", ".join(changed) if changed else
               "observed samples returned bit-identical", markup=False, highlight=False, soft_wrap=True)
+    declined = result.info.get("declined") or []
+    if declined:
+        shown_gaps = ", ".join(f"{rec['marker']} at frame {data.first_frame + rec['start']} ({rec['length']} frames: "
+                               f"{rec['reason']})" for rec in declined[:5])
+        more = f" and {len(declined) - 5} more (see --report)" if len(declined) > 5 else ""
+        gaps = f"{len(declined)} gap" + ("s" if len(declined) != 1 else "")
+        out.print(f"{method} declined {gaps}, left missing: {shown_gaps}{more}", markup=False, highlight=False,
+                  soft_wrap=True)
     dead = [labels[m] for m in all_missing_markers(missing)]
     if dead:
         out.print(f"never observed, left empty: {', '.join(dead)}", markup=False, highlight=False)
