@@ -405,7 +405,7 @@ def report(cache: Path, captures: list[str], protocols: list[str], draws: int, s
                   ["capture", "protocol", "method", "pooled RMSE", "pooled median", "RMSE per draw",
                    "median of draws", "unfilled", "failed", "s per fill", "err/std (median)"], rows)
     for c, t in compact.items():
-        results.table(f"compact {c}", t["title"], t["columns"], t["rows"])
+        results.table(f"compact_{c}", t["title"], t["columns"], t["rows"])
     results.table("checks", f"issue 21's checks for {default}", ["check", "result", "failing cases", "cases"],
                   check_rows)
     for name, f in figures.items():
