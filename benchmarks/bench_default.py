@@ -65,7 +65,8 @@ def accuracy(trials: int, seed: int, extra: list[str], results: harness.Results)
         for protocol in ("marker", "limb"):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                res = evaluate(data, methods, protocol, trials=trials, seed=seed, **GAPS)
+                res = evaluate(data, methods, protocol, trials=trials, seed=seed,
+                               occlusion_min=GAPS["gap_min"], occlusion_max=GAPS["gap_max"])
             rmse = res.values("rmse") * k
             bone = res.values("bone_error") * k
             secs = res.values("seconds")

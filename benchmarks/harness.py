@@ -41,6 +41,16 @@ CLIP_TENNIS = SAMPLE_DATA / "kinematics_tennis_serve.c3d"
 #: The tennis serve with ten real-looking gaps (145 missing samples), the complete twin of :data:`CLIP_TENNIS`.
 CLIP_TENNIS_NAN = SAMPLE_DATA / "kinematics_tennis_serve_nan.c3d"
 
+#: Complete real captures by name (no gaps: ground truth to occlude): the two bundled clips and, when
+#: ``SHARED_DATA`` is present, Vicon Nexus's arm + robot (33 markers, 800 frames at 100 Hz) and the BTK sprint (59
+#: markers, 788 frames at 250 Hz).  Scripts skip the paths that do not exist.
+COMPLETE_CLIPS = {
+    "85_02": CLIP_85_02,
+    "tennis": CLIP_TENNIS,
+    "pyorerun-example": SHARED_DATA / "pyorerun" / "example.c3d",
+    "sprint": SHARED_DATA / "btk" / "TRCSamples" / "SprintMotion.trc",
+}
+
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
@@ -80,6 +90,21 @@ def machine() -> str:
 
 def utc_now() -> str:
     return time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
+
+
+def git_commit() -> str:
+    """The checkout's short commit, with ``+dirty`` when ``mocapfill/`` has uncommitted changes ("unknown" without git):
+    what made a cached result."""
+    import subprocess
+
+    try:
+        head = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "--", "mocapfill"],
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + ("+dirty" if dirty else "")
 
 
 def banner(script: str, file=None) -> None:
@@ -217,6 +242,32 @@ def dumps(doc: dict) -> str:
         return json.dumps(value)
 
     return compact(doc, 0) + "\n"
+
+
+def cmu41_layout() -> list[str]:
+    """The CMU 41-marker set: 85_02's labels without their ``Subject:`` prefix."""
+    import mocapfill
+    from mocapfill.references import bare_label
+
+    return [bare_label(x) for x in mocapfill.read(CLIP_85_02).labels]
+
+
+def cmu41_clip(name: str, labels: Sequence[str]):
+    """A CMU clip of the 41-marker set (``85_02``, a ``bolero/`` CSV at 120 Hz, or a ``cmu-train/`` C3D) restricted
+    to ``labels`` (without prefix) in that order: a MarkerData named ``name``."""
+    import mocapfill
+    from mocapfill.markers import MarkerData
+    from mocapfill.references import bare_label
+
+    if name == "85_02":
+        data = mocapfill.read(CLIP_85_02)
+    elif name in ("127_07", "132_32"):
+        data = mocapfill.read(SHARED_DATA / "bolero" / f"{name}.csv", rate=120)
+    else:
+        data = mocapfill.read(SHARED_DATA / "cmu-train" / f"{name}.c3d")
+    bare = [bare_label(x) for x in data.labels]
+    idx = [bare.index(x) for x in labels]
+    return MarkerData(data.positions[:, idx].copy(), list(labels), data.rate, data.units, path=name)
 
 
 def add_results_argument(parser) -> None:

@@ -42,7 +42,7 @@ def clip(request, sample_data):
 def _run(data, protocol):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = evaluate(data, ["pca", "auto"], protocol, trials=TRIALS, seed=SEED, gap_min="10%", gap_max="50%")
+        res = evaluate(data, ["pca", "auto"], protocol, trials=TRIALS, seed=SEED, occlusion_min="10%", occlusion_max="50%")
     return np.nanmedian(res.values("rmse"), axis=0), np.nanmedian(res.values("bone_error"), axis=0)
 
 

@@ -22,7 +22,7 @@ def run(*args):
 
 
 def test_table_on_stderr_csv_on_stdout(clip):
-    res = run(clip, "--methods", "linear,spline", "-n", "3", "--seed", "1", "--gap-max", "0.5s", "--csv")
+    res = run(clip, "--methods", "linear,spline", "-n", "3", "--seed", "1", "--occlusion-max", "0.5s", "--csv")
     assert res.exit_code == 0, res.output
     rows = list(csv.DictReader(io.StringIO(res.stdout)))
     assert len(rows) == 6 and {r["method"] for r in rows} == {"linear", "spline"}
@@ -33,7 +33,7 @@ def test_table_on_stderr_csv_on_stdout(clip):
 
 def test_json_save_and_replay_give_the_same_numbers(clip, tmp_path):
     spec = tmp_path / "spec.json"
-    first = run(clip, "-m", "linear,spline", "-p", "limb", "-n", "2", "-s", "5", "--gap-max", "40",
+    first = run(clip, "-m", "linear,spline", "-p", "limb", "-n", "2", "-s", "5", "--occlusion-max", "40",
                 "--save-occlusions", spec, "--json", "--quiet")
     assert first.exit_code == 0, first.output
     assert first.stderr == ""
@@ -72,8 +72,8 @@ def test_bad_spec_file(clip, tmp_path):
 def test_usage_errors(clip, tmp_path):
     res = run(clip, "-m", "linear", "--json", "--csv")
     assert res.exit_code == 2 and "choose one of --json and --csv" in res.stderr
-    res = run(clip, "-m", "linear", "--gap-min", "ten")
-    assert res.exit_code == 1 and "--gap-min 'ten'" in res.stderr
+    res = run(clip, "-m", "linear", "--occlusion-min", "ten")
+    assert res.exit_code == 1 and "--occlusion-min 'ten'" in res.stderr
     res = run(clip, "-m", "linear", "-o", "novalue")
     assert res.exit_code == 2 and "KEY=VALUE" in res.stderr
     res = run(tmp_path / "absent.c3d", "-m", "linear")

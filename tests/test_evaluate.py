@@ -49,8 +49,8 @@ def test_parse_length_forms():
     assert parse_length("10%", 810, 120.0) == 81
     assert parse_length("0.001s", 810, 120.0) == 1
     for bad in ("abc", "-3", "10 parsecs"):
-        with pytest.raises(MocapfillError, match="--gap-min .*expected frames"):
-            parse_length(bad, 810, 120.0, name="--gap-min")
+        with pytest.raises(MocapfillError, match="--occlusion-min .*expected frames"):
+            parse_length(bad, 810, 120.0, name="--occlusion-min")
     with pytest.raises(MocapfillError, match="must be whole"):
         parse_length("1.5", 810, 120.0)
 
@@ -59,9 +59,9 @@ def test_gap_range_defaults_and_errors():
     assert gap_range("marker", 810, 120.0) == (81, 405)
     assert gap_range("blackout", 810, 120.0) == (6, 30)
     assert gap_range("marker", 100, 120.0, gap_max=500) == (10, 98)  # clipped to fit an interior gap
-    with pytest.raises(MocapfillError, match="--gap-min 50 .* longer than --gap-max 10"):
+    with pytest.raises(MocapfillError, match="--occlusion-min 50 .* longer than --occlusion-max 10"):
         gap_range("marker", 810, 120.0, gap_min=50, gap_max=10)
-    with pytest.raises(MocapfillError, match="--gap-min 900 is 900 frames"):
+    with pytest.raises(MocapfillError, match="--occlusion-min 900 is 900 frames"):
         gap_range("marker", 810, 120.0, gap_min=900)
 
 
@@ -237,7 +237,7 @@ def stub(monkeypatch):
 
 
 def test_evaluate_gives_the_same_numbers_twice(clip, stub):
-    kwargs = dict(trials=4, seed=7, gap_min=10, gap_max=60)
+    kwargs = dict(trials=4, seed=7, occlusion_min=10, occlusion_max=60)
     a = evaluate(clip, ["linear", "spline", stub], "marker", **kwargs)
     b = evaluate(clip, ["linear", "spline", stub], "marker", **kwargs)
     _same(_numbers(a), _numbers(b))
@@ -246,19 +246,19 @@ def test_evaluate_gives_the_same_numbers_twice(clip, stub):
     stub_scores = [s for s in a.scores if s.method == "stub"]
     assert all(s.n_iter == 3 and not s.converged for s in stub_scores)
     assert a.summary()["stub"]["not_converged"] == 4
-    c = evaluate(clip, ["linear", stub], "marker", trials=4, seed=8, gap_min=10, gap_max=60)
+    c = evaluate(clip, ["linear", stub], "marker", trials=4, seed=8, occlusion_min=10, occlusion_max=60)
     assert _numbers(c) != _numbers(a)[:8]
 
 
 def test_method_options_reach_the_method_and_failures_are_recorded(clip, stub):
-    result = evaluate(clip, [stub, "linear"], "blackout", trials=2, seed=1, gap_min=60, gap_max=60,
+    result = evaluate(clip, [stub, "linear"], "blackout", trials=2, seed=1, occlusion_min=60, occlusion_max=60,
                       method_options={"stub": {"hidden": 5}})
     stub_scores = [s for s in result.scores if s.method == "stub"]
     assert all(s.error == "stub: too many missing samples" for s in stub_scores)  # 60 x 41 > 2000
     assert all(np.isnan(s.rmse) for s in stub_scores)
     assert result.summary()["stub"]["failures"] == 2
     assert result.win_rates()["linear"]["stub"] == 1.0 and result.best() == "linear"
-    ok = evaluate(clip, [stub], "marker", trials=1, seed=1, gap_min=5, gap_max=5, options={"hidden": 5})
+    ok = evaluate(clip, [stub], "marker", trials=1, seed=1, occlusion_min=5, occlusion_max=5, options={"hidden": 5})
     assert ok.scores[0].n_iter == 5
 
 
@@ -270,7 +270,7 @@ def test_unknown_method_and_ignored_options(clip):
 
 
 def test_serial_and_parallel_agree(clip):
-    kwargs = dict(trials=4, seed=3, gap_min=20, gap_max=80)
+    kwargs = dict(trials=4, seed=3, occlusion_min=20, occlusion_max=80)
     serial = evaluate(clip, ["linear", "spline"], "limb", jobs=1, **kwargs)
     parallel = evaluate(clip, ["linear", "spline"], "limb", jobs=2, **kwargs)
     _same(_numbers(serial), _numbers(parallel))

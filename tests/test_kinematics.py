@@ -106,7 +106,7 @@ def test_kinematic_fill_attaches_a_marker_the_model_lacks(leg):
 def test_evaluate_scores_joint_angles(leg, tmp_path):
     data, degrees, model, setup = leg
     result = mocapfill.evaluate(data, ["linear", "opensim-ik"], "marker", trials=2, seed=3, ik=setup,
-                                gap_min=10, gap_max=25)
+                                occlusion_min=10, occlusion_max=25)
     assert result.ik["coordinates"] == {"hip_flexion": "rotational", "knee_angle": "rotational",
                                         "ankle_angle": "rotational"}
     assert len(result.left_missing) == 2

@@ -9,6 +9,10 @@ Blackouts: every registered method is required to fill them (issue 3 names dynam
 and msvd bridge them by interpolation, and the others build on these).  A method that cannot would be listed in
 ``BLACKOUT_EXEMPT`` with the reason; it is empty.
 
+Methods that may decline a gap (``MethodSpec.may_decline``: the suites' ``woltring``, ``pattern``, ``rigid``) must
+fill every fillable sample outside the gaps they list in ``info["declined"]``, leave those gaps missing whole, and
+list only real gaps; on the synthetic body they must fill the interior gap its rule can reach.
+
 Iterative methods run with a small iteration cap (``max_iter``) so the whole file takes seconds; the conformance
 properties do not depend on convergence.
 
@@ -40,9 +44,14 @@ FAST = {"max_iter": 15}
 
 
 
-def _options(name: str) -> dict:
+def _options(name: str, n_markers: int = 8, units: str = "mm", labels=None) -> dict:
     accepted = METHODS[name].parameters()
-    return {k: v for k, v in FAST.items() if k in accepted}
+    options = {k: v for k, v in FAST.items() if k in accepted}
+    if "model" in accepted:  # the learned method: a model of the right layout (random weights: the contract only)
+        from mocapfill.engines.denoiser import untrained_model
+
+        options["model"] = untrained_model(n_markers, units, labels=labels)
+    return options
 
 
 def _fill(positions: np.ndarray, name: str, *, seed=0, rate=60.0, units="mm", labels=None, request=None,
@@ -54,8 +63,8 @@ def _fill(positions: np.ndarray, name: str, *, seed=0, rate=60.0, units="mm", la
             labels = SYNTHETIC_LABELS[:positions.shape[1]]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return mocapfill.fill(positions, name, seed=seed, rate=rate, units=units, labels=labels, **_options(name),
-                              **extra)
+        return mocapfill.fill(positions, name, seed=seed, rate=rate, units=units, labels=labels,
+                              **_options(name, np.shape(positions)[1], units, labels), **extra)
 
 
 def synthetic(n_frames: int = 90, n_markers: int = 8, seed: int = 3) -> np.ndarray:
@@ -87,6 +96,25 @@ def real_clip(sample_data):
     pos[150:200, 20] = np.nan
     pos[100:103] = np.nan
     return pos, data.rate, data.units, list(data.labels)
+
+
+def declined_mask(original: np.ndarray, result, name: str) -> np.ndarray:
+    """(n_frames, n_markers) the samples of the gaps ``result`` declined; checks each is a whole gap, left missing."""
+    from mocapfill.gaps import find_gaps
+    from mocapfill.methods.base import declined_mask as mask_of
+
+    declined = result.info.get("declined", [])
+    if not METHODS[name].may_decline:
+        assert not declined, f"{name} declined gaps but is not registered as may_decline"
+        return np.zeros(original.shape[:2], dtype=bool)
+    gaps = {(g.marker, g.start, g.length) for g in find_gaps(np.isnan(original).any(axis=2))}
+    for rec in declined:
+        key = (rec["marker_index"], rec["start"], rec["length"])
+        assert key in gaps, f"{name} declined {key}, which is not a gap"
+        assert isinstance(rec["reason"], str) and rec["reason"]
+    mask = mask_of(result.info, original.shape[:2])
+    assert np.isnan(result.positions[mask]).all(), f"{name} filled part of a gap it declined"
+    return mask
 
 
 @pytest.fixture(scope="module")
@@ -124,7 +152,7 @@ def check_contract(original: np.ndarray, result, name: str) -> None:
     assert np.array_equal(np.isnan(result.positions).all(axis=2), out_missing)
     never = missing.all(axis=0)
     assert out_missing[:, never].all(), f"{name} invented a marker that is never observed"
-    fillable = missing & ~never[None, :]
+    fillable = missing & ~never[None, :] & ~declined_mask(original, result, name)
     if name in BLACKOUT_EXEMPT:
         fillable &= ~missing.all(axis=1)[:, None]
     assert not out_missing[fillable].any(), f"{name} left {int(out_missing[fillable].sum())} fillable samples"
@@ -138,7 +166,9 @@ def check_contract(original: np.ndarray, result, name: str) -> None:
 @pytest.mark.parametrize("name", list(METHODS))
 def test_synthetic_gaps(name, request):
     original = with_gaps(synthetic())
-    check_contract(original, _fill(original, name, request=request), name)
+    result = _fill(original, name, request=request)
+    check_contract(original, result, name)
+    assert not np.isnan(result.positions[20:35, 1]).any(), f"{name} did not fill an interior gap of a rigid body"
 
 
 @pytest.mark.parametrize("name", list(METHODS))

@@ -44,7 +44,7 @@ REPORT_KINDS = ("html", "json")
 def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str | os.PathLike, *,
           method: str = "auto", jobs: int = 1, scheduler: Any = None, format: str | None = None,
           input_format: str | None = None, rate: float | None = None, override_rate: bool = False,
-          report: str | None = None, force: bool = False,
+          report: str | None = None, status: bool = False, force: bool = False,
           progress: Callable[[int, int, BatchRow | None], None] | None = None, **options: Any) -> list[BatchRow]:
     """Fill every input file into ``out_dir``; return one :class:`BatchRow` per input, in input order.
 
@@ -67,13 +67,18 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
         How to read the inputs (as :func:`mocapfill.read`).
     report : {"html", "json"} or None
         Write ``<output>.report.<kind>`` per file and ``out_dir/index.html`` linking them.
+    status : bool
+        Write ``<output>.status.csv`` per file: what became of every sample (see ``fill --status``).
     force : bool
         Redo inputs that a previous run finished with the same content and settings.
     progress : callable or None
         ``progress(done, total, row)``, called once with ``(0, total, None)`` and after every file.
     **options
         The fill options of :class:`mocapfill.pipeline.FillSettings` (``hidden``, ``max_iter``, ``tol``, ``seed``,
-        ``bones``, ``reject_outliers``, ``delta``, ``reference``, ``smooth``, ``smooth_window``, ``smooth_order``).
+        ``bones``, ``reject_outliers``, ``delta``, ``reference`` (paths of reference takes), ``model``,
+        ``denoise``, ``smooth``, ``smooth_window``, ``smooth_order``, ``max_gap``, ``edges``, ``min_fragment``,
+        ``markers``, ``exclude``, ``donors``,
+        ``lowpass``).
 
     Returns
     -------
@@ -91,6 +96,12 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
     unknown = sorted(set(options) - known)
     if unknown:
         raise MocapfillError(f"batch: unknown option(s) {', '.join(unknown)} (expected {', '.join(sorted(known))})")
+    if isinstance(options.get("reference"), (str, os.PathLike)):
+        options["reference"] = (os.fspath(options["reference"]),)
+    elif options.get("reference") is not None:
+        options["reference"] = tuple(os.fspath(p) for p in options["reference"])
+    else:
+        options.pop("reference", None)
     settings = FillSettings(method=method, **options).check()
     from ..io import WRITE_FORMATS
 
@@ -117,7 +128,8 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
             raise InputError(f"{output}: output is the same file as the input {path}; choose another --out-dir")
         owners[key] = path
         tasks.append(FileTask(str(path), str(output), None if report_path is None else str(report_path), settings,
-                              input_format, rate, override_rate, format))
+                              input_format, rate, override_rate, format,
+                              str(output.with_name(f"{output.name}.status.csv")) if status else None))
 
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -162,7 +174,8 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
             started = time.perf_counter()
             skipped = None
             if entry is not None and entry.get("settings_sha256") == digest \
-                    and Path(task.output).is_file() and (task.report is None or Path(task.report).is_file()):
+                    and Path(task.output).is_file() and (task.report is None or Path(task.report).is_file()) \
+                    and (task.status is None or Path(task.status).is_file()):
                 with contextlib.suppress(OSError):
                     if file_digest(task.input) == entry.get("input_sha256"):
                         skipped = row_from_state(entry, task, time.perf_counter() - started)

@@ -36,15 +36,17 @@ def settings_digest(task: FileTask) -> str:
 
     report = None if task.report is None else Path(task.report).suffix
     doc: dict[str, Any] = {"mocapfill": __version__, "fill": task.settings.as_dict(), "report": report,
+                           "status": task.status is not None,
                            "reading": [task.input_format, task.rate, task.override_rate],
                            "format": task.output_format}
-    for name in ("bones", "reference"):
-        path = getattr(task.settings, name)
-        if path is not None:
+    for name in ("bones", "reference", "model"):
+        value = getattr(task.settings, name)
+        paths = [value] if isinstance(value, str) else list(value or ())
+        for k, path in enumerate(paths):
             try:
-                doc[f"{name}_sha256"] = file_digest(path)
+                doc[f"{name}_sha256_{k}"] = file_digest(path)
             except OSError:
-                doc[f"{name}_sha256"] = None  # the task will fail and say why
+                doc[f"{name}_sha256_{k}"] = None  # the task will fail and say why
     return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
 
 
@@ -70,7 +72,8 @@ def row_from_state(entry: dict[str, Any], task: FileTask, seconds: float) -> Bat
     from .task import BatchRow
 
     return BatchRow(task.input, task.output, "skipped", method=task.settings.method, seconds=seconds,
-                    report=task.report or "", **known)
+                    report=task.report or "", left_samples=entry["row"].get("left_samples"),
+                    status_csv=task.status or "", **known)
 
 
 def compact_state(path: Path, state: dict[str, dict[str, Any]]) -> None:

@@ -17,7 +17,8 @@ def _absolute(task: FileTask) -> FileTask:
         return None if path is None else os.path.abspath(path)
 
     settings = dataclasses.replace(task.settings, bones=absolute(task.settings.bones),
-                                   reference=absolute(task.settings.reference))
+                                   reference=tuple(absolute(p) for p in task.settings.reference),
+                                   model=absolute(task.settings.model))
     return dataclasses.replace(task, input=absolute(task.input), output=absolute(task.output),
                                report=absolute(task.report), settings=settings)
 

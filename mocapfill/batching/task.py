@@ -18,10 +18,10 @@ from .resume import file_digest
 
 #: Columns of the results table, in order.
 COLUMNS = ("input", "output", "status", "frames", "markers", "missing_samples", "filled_samples", "method",
-           "seconds", "error")
+           "seconds", "error", "left_samples")
 @dataclass
 class BatchRow:
-    """The outcome of one input; the first ten fields are the results table's :data:`COLUMNS`.
+    """The outcome of one input; the first ten fields and ``left_samples`` are the results table's :data:`COLUMNS`.
 
     ``status`` is ``"filled"``, ``"skipped"`` (done before with the same content and settings) or ``"failed"``
     (``error`` says why, on one line).  ``frames`` ... ``filled_samples`` are None where the file could not be read.
@@ -30,6 +30,8 @@ class BatchRow:
     so far (None where unknown), ``input_sha256`` the hash of the content the task read.  How the task used its
     thread (None where unknown; what ``bench_batch.py`` compares across runners): ``started`` (wall clock, seconds
     since the epoch), ``cpu_seconds`` (user + kernel), ``kernel_seconds`` and ``page_faults`` (minor).
+    ``left_samples``: missing samples left missing on request (``max_gap``, ``edges="leave"``, markers not chosen);
+    ``status_csv``: the per-sample status CSV's path ("" without one).
     """
 
     input: str
@@ -51,6 +53,8 @@ class BatchRow:
     cpu_seconds: float | None = None
     kernel_seconds: float | None = None
     page_faults: int | None = None
+    left_samples: int | None = None
+    status_csv: str = ""
 
     def table_row(self) -> dict[str, Any]:
         """The row as the results table holds it (:data:`COLUMNS` only)."""
@@ -69,6 +73,7 @@ class FileTask:
     rate: float | None = None
     override_rate: bool = False
     output_format: str | None = None
+    status: str | None = None  # where to write the per-sample status CSV, or None
 
 
 def _process_facts() -> tuple[str, float | None]:
@@ -128,9 +133,8 @@ def _fill_file(task: FileTask, row: BatchRow) -> None:
                 data = read(task.input, format=task.input_format, rate=task.rate, override_rate=task.override_rate)
                 notes += [f"note: {note}" for note in data.notes]
                 row.frames, row.markers = data.n_frames, data.n_markers
-                reference = None
-                if task.settings.reject_outliers and task.settings.reference is not None:
-                    reference = read(task.settings.reference, rate=task.rate, override_rate=task.override_rate)
+                reference = [read(path, rate=task.rate if task.rate else data.rate, override_rate=True)
+                             for path in task.settings.reference]
                 outcome = fill_capture(data, task.settings, reference=reference)
                 columns = outcome.columns  # the markers filled: model points and unlabelled ones are not counted
                 row.markers = int(columns.size)
@@ -142,8 +146,15 @@ def _fill_file(task: FileTask, row: BatchRow) -> None:
                 write(outcome.output, task.output, format=task.output_format)
                 if task.report is not None:
                     write_fill_report(outcome, task.report, method=task.settings.method, input_path=task.input,
-                                      output_path=task.output, smoothed=task.settings.smooth)
+                                      output_path=task.output,
+                                      smoothed=task.settings.smooth or task.settings.lowpass is not None)
                     row.report = task.report
+                if task.status is not None:
+                    from ..pipeline import write_status_csv
+
+                    write_status_csv(outcome, task.status)
+                    row.status_csv = task.status
+                row.left_samples = 0 if outcome.left is None else int((outcome.left != 0).sum())
                 row.status = "filled"
             finally:
                 notes += [f"{item.category.__name__}: {one_line(item.message)}" for item in caught]
@@ -155,7 +166,7 @@ def _fill_file(task: FileTask, row: BatchRow) -> None:
 
 def remove_temporaries(task: FileTask) -> None:
     """Remove the temporary files :func:`mocapfill.io.atomic.atomic_write` leaves when its process is killed."""
-    for target in (task.output, task.report):
+    for target in (task.output, task.report, task.status):
         if target is None:
             continue
         path = Path(target)

@@ -40,7 +40,7 @@ def cli() -> None:
 
 
 # Commands register themselves on `cli` at import; imported here so `mocapfill --help` lists them all.
-from . import info, fill, bones, evaluate, batch  # noqa: E402,F401
+from . import info, fill, bones, evaluate, batch, train  # noqa: E402,F401
 
 
 def main() -> None:

@@ -44,6 +44,8 @@ class _BatchProgress(StderrProgress):
 @fill_options
 @click.option("--report", type=click.Choice(["html", "json"]), default=None,
               help="A report per file (<output>.report.html|json) and DIR/index.html, a sortable table of all.")
+@click.option("--status", "status", is_flag=True,
+              help="Write <output>.status.csv per file: what became of every sample (as fill --status).")
 @format_options
 @click.option("-j", "--jobs", type=click.IntRange(min=0), default=1, show_default=True,
               help="Local worker processes (0 = every core).")
@@ -53,13 +55,14 @@ class _BatchProgress(StderrProgress):
 @click.option("--force", is_flag=True, help="Redo inputs already filled with the same content and settings.")
 @quiet_option
 def batch_command(inputs: tuple[str, ...], out_dir: str, fill_settings: FillSettings, report: str | None,
-                  output_format: str | None, reading: ReadOptions, jobs: int, scheduler: str | None, force: bool,
-                  quiet: bool) -> None:
+                  status: bool, output_format: str | None, reading: ReadOptions, jobs: int, scheduler: str | None,
+                  force: bool, quiet: bool) -> None:
     """Fill every INPUT (files, folders searched recursively, globs) into DIR.
 
     Each output keeps its input's path relative to its folder.  Results go to DIR/mocapfill-batch.csv as files
-    finish (input, output, status, frames, markers, missing_samples, filled_samples, method, seconds, error).  A
-    re-run skips inputs whose output exists and whose content and settings are unchanged (--force redoes them).
+    finish (input, output, status, frames, markers, missing_samples, filled_samples, method, seconds, error,
+    left_samples: samples left missing by --max-gap, --edges leave, --markers / --exclude).  A re-run skips inputs
+    whose output exists and whose content and settings are unchanged (--force redoes them).
     A bad file gives a `failed` row and the others go on; the exit status is 1 if any file failed.
     """
     import dataclasses
@@ -73,7 +76,7 @@ def batch_command(inputs: tuple[str, ...], out_dir: str, fill_settings: FillSett
     with _BatchProgress(quiet) as bar:
         rows = batch(list(inputs), out_dir, method=method, jobs=jobs, scheduler=scheduler, format=output_format,
                      input_format=reading.format, rate=reading.rate, override_rate=reading.override_rate,
-                     report=report, force=force, progress=bar, **options)
+                     report=report, status=status, force=force, progress=bar, **options)
 
     out = console(quiet)
     failed = [row for row in rows if row.status == "failed"]

@@ -70,8 +70,13 @@ def fill_options(func: Callable) -> Callable:
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
         settings = FillSettings(**{name: kwargs.pop(name) for name in names})
+        option_name = lambda field: "--" + field.replace("_", "-")  # noqa: E731
         try:
-            settings.check(name=lambda field: "--" + field.replace("_", "-"))
+            settings.check_values(name=option_name)
+        except MethodError as exc:  # a malformed value: one line
+            raise click.ClickException(str(exc)) from None
+        try:
+            settings.check(name=option_name)
         except MethodError as exc:
             raise click.UsageError(str(exc)) from None
         return func(*args, fill_settings=settings, **kwargs)
@@ -93,9 +98,16 @@ def fill_options(func: Callable) -> Callable:
                      "ranges (Holden's rule) before filling; they become gaps and are filled."),
         click.option("--delta", type=click.FloatRange(min=0), default=None,
                      help="Outlier margin as a fraction of each pair's distance range (default 0.1)."),
-        click.option("--reference", "reference", type=str, default=None,
-                     help="A clean capture of the same marker set giving the distance ranges for --reject-outliers "
-                          "(default: the file itself)."),
+        click.option("--reference", "reference", type=str, multiple=True,
+                     help="A reference take of the same marker set (repeatable: the static trial, other takes of the "
+                          "session): its frames train the fill's body model, weighted by how well its body fits; a "
+                          "moving one also gives --reject-outliers its distance ranges (default: the file itself)."),
+        click.option("--model", "model", type=str, default=None,
+                     help="A denoiser model of this marker layout (from `mocapfill train`): for --method learned and "
+                          "--denoise."),
+        click.option("--denoise", is_flag=True,
+                     help="Observed samples the --model judges displaced or swapped become gaps and are refilled "
+                          "(reported as repaired)."),
         click.option("--keep-held", is_flag=True,
                      help="Keep held and frozen samples (a marker repeating its exact position while the body moves, "
                           "a coordinate stuck at exactly 0) as observed; by default they become gaps and are filled."),
@@ -105,9 +117,31 @@ def fill_options(func: Callable) -> Callable:
                      help="Smoothing window in frames, odd (default about 1/15 s)."),
         click.option("--smooth-order", type=click.IntRange(min=0), default=None,
                      help="Smoothing polynomial order (3)."),
+        click.option("--max-gap", "max_gap", type=str, default=None, metavar="DURATION",
+                     help="Leave gaps longer than this missing: frames (40) or seconds (0.5s). The reports list "
+                          "them as left missing."),
+        click.option("--edges", type=click.Choice(["fill", "leave"]), default="fill", show_default=True,
+                     help="Fill or leave the gaps that touch the first or last frame."),
+        click.option("--min-fragment", type=click.IntRange(min=1), default=None, metavar="FRAMES",
+                     help="Observed stretches shorter than this between two gaps join the gap around them and are "
+                          "filled with it (changes observed samples; the report counts them)."),
+        click.option("--markers", type=str, default=None, metavar="PATTERNS",
+                     help="Fill only these markers: labels or shell patterns, comma-separated (L*,R*), matched "
+                          "after a Subject: prefix; every marker still informs the fill."),
+        click.option("--exclude", type=str, default=None, metavar="PATTERNS",
+                     help="Do not fill these markers (same forms as --markers)."),
         click.option("--ik-model", "ik_model", type=str, default=None, metavar="MODEL.osim",
                      help="Scaled OpenSim model whose markers carry the capture's labels, for --method opensim-ik "
                           "(the kinematic fill; needs the extra mocapfill[opensim])."),
+        click.option("--donors", multiple=True, metavar="[MARKER=]D1,D2,...",
+                     callback=lambda ctx, param, value: ";".join(value) if value else None,
+                     help="Donor markers of --method pattern / rigid, by label: MARKER=D1,D2 for one marker "
+                          "(repeatable), D1,D2 for every marker (default: per gap, the markers whose distance to "
+                          "the gapped one varies least)."),
+        click.option("--lowpass", type=str, default=None, metavar="HZ|auto|auto-marker",
+                     help="Zero-lag 4th-order Butterworth low-pass after the fill (gain 0.5 at HZ), each continuous "
+                          "stretch alone; 'auto' picks the cutoff by Winter's residual analysis for the take, "
+                          "'auto-marker' per marker.  Changes observed samples; the report gives the cutoff."),
     ]
     for option in reversed(options):
         wrapper = option(wrapper)

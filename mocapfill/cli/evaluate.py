@@ -83,12 +83,19 @@ def _show(result, quiet: bool) -> None:
     summary = result.summary()
     settings = result.settings
     gap = ""
-    if "gap_min_frames" in settings:
-        gap = f", gaps of {settings['gap_min_frames']}-{settings['gap_max_frames']} frames"
+    if "occlusion_min_frames" in settings:
+        gap = f", occlusions of {settings['occlusion_min_frames']}-{settings['occlusion_max_frames']} frames"
+    if settings.get("max_gap_frames") is not None:
+        gap += f", fills leave gaps over {settings['max_gap_frames']} frames"
+    if settings.get("edges", "fill") != "fill":
+        gap += ", fills leave edge gaps"
     out.print(f"[bold]{data.path}[/bold]: {data.n_markers} markers, {data.n_frames} frames at {data.rate:g} Hz; "
               f"protocol {result.protocol}, {len(result.trials)} trials{gap}, seed {result.seed}", highlight=False)
+    if settings.get("references"):
+        out.print(f"reference takes: {', '.join(settings['references'])}", highlight=False)
+    oracle = " [ORACLE: outlier ranges from the clean file itself]" if settings.get("oracle") else ""
 
-    table = Table(title=f"errors over the hidden samples, in {units} (MSE in {units}\u00b2, Eq. 13)",
+    table = Table(title=f"errors over the hidden samples, in {units} (MSE in {units}\u00b2, Eq. 13){oracle}",
                   title_justify="left")
     table.add_column("method")
     honesty = any(summary[m]["error_ratio"]["median"] is not None for m in result.methods)
@@ -152,6 +159,13 @@ def _show(result, quiet: bool) -> None:
         out.print(f"outlier rejection caught {100 * sum(detected) / len(detected):.1f} % of the shifted samples "
                   f"(mean over trials; median {100 * float(np.median(detected)):.1f} %, worst trial "
                   f"{100 * min(detected):.1f} %)")
+    if settings.get("max_gap_frames") is not None or settings.get("edges", "fill") != "fill":
+        costs = []
+        for method in ranking:
+            mine = [s for s in result.scores if s.method == method and not s.error]
+            scored, unfilled = sum(s.n_scored for s in mine), sum(s.unfilled for s in mine)
+            costs.append(f"{method} {unfilled} of {scored} ({100 * unfilled / max(scored, 1):.1f} %)")
+        out.print("hidden samples left missing by the limits: " + ", ".join(costs), highlight=False)
     errors = sorted({f"{s.method}: {s.error}" for s in result.scores if s.error})
     for message in errors[:10]:
         out.print(f"[yellow]failure[/yellow] {message}", highlight=False)
@@ -174,6 +188,14 @@ def angle_headline(result) -> str:
             f"{_fmt(worst)}\u00b0, medians over trials{versus})")
 
 
+def _renamed(ctx: click.Context, param: click.Parameter, value) -> None:
+    """``--gap-min`` / ``--gap-max`` were renamed: say so in one line."""
+    if value is not None:
+        new = param.opts[0].replace("--gap", "--occlusion")
+        raise click.ClickException(f"{param.opts[0]} is now {new} (the length of the occlusions evaluate makes; "
+                                   "--max-gap limits the fill, as in fill)")
+
+
 @cli.command("evaluate")
 @click.argument("clean_file", type=str)
 @click.option("-m", "--methods", default=None, metavar="A,B,...",
@@ -186,12 +208,20 @@ def angle_headline(result) -> str:
 @click.option("-n", "--trials", type=click.IntRange(min=1), default=10, show_default=True, help="Number of trials.")
 @click.option("-s", "--seed", type=int, default=None, help="Seed of the occlusions and of the methods "
                                                           "(default: drawn, and printed so a run can be repeated).")
-@click.option("--gap-min", default=None, metavar="LEN",
-              help="Shortest gap: frames (40), seconds (0.5s) or percent of the clip (10%). Default per protocol: "
-                   "marker/limb 10% (at most 1s), blackout 0.05s, random 0.05s, dense 0.25s, segment 0.5s.")
-@click.option("--gap-max", default=None, metavar="LEN",
-              help="Longest gap (same forms). Default: marker/limb 50% (at most 5s), blackout 0.25s, random 0.5s, "
-                   "dense 2s, segment 3s.")
+@click.option("--occlusion-min", default=None, metavar="LEN",
+              help="Shortest occlusion the protocol makes: frames (40), seconds (0.5s) or percent of the clip "
+                   "(10%). Default per protocol: marker/limb 10% (at most 1s), blackout 0.05s, random 0.05s, dense "
+                   "0.25s, segment 0.5s.")
+@click.option("--occlusion-max", default=None, metavar="LEN",
+              help="Longest occlusion (same forms). Default: marker/limb 50% (at most 5s), blackout 0.25s, random "
+                   "0.5s, dense 2s, segment 3s.")
+@click.option("--gap-min", "old_gap_min", default=None, hidden=True, expose_value=False, callback=_renamed)
+@click.option("--gap-max", "old_gap_max", default=None, hidden=True, expose_value=False, callback=_renamed)
+@click.option("--max-gap", "max_gap", default=None, metavar="DURATION",
+              help="As fill --max-gap: every fill leaves gaps longer than this (frames or 0.5s) missing, and the "
+                   "hidden samples in them count as unfilled (what the limit costs).")
+@click.option("--edges", type=click.Choice(["fill", "leave"]), default="fill", show_default=True,
+              help="As fill --edges (the protocols hide interior stretches; this changes the clip's own edge gaps).")
 @click.option("--limb-size", type=click.IntRange(min=2), default=2, show_default=True,
               help="Markers hidden together by the limb protocol.")
 @click.option("--missing", type=click.FloatRange(0, 0.9, min_open=True), default=0.2, show_default=True,
@@ -213,7 +243,10 @@ def angle_headline(result) -> str:
 @click.option("--reject-outliers", type=click.Choice(["self", "clean"]), default=None,
               help="Run outlier rejection on each corrupted clip before filling (for the random protocol): "
                    "'self' uses the corrupted clip as its own reference (as fill does), 'clean' uses the clean "
-                   "file as Holden's reference take.")
+                   "file as Holden's reference take (an oracle: it has seen the truth; tables say so).")
+@click.option("--reference", "references", type=str, multiple=True,
+              help="A reference take of the same marker set (repeatable; never the clean file itself) for the "
+                   "methods that train on references (auto, pca).")
 @click.option("--ik", "ik_setup", type=str, default=None, metavar="SETUP.xml",
               help="Also score joint angles: OpenSim inverse kinematics with this IK setup on each fill, on the "
                    "capture with the hidden markers left missing, and on the complete capture (needs the extra "
@@ -228,10 +261,11 @@ def angle_headline(result) -> str:
 @input_options
 @quiet_option
 def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, seed: int | None,
-             gap_min: str | None, gap_max: str | None, limb_size: int, missing: float, radius: str | None,
+             occlusion_min: str | None, occlusion_max: str | None, max_gap: str | None, edges: str,
+             limb_size: int, missing: float, radius: str | None,
              events: int, occlusions: str | None,
              save_occlusions: str | None, jobs: int, option_pairs: tuple[str, ...], reject_outliers: str | None,
-             ik_setup: str | None, ik_model: str | None, report_path: str | None,
+             references: tuple[str, ...], ik_setup: str | None, ik_model: str | None, report_path: str | None,
              as_json: bool, as_csv: bool, reading: ReadOptions, quiet: bool) -> None:
     """Score fill methods on CLEAN_FILE: hide samples it has, fill them with each method, compare with the truth.
 
@@ -251,7 +285,7 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
     out = console(quiet)
     if report_path is not None and not report_path.lower().endswith((".html", ".htm", ".json")):
         raise click.BadParameter("the report's name must end in .html or .json", param_hint="'--report'")
-    given = {"ik_model"} if (ik_model or ik_setup) else set()
+    given = ({"ik_model"} if (ik_model or ik_setup) else set()) | set(options)  # -o model=F: the learned method
     if methods is None:
         names, unavailable = _default_methods(given)
         if unavailable:
@@ -263,7 +297,8 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
         for name in names:
             spec = get_method(name)  # unknown names fail here, before the file is read
             if spec.requires and spec.requires not in given:
-                raise MethodError(f"method {name!r} needs --{spec.requires.replace('_', '-')} MODEL.osim")
+                needs = "--ik-model MODEL.osim" if spec.requires == "ik_model" else f"-o {spec.requires}=FILE"
+                raise MethodError(f"method {name!r} needs {needs}")
     if ik_setup or any(get_method(n).requires == "ik_model" for n in names):
         from ..kinematics.opensim_ik import require_opensim
 
@@ -289,9 +324,12 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", UserWarning)
             result = run_evaluation(data, names, protocol, trials=trials, seed=seed, occlusions=occlusions,
-                                    gap_min=gap_min, gap_max=gap_max, jobs=jobs, options=options,
+                                    occlusion_min=occlusion_min, occlusion_max=occlusion_max, max_gap=max_gap,
+                                    edges=edges, jobs=jobs, options=options,
                                     reject_outliers=reject_outliers, progress=progress,
                                     save_occlusions=save_occlusions, ik=ik_setup, ik_model=ik_model,
+                                    reference=[read_input(path, reading._replace(format=None, override_rate=True),
+                                                          quiet=quiet) for path in references] or None,
                                     **protocol_options)
     show_warnings(caught, quiet)
     if save_occlusions:

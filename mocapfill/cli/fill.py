@@ -46,21 +46,26 @@ FILL_EPILOG = "\b\nMethods:\n" + "\n".join(f"  {spec.name:<10} {spec.summary}" f
 @fill_options
 @click.option("--report", "report_path", type=str, default=None,
               help="Write a report of the fill: FILE.json or FILE.html (self-contained page with plots).")
+@click.option("--status", "status_path", type=str, default=None, metavar="FILE.csv",
+              help="Write what became of every sample (frame, marker, status: observed, filled, left missing "
+                   "and why, rejected and why, smoothed, ...) as CSV.")
 @format_options
 @quiet_option
 @click.option("--force", is_flag=True, help="Allow OUT to be the same file as IN (it is replaced atomically).")
 @click.option("-j", "--jobs", type=click.IntRange(min=0), default=1, show_default=True,
               help="Worker processes for a long take's windows (0 = every core); the output does not depend on it.")
 def fill_command(input_path: str, output_path: str, fill_settings: FillSettings, report_path: str | None,
-                 output_format: str | None, reading: ReadOptions, quiet: bool, force: bool, jobs: int) -> None:
+                 status_path: str | None, output_format: str | None, reading: ReadOptions, quiet: bool,
+                 force: bool, jobs: int) -> None:
     """Fill the gaps of IN and write the result to OUT ("-" = stdin / stdout).
 
-    Observed samples are written back unchanged (unless --smooth).  Progress, warnings and a summary go to
-    stderr; stdout carries data only, so `mocapfill fill - - --format csv < in.csv > out.csv` works in a pipe.
+    Observed samples are written back unchanged, except under --smooth, --reject-outliers and --min-fragment
+    (the summary says which changed them).  Progress, warnings and a summary go to stderr; stdout carries data
+    only, so `mocapfill fill - - --format csv < in.csv > out.csv` works in a pipe.
     """
     from ..io import write
     from ..io.atomic import check_output_path
-    from ..pipeline import fill_capture, write_fill_report
+    from ..pipeline import fill_capture, write_fill_report, write_status_csv
 
     settings = fill_settings
     method = settings.method
@@ -70,14 +75,18 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
         if not report_path.lower().endswith((".json", ".html", ".htm")):
             raise click.BadParameter("must end in .json or .html", param_hint="--report")
         check_output_path(report_path, input_path, output_path)
+    if status_path is not None:
+        check_output_path(status_path, input_path, output_path, report_path)
+        if status_path == "-" and output_path == "-":
+            raise click.BadParameter("stdout carries the output; write the status to a file", param_hint="--status")
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         data = read_input(input_path, reading, quiet=quiet)
-        reference = None
-        if settings.reference is not None:
-            check_output_path(output_path, settings.reference)
-            reference = read_input(settings.reference, reading._replace(format=None), quiet=quiet)
+        reference = []
+        for path in settings.reference:
+            check_output_path(output_path, path)
+            reference.append(read_input(path, reading._replace(format=None, override_rate=True), quiet=quiet))
 
         with _ProgressBar(method, quiet) as bar:
             outcome = fill_capture(data, settings, reference=reference, progress=bar if bar.enabled else None,
@@ -91,20 +100,14 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
 
         if report_path is not None:
             write_fill_report(outcome, report_path, method=method, input_path=input_path, output_path=output_path,
-                              smoothed=settings.smooth)
+                              smoothed=settings.smooth or settings.lowpass is not None)
+        if status_path is not None:
+            write_status_csv(outcome, status_path)
 
     show_warnings(caught, quiet)
-    columns = outcome.columns
-    work, result, rejected = outcome.work, outcome.result, outcome.rejected
-    if columns is not None and columns.size != data.n_markers:  # counts of the markers filled, not the points kept
-        from ..pipeline import subset
-
-        data, work = subset(data, columns), subset(work, columns)
-        result = dataclasses.replace(result, positions=result.positions[:, columns], filled=result.filled[:, columns])
-        rejected = None if rejected is None else rejected[:, columns]
-    _summary(data, work, result, method, outcome.seconds, rejected, settings.smooth, report_path, quiet)
+    _references(outcome.references, data.units, quiet)
+    _summary(outcome, method, report_path, status_path, quiet)
     _found(outcome, quiet)
-
 
 def _found(outcome, quiet: bool) -> None:
     """One line each on what the reader and the held-sample guard found (only when there is something)."""
@@ -120,29 +123,82 @@ def _found(outcome, quiet: bool) -> None:
                       markup=False, highlight=False)
 
 
-def _summary(data, work, result, method: str, seconds: float, rejected, smoothed: bool, report_path, quiet: bool
-             ) -> None:
-    """A few lines on stderr: method, filled samples, gaps left, time, convergence."""
-    from ..gaps import all_missing_markers, find_gaps
-
+def _references(references, units: str, quiet: bool) -> None:
+    """One line per reference take on stderr: frames, weight, and what each stage did with it."""
     out = console(quiet)
-    missing = work.missing
-    left = np.isnan(result.positions).any(axis=2)
+    for ref in references:
+        stages = "; ".join(f"{stage}: {text}" for stage, text in ref.stages.items())
+        kind = "static trial, " if ref.static else ""
+        out.print(f"reference {ref.name} ({kind}{ref.n_frames} frames, body fit {ref.shape_rms:.3g} {units} RMS, "
+                  f"weight {ref.weight:.2f}): {stages}", markup=False, highlight=False, soft_wrap=True)
+
+
+def _summary(outcome, method: str, report_path, status_path, quiet: bool) -> None:
+    """A few lines on stderr: method, filled samples, gaps left (and why), time, convergence, what changed observed
+    samples."""
+    from ..gaps import all_missing_markers, find_gaps
+    from ..guards.limits import left_records
+
+    data, result = outcome.data, outcome.result
+    # counts of the points that went to the fill (markers), not of the model points / unlabelled kept aside
+    columns = np.arange(data.n_markers) if outcome.columns is None else np.asarray(outcome.columns)
+    labels = [data.labels[c] for c in columns]
+    missing = outcome.work.missing[:, columns]
+    filled = result.filled[:, columns]
     n_gaps = len(find_gaps(missing))
-    n_left = len(find_gaps(left))
+    n_left = len(find_gaps(np.isnan(result.positions[:, columns]).any(axis=2)))
+    out = console(quiet)
     shown = result.info.get("method", method)
     parts = [f"[bold]{method}[/bold]" + (f" ({shown})" if shown != method else ""),
-             f"filled {int(result.filled.sum())} of {int(missing.sum())} missing samples in {n_gaps} gaps",
-             f"{n_left} gaps left", f"{seconds:.2f} s"]
+             f"filled {int(filled.sum())} of {int(missing.sum())} missing samples in {n_gaps} gaps",
+             f"{n_left} gaps left", f"{outcome.seconds:.2f} s"]
     if result.n_iter:
         parts.append(f"{result.n_iter} iterations" + ("" if result.converged else " (not converged)"))
-    if rejected is not None:
-        parts.append(f"{int(rejected.sum())} outlier samples rejected")
-    if smoothed:
+    if outcome.rejected is not None:
+        parts.append(f"{int(outcome.rejected.sum())} outlier samples rejected")
+    if outcome.repaired is not None:
+        parts.append(f"{int(outcome.repaired[:, columns].sum())} displaced samples repaired by the denoiser")
+    fragments = outcome.settings.get("min_fragment")
+    if fragments is not None:
+        parts.append(f"{fragments['fragments']} fragments ({fragments['samples']} samples) shorter than "
+                     f"{fragments['frames']} frames filled over")
+    if "smooth" in outcome.settings:
         parts.append("output smoothed")
+    lowpass = outcome.settings.get("lowpass")
+    if lowpass:
+        parts.append(f"low-passed at {lowpass['used']}")
     if report_path:
         parts.append(f"report {report_path}")
+    if status_path:
+        parts.append(f"status {status_path}")
     out.print(", ".join(parts), highlight=False, soft_wrap=True)
-    dead = [data.labels[m] for m in all_missing_markers(missing)]
+    if outcome.left is not None and outcome.left[:, columns].any():
+        by_reason: dict[str, list[str]] = {}
+        for rec in left_records(outcome.left[:, columns]):
+            first = data.first_frame + rec["start"]
+            by_reason.setdefault(rec["reason"], []).append(
+                f"{labels[rec['marker']]} {first}-{first + rec['length'] - 1}")
+        for reason, items in by_reason.items():
+            shown_items = ", ".join(items[:8]) + (f", ... {len(items) - 8} more" if len(items) > 8 else "")
+            out.print(f"{reason}: {len(items)} gaps (marker frames): {shown_items}", markup=False,
+                      highlight=False, soft_wrap=True)
+    edges = outcome.settings.get("edges", "fill")
+    edge_filled = [g for g in find_gaps(missing) if (g.at_start or g.at_end) and filled[g.start, g.marker]]
+    if edges == "leave" or edge_filled:
+        out.print(f"edges: {edges}; {len(edge_filled)} gaps at the first or last frame filled", markup=False,
+                  highlight=False, soft_wrap=True)
+    changed = outcome.observed_changed()
+    out.print("observed samples changed by: " + ", ".join(changed) if changed else
+              "observed samples returned bit-identical", markup=False, highlight=False, soft_wrap=True)
+    declined = result.info.get("declined") or []
+    if declined:
+        shown_gaps = ", ".join(f"{rec['marker']} at frame {data.first_frame + rec['start']} ({rec['length']} frames: "
+                               f"{rec['reason']})" for rec in declined[:5])
+        more = f" and {len(declined) - 5} more (see --report)" if len(declined) > 5 else ""
+        gaps = f"{len(declined)} gap" + ("s" if len(declined) != 1 else "")
+        out.print(f"{method} declined {gaps}, left missing: {shown_gaps}{more}", markup=False, highlight=False,
+                  soft_wrap=True)
+    dead = [labels[m] for m in all_missing_markers(missing)]
     if dead:
         out.print(f"never observed, left empty: {', '.join(dead)}", markup=False, highlight=False)
+

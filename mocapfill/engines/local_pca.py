@@ -39,6 +39,7 @@ from ..units import length_factor
 from .weighted_pca import (
     MIN_TRAINING_FRAMES,
     cv_curve,
+    weighted_sums,
     linear_fallback,
     fit_model,
     gaussian_weights,
@@ -195,23 +196,25 @@ def _training(missing: np.ndarray, m: int, predictors: np.ndarray) -> np.ndarray
     return np.flatnonzero(~missing[:, m] & ~missing[:, predictors].any(axis=1))
 
 
-def nearest_with_training(missing: np.ndarray, m: int, candidates: np.ndarray, wanted: int
-                          ) -> tuple[np.ndarray, np.ndarray]:
+def nearest_with_training(missing: np.ndarray, m: int, candidates: np.ndarray, wanted: int,
+                          row_weight: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The longest nearest-first prefix of ``candidates`` that leaves ``wanted`` training frames for marker ``m``.
 
     candidates (p,) sorted by distance to ``m``; missing (n_frames, n_markers).  Each added predictor can only remove
     training frames (a frame must have all of them observed), so the prefix lengths trade predictors for frames;
-    at least three predictors are kept.  Returns (predictors (k,), training frames (n,)).
+    at least three predictors are kept.  ``row_weight`` (n_frames,): what each frame counts for (reference frames
+    count by their weight; default 1).  Returns (predictors (k,), training frames (n,)).
     """
     ok = ~missing[:, m][:, None] & np.logical_and.accumulate(~missing[:, candidates], axis=1)  # (n_frames, p)
-    counts = ok.sum(axis=0)
+    counts = ok.sum(axis=0) if row_weight is None else row_weight @ ok
     enough = np.flatnonzero(counts >= wanted)
     k = max(int(enough[-1]) + 1 if len(enough) else 0, min(3, len(candidates)))
     return candidates[:k], np.flatnonzero(ok[:, k - 1]) if k else np.flatnonzero(~missing[:, m])
 
 
 def observed_groups(missing: np.ndarray, m: int, frames: np.ndarray, near: np.ndarray, max_patterns: int,
-                    wanted: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+                    wanted: int, row_weight: np.ndarray | None = None
+                    ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Split marker ``m``'s gap ``frames`` into (frames, predictors, training frames) groups.
 
     near (p,) candidate predictors sorted by distance to ``m``; missing (n_frames, n_markers).  First the published
@@ -220,12 +223,13 @@ def observed_groups(missing: np.ndarray, m: int, frames: np.ndarray, near: np.nd
     markers missing at once, few or no complete frames) is split again by which of its nearest observed
     candidates each frame has, and each part keeps the nearest of them that still leave ``wanted`` training
     frames (:func:`nearest_with_training`): the model learns from incomplete frames, conditioning only on markers
-    observed where it predicts.
+    observed where it predicts.  ``row_weight`` (n_frames,): what each frame counts for (default 1).
     """
     out = []
     for group, predictors in pattern_groups(missing, frames, near, max_patterns):
         train = _training(missing, m, predictors)
-        if len(train) >= wanted and len(predictors) >= 3:
+        count = len(train) if row_weight is None else row_weight[train].sum()
+        if count >= wanted and len(predictors) >= 3:
             out.append((group, predictors, train))
             continue
         # per frame, the nearest observed candidates (how many: those a prefix can afford in training frames)
@@ -236,7 +240,7 @@ def observed_groups(missing: np.ndarray, m: int, frames: np.ndarray, near: np.nd
         inverse = np.asarray(inverse).ravel()
         for p in range(len(uniq)):
             part = group[inverse == p]
-            preds, train = nearest_with_training(missing, m, near[uniq[p]], wanted)
+            preds, train = nearest_with_training(missing, m, near[uniq[p]], wanted, row_weight)
             out.append((part, preds, train))
     return out
 
@@ -271,9 +275,39 @@ def marker_weights(dist: np.ndarray, m: int, scales: tuple[float, ...], align_sc
     return weights, gaussian_weights(dist, align_scale)
 
 
+def _cols(markers: np.ndarray) -> list[int]:
+    """Flattened coordinate columns of ``markers`` (3 per marker), as a list."""
+    return (3 * np.asarray(markers, dtype=int)[:, None] + np.arange(3)).ravel().tolist()
+
+
+def _choose_rows(flat: np.ndarray, tr: np.ndarray, own: np.ndarray, rw: np.ndarray | None, target: np.ndarray,
+                 pred: np.ndarray, w: np.ndarray, normalise: bool, folds: int
+                 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Training rows, their weights and the cross-validation curve of one model, with or without reference rows.
+
+    flat (n, 3 n_markers) local coordinates; tr (n_train,) training rows; own (n_train,) bool, the capture's own
+    rows (the others are reference frames, weights ``rw`` (n_train,)).  Without reference rows: every row, the
+    plain curve.  With them: where the capture's own rows allow two held-out blocks, the model with references is
+    scored on those blocks (references always in training) against the model on the capture's rows alone, and the
+    better is kept; otherwise the references stay and every row is held out in turn.
+    """
+    if rw is None or own.all():
+        return tr, None, cv_curve(flat, tr, target, pred, w, normalise=normalise, folds=folds)
+    enough = own.sum() >= 2 * MIN_TRAINING_FRAMES
+    curve = cv_curve(flat, tr, target, pred, w, normalise=normalise, folds=folds, row_weight=rw,
+                     holdout=own if enough else None)
+    if not enough or curve is None:
+        return tr, rw, curve
+    alone = cv_curve(flat, tr[own], target, pred, w, normalise=normalise, folds=folds)
+    if alone is not None and alone[0].min() <= curve[0].min():
+        return tr[own], None, alone
+    return tr, rw, curve
+
+
 def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np.ndarray, train: np.ndarray,
                 weights: list[np.ndarray], align_weight: np.ndarray, dist: np.ndarray, scales: tuple[float, ...], *,
-                reach: float, normalise: bool, folds: int, knn: int):
+                reach: float, normalise: bool, folds: int, knn: int, row_weight: np.ndarray | None = None,
+                used_references: list | None = None):
     """One local model of marker ``m``: fitted on ``train`` frames, evaluated on ``train`` then ``group`` frames.
 
     positions (n_frames, n_markers, 3) finite at ``m`` on ``train`` and at ``predictors`` on every frame used;
@@ -282,6 +316,11 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
     cross-validated RMS, components and RMS per width, the anchor markers of the local frame and the sensitivity
     (n_markers,): an error of variance v per coordinate in marker j's sample adds sensitivity[j] v to the variance
     per coordinate of the reconstruction (rotations and the nearest-pose correction left out).
+
+    ``row_weight`` (n_frames,) or None: the weight of each frame of ``positions`` as a training row, 1 for the
+    capture's own frames and below 1 for reference frames; with it each width keeps the reference rows only where
+    they lower the cross-validated error on the capture's own rows (:func:`_choose_rows`), and appends whether it
+    kept them to ``used_references``.
     """
     n_markers = positions.shape[1]
     needed = np.concatenate([[m], predictors])
@@ -300,16 +339,26 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
         pred = predictors[dist[predictors] <= reach * width]
         if len(pred) < 3:
             pred = predictors[np.argsort(dist[predictors])[:3]]
-        curve = cv_curve(flat, tr, target, pred, w, normalise=normalise, folds=folds)
+        own = None if row_weight is None else row_weight[train] >= 1.0 - 1e-12
+        if own is not None and own.all():
+            own = None
+        rows, row_w, curve = _choose_rows(flat, tr, np.ones(n_train, bool) if own is None else own,
+                                          None if own is None else row_weight[train], target, pred, w, normalise,
+                                          folds)
         if curve is None:
             k, rms = None, np.nan
         else:
             k = int(np.argmin(curve[0])) + 1
             rms = float(np.sqrt(curve[0, k - 1]))
-        model = fit_model(flat, tr, target, pred, w, normalise=normalise, components=k)
+        gram = weighted_sums(flat[np.ix_(rows, _cols(target) + _cols(pred))], row_w)
+        model = fit_model(flat, rows, target, pred, w, normalise=normalise, components=k, gram=gram)
         est_local, leverage = predict(model, flat)
         if knn:
-            est_local = est_local + knn_correction(model, flat, est_local, n_train, knn)
+            sel = np.concatenate([rows, np.arange(n_train, len(used))])
+            correction = knn_correction(model, flat[sel], est_local[sel], len(rows), knn)
+            est_local[n_train:] += correction[len(rows):]
+        if used_references is not None and own is not None:
+            used_references.append(bool((~own[rows]).any()))
         ests.append(est_local)
         rmss.append(rms)
         levs.append(leverage)
@@ -351,6 +400,8 @@ def reconstruct_local(
     min_train: int = MIN_TRAIN_WANTED,
     edge_frames: int = 0,
     context: np.ndarray | None = None,
+    reference_frames: np.ndarray | None = None,
+    reference_weights: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """Estimate every missing sample with the weighted PCA in each missing marker's local frame.
 
@@ -377,6 +428,15 @@ def reconstruct_local(
         trusts filled (NaN elsewhere); when given, a marker's predictors are read from it (its own samples still
         from ``positions``): one EM-style imputation step, in which frames where a neighbour was missing but is
         now estimated become training and prediction frames.
+    reference_frames : ndarray (n_ref_frames, n_markers, 3), optional
+        Frames of reference takes of the same marker set (:mod:`mocapfill.references`), in the capture's units and
+        marker order, NaN where a reference lacks a marker.  They train every model beside the capture's own frames
+        (and count towards ``min_train``), each with its ``reference_weights`` entry (n_ref_frames,) in [0, 1]
+        (default 1) relative to a capture frame.  Per model and width the capture's own frames decide: where at
+        least two blocks of them are observed, the model with the references is kept only if its leave-one-block-
+        out error on the capture's frames (the references always in training) is below that of the model without
+        them; so a reference of another body or motion is dropped where it does not help.
+
 
     Returns
     -------
@@ -396,6 +456,20 @@ def reconstruct_local(
     gap_markers = np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0))
     if context is not None:
         ctx_missing = np.isnan(context).any(axis=2)
+    ref, row_weight = None, None
+    if reference_frames is not None and len(reference_frames):
+        ref = np.asarray(reference_frames, dtype=np.float64)
+        if ref.ndim != 3 or ref.shape[1:] != positions.shape[1:]:
+            raise MethodError(f"reference_frames must have shape (n, {n_markers}, 3), got {ref.shape}")
+        ref_w = (np.ones(len(ref)) if reference_weights is None
+                 else np.clip(np.asarray(reference_weights, dtype=np.float64), 0.0, 1.0))
+        if ref_w.shape != (len(ref),):
+            raise MethodError(f"reference_weights must have shape ({len(ref)},), got {ref_w.shape}")
+        keep = ref_w > 0
+        ref, ref_w = ref[keep], ref_w[keep]
+        # a reference row weighs < 1 by construction here, so the capture's own rows are those of weight 1
+        row_weight = np.concatenate([np.ones(n_frames), np.minimum(ref_w, 1.0 - 1e-9)])
+        info["references"] = {"frames": int(keep.sum()), "models": 0, "used": 0}
     for m in gap_markers:
         frames = np.flatnonzero(missing[:, m])
         src, miss = positions, missing
@@ -403,36 +477,47 @@ def reconstruct_local(
             src, miss = context.copy(), ctx_missing.copy()
             src[:, m], miss[:, m] = positions[:, m], missing[:, m]
         dist = mean_distances(src, m)
+        if ref is not None:  # reference frames join the training rows (never the predicted ones)
+            src = np.concatenate([src, ref])
+            miss = np.concatenate([miss, np.isnan(ref).any(axis=2)])
         weights, align_weight = marker_weights(dist, m, scales, align_scale, missing_weight)
         others = np.ones(n_markers, dtype=bool)
         others[m] = False
         other_idx = np.flatnonzero(others)
         near = other_idx[np.isfinite(dist[other_idx]) & (dist[other_idx] <= reach * max(scales))]
         near = near[np.argsort(dist[near], kind="stable")]
-        for group, predictors, train in observed_groups(miss, m, frames, near, max_patterns, min_train):
+        for group, predictors, train in observed_groups(miss, m, frames, near, max_patterns, min_train, row_weight):
             if len(predictors) < 3 or len(train) < MIN_TRAINING_FRAMES:
                 info["fallback"].append(int(m))
                 estimate[group, m] = linear_fallback(positions[:, m], missing[:, m])[group]
                 continue
+            with_refs: list[bool] = []
             est_all, leverage, rms_mix, ks, rmss, anchors, _ = group_model(
                 src, m, group, predictors, train, weights, align_weight, dist, scales, reach=reach,
-                normalise=normalise, folds=folds, knn=knn)
+                normalise=normalise, folds=folds, knn=knn, row_weight=row_weight, used_references=with_refs)
             n_train = len(train)
             used = np.concatenate([train, group])
             est = est_all[n_train:]
             factor = np.ones(len(group))
             if edge is not None:
                 pred = np.full((n_frames, 3), np.nan)
-                pred[used] = est_all
+                mine = used < n_frames
+                pred[used[mine]] = est_all[mine]
                 est, factor = edge_corrected(positions[:, m], pred, group, tau=edge)
             estimate[group, m] = est
             std[group, m] = rms_mix * np.sqrt((1.0 + leverage[n_train:]) * factor)
             if edge_frames:
-                _edge_samples(info, m, group, train, est_all[:n_train], rms_mix * np.sqrt(1.0 + leverage[:n_train]),
-                              edge_frames)
+                own = train < n_frames
+                _edge_samples(info, m, group, train[own], est_all[:n_train][own],
+                              rms_mix * np.sqrt(1.0 + leverage[:n_train][own]), edge_frames)
             info["anchors"][group, m] = len(anchors)
-            info["groups"].append({"marker": int(m), "frames": int(len(group)), "components": ks,
-                                   "cv_rms": [float(r) for r in rmss]})
+            record = {"marker": int(m), "frames": int(len(group)), "components": ks,
+                      "cv_rms": [float(r) for r in rmss]}
+            if row_weight is not None:
+                record["references"] = with_refs
+                info["references"]["models"] += len(with_refs)
+                info["references"]["used"] += int(sum(with_refs))
+            info["groups"].append(record)
     info["fallback"] = sorted(set(info["fallback"]))
     return estimate, std, info
 

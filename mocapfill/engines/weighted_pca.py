@@ -40,6 +40,7 @@ and with gaps in 37 of its markers in about 0.5 s (``benchmarks/bench_default.py
 
 from __future__ import annotations
 
+import warnings
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -248,7 +249,6 @@ def reference_trajectory(positions: np.ndarray, missing: np.ndarray) -> np.ndarr
     if not mostly.any():
         return np.zeros((n_frames, 1, 3))
     with np.errstate(invalid="ignore"):
-        import warnings
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             centre = np.nanmean(positions[:, mostly], axis=1)  # (n_frames, 3)
@@ -256,6 +256,14 @@ def reference_trajectory(positions: np.ndarray, missing: np.ndarray) -> np.ndarr
     if gone.all():
         return np.zeros((n_frames, 1, 3))
     return linear_fallback(centre, gone)[:, None, :]
+
+
+def weighted_sums(block: np.ndarray, row_weight: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, float]:
+    """Raw sums of rows (n, q) for :func:`fit_model`'s ``gram``: (sum w x (q,), sum w x x^T (q, q), sum w)."""
+    if row_weight is None:
+        return block.sum(axis=0), block.T @ block, float(len(block))
+    wb = block * row_weight[:, None]
+    return wb.sum(axis=0), block.T @ wb, float(row_weight.sum())
 
 
 def cv_curve(
@@ -267,24 +275,33 @@ def cv_curve(
     *,
     normalise: bool = True,
     folds: int = 5,
+    row_weight: np.ndarray | None = None,
+    holdout: np.ndarray | None = None,
 ) -> np.ndarray | None:
     """Leave-one-block-out mean squared error per coordinate of the targets for every number of components.
 
     Same splitting as :func:`cross_validated_rms`; one eigendecomposition per fold serves every truncation because
     the reconstruction with k components is a cumulative sum over components.  Returns (n_targets, q) with
     q = 3 (n_targets + n_predictors) (entry k-1 = error with k components), or None with too few frames.
+
+    ``row_weight`` (n_train,): the weight of each training row in the sums (reference frames beside the capture's
+    own, see :mod:`mocapfill.references`; default 1).  ``holdout`` (n_train,) bool: the rows that are held out in
+    blocks (the capture's own); the others always stay in training.  Default: every row.
     """
     columns = np.concatenate([_columns(targets), _columns(predictors)])
     block_all = flat[np.ix_(train, columns)]
-    s1, s2, n = block_all.sum(axis=0), block_all.T @ block_all, len(train)
-    blocks = _blocks(n, folds)
+    s1, s2, n = weighted_sums(block_all, row_weight)
+    rows_out = np.arange(len(train)) if holdout is None else np.flatnonzero(holdout)
+    blocks = [rows_out[b] for b in _blocks(len(rows_out), folds)]
     if len(blocks) < 2:
         return None
     nt = 3 * len(targets)
     sq = np.zeros((len(columns), nt))
+    count = 0
     for rows in blocks:
         held = block_all[rows]
-        gram = (s1 - held.sum(axis=0), s2 - held.T @ held, n - len(rows))
+        h1, h2, hn = weighted_sums(held, None if row_weight is None else row_weight[rows])
+        gram = (s1 - h1, s2 - h2, n - hn)
         model = fit_model(flat, train, targets, predictors, marker_weight, normalise=normalise, gram=gram,
                           components=len(columns))
         z = (held - model.mean) / model.scale * model.weight
@@ -298,7 +315,8 @@ def cv_curve(
         sq[:k_avail] += err
         if k_avail < len(columns):  # rank-deficient fold: later truncations equal the last
             sq[k_avail:] += err[-1]
-    per = sq / n  # (q, nt)
+        count += len(rows)
+    per = sq / count  # (q, nt)
     return per.reshape(len(columns), len(targets), 3).mean(axis=2).T
 
 
@@ -340,6 +358,8 @@ def reconstruct(
     centroid: bool = True,
     max_patterns: int = 3,
     reach: float = 4.0,
+    reference_frames: np.ndarray | None = None,
+    reference_weights: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """The weighted-PCA estimate of every missing sample.
 
@@ -354,6 +374,9 @@ def reconstruct(
     centroid : remove the per-frame centroid of the complete markers first.
     max_patterns : groups per marker (see the module docstring).
     reach : markers beyond ``reach`` widths are left out.
+    reference_frames, reference_weights : frames (n_ref, n_markers, 3) of reference takes in the capture's units and
+        marker order (NaN where lacking) and their weights (n_ref,) in [0, 1] (:mod:`mocapfill.references`): their
+        frames, centred the same way, join the training frames of every model with that weight.
 
     Returns
     -------
@@ -369,6 +392,24 @@ def reconstruct(
     reference = reference_trajectory(positions, missing) if centroid else np.zeros((n_frames, 1, 3))
     local = positions - reference
     flat = local.reshape(n_frames, 3 * n_markers)
+    train_flat, train_missing, row_w = flat, missing, None
+    if reference_frames is not None and len(reference_frames):
+        ref = np.asarray(reference_frames, dtype=np.float64)
+        if ref.ndim != 3 or ref.shape[1:] != positions.shape[1:]:
+            raise MethodError(f"reference_frames must have shape (n, {n_markers}, 3), got {ref.shape}")
+        rw = np.ones(len(ref)) if reference_weights is None else np.clip(np.asarray(reference_weights, float), 0, 1)
+        if centroid:
+            complete = ~missing.any(axis=0)
+            cols = complete if complete.any() else missing.mean(axis=0) <= 0.1
+            with np.errstate(invalid="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                centre = np.nanmean(ref[:, cols], axis=1, keepdims=True) if cols.any() else np.zeros((len(ref), 1, 3))
+            ref = ref - centre
+        ok = np.isfinite(ref).any(axis=(1, 2)) & (rw > 0)
+        ref, rw = ref[ok], rw[ok]
+        train_flat = np.concatenate([flat, ref.reshape(len(ref), 3 * n_markers)])
+        train_missing = np.concatenate([missing, np.isnan(ref).any(axis=2)])
+        row_w = np.concatenate([np.ones(n_frames), rw])
     estimate = local.copy()
     std = np.where(missing, np.nan, 0.0)
     info: dict[str, Any] = {"strategy": strategy, "components": [], "fallback": []}
@@ -415,20 +456,25 @@ def reconstruct(
         rms = None
         for group, predictors in pattern_groups(missing, frames, candidates, max_patterns):
             needed = np.concatenate([targets, predictors])
-            train = np.flatnonzero(~missing[:, needed].any(axis=1))
+            train = np.flatnonzero(~train_missing[:, needed].any(axis=1))
             if len(predictors) == 0 or len(train) < MIN_TRAINING_FRAMES:
                 for m in targets:
                     info["fallback"].append(int(m))
                     est = linear_fallback(local[:, m], missing[:, m])
                     estimate[group, m] = est[group]
                 continue
-            model = fit_model(flat, train, targets, predictors, weight, variance=variance, normalise=normalise)
+            gram = None
+            if row_w is not None:
+                cols = np.concatenate([_columns(targets), _columns(predictors)])
+                gram = weighted_sums(train_flat[np.ix_(train, cols)], row_w[train])
+            model = fit_model(train_flat, train, targets, predictors, weight, variance=variance,
+                              normalise=normalise, gram=gram)
             est, leverage = predict(model, flat[group])
             estimate[np.ix_(group, targets)] = est.reshape(len(group), len(targets), 3)
             info["components"].append(int(model.basis.shape[1]))
             if uncertainty:
                 if rms is None:  # cross-validated on the task's largest group; its other groups reuse it (cost)
-                    rms = cross_validated_rms(flat, train, targets, predictors, weight, variance=variance,
+                    rms = cross_validated_rms(train_flat, train, targets, predictors, weight, variance=variance,
                                               normalise=normalise, folds=folds)
                 std[np.ix_(group, targets)] = rms[None, :] * np.sqrt(1.0 + leverage)[:, None]
     info["fallback"] = sorted(set(info["fallback"]))

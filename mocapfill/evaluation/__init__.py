@@ -255,13 +255,30 @@ def _method_parameters(methods: Sequence[str]) -> dict[str, set[str]]:
     return accepted
 
 
+def _check_references(data: MarkerData, reference) -> list[MarkerData]:
+    """The reference takes as a list; the test capture itself (same positions) is an error: it would be an oracle."""
+    if reference is None:
+        return []
+    refs = list(reference) if isinstance(reference, (list, tuple)) else [reference]
+    for ref in refs:
+        if not isinstance(ref, MarkerData):
+            raise MocapfillError("evaluate: reference takes must be MarkerData (use mocapfill.read)")
+        same_path = data.path and ref.path and os.path.abspath(str(ref.path)) == os.path.abspath(str(data.path))
+        if same_path or (ref.positions.shape == data.positions.shape
+                         and np.array_equal(ref.positions, data.positions, equal_nan=True)):
+            raise MocapfillError(f"evaluate: {ref.path or 'a reference'} is the test capture itself; a fill that "
+                                 "has seen the truth is an oracle, not an evaluation")
+    return refs
+
+
 def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), protocol: str = "marker", *,
              trials: int = 10, seed: int | None = None, occlusions: Sequence[Trial] | str | os.PathLike | dict | None
-             = None, gap_min=None, gap_max=None, jobs: int = 1, options: dict[str, Any] | None = None,
+             = None, occlusion_min=None, occlusion_max=None, jobs: int = 1, options: dict[str, Any] | None = None,
              method_options: dict[str, dict[str, Any]] | None = None, reject_outliers: bool | str | None = None,
              progress: Callable[[int, int], None] | None = None, save_occlusions: str | os.PathLike | None = None,
+             reference: Sequence[MarkerData] | MarkerData | None = None,
              ik: str | os.PathLike | None = None, ik_model: str | os.PathLike | None = None,
-             **protocol_options: Any) -> EvaluationResult:
+             max_gap: int | str | None = None, edges: str = "fill", **protocol_options: Any) -> EvaluationResult:
     """Score ``methods`` on ``data`` by hiding known samples and filling them.
 
     Parameters
@@ -274,9 +291,12 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
     protocol : str
         "marker", "limb", "blackout", "random", "dense" or "segment" (see :func:`make_occlusions`); ignored when
         ``occlusions`` is given.
-    trials, seed, gap_min, gap_max, **protocol_options
+    trials, seed, **protocol_options
         Passed to :func:`make_occlusions` (``limb_size``, ``occlusion_rate``, ``shift_rate``, ``shift_scale``,
         ``missing``, ``radius``, ``events``).
+    occlusion_min, occlusion_max
+        The length of the occlusions the protocol makes (its ``gap_min`` / ``gap_max``): frames, ``"0.5s"`` or
+        ``"10%"``.  (The old names ``gap_min`` / ``gap_max`` are refused, naming these.)
         With ``seed=None`` a seed is drawn and recorded in the result so that the run can be repeated.
     occlusions : list of Trial, spec path, or parsed spec, optional
         Replay exactly these trials instead of drawing them (protocol "replay").
@@ -290,7 +310,12 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
         Run :func:`mocapfill.guards.outliers.reject_outliers` on each corrupted clip before filling (the samples it rejects
         become gaps); ``detected`` then reports the fraction of shifted samples it caught.  "self": the corrupted
         clip is its own reference (what ``fill`` does without a reference); "clean": the clean clip is the reference
-        take of Holden's rule (its distance ranges, not its positions).
+        take of Holden's rule (its distance ranges, not its positions): an **oracle** (it has seen the truth), and
+        labelled so in the settings and every table.
+    reference : MarkerData or sequence of MarkerData, optional
+        Reference takes of the same marker set (:mod:`mocapfill.references`) for the methods that train on them
+        (``auto``, ``pca``); matched and weighed against each corrupted clip.  The test capture itself is refused
+        (identical positions): a fill that has seen the truth is not evaluated.
     progress : callable(done, total), optional
         Called once before the first trial (done = 0) and after each trial.
     save_occlusions : path, optional
@@ -303,6 +328,10 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
         with a scored sample of each coordinate (:data:`IK_METRICS`).  IK runs inside each trial's task (``jobs``).
     ik_model : path of a scaled OpenSim model (.osim), optional
         The model for ``ik`` where the setup names none (or another), and for the ``opensim-ik`` method.
+    max_gap, edges
+        Given to every fill (:func:`mocapfill.fill`): gaps longer than ``max_gap`` (frames or ``"0.5s"``) and, with
+        ``edges="leave"``, gaps at the clip's edges stay missing, so the hidden samples in them count as
+        ``unfilled``: what the limit costs.
 
     Returns
     -------
@@ -310,6 +339,17 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
     """
     if not isinstance(data, MarkerData):
         raise MocapfillError("evaluate needs a MarkerData (use mocapfill.read)")
+    renamed = [old for old in ("gap_min", "gap_max") if old in protocol_options]
+    if renamed:
+        raise MocapfillError(f"{' and '.join(renamed)} are now "
+                             f"{' and '.join(old.replace('gap', 'occlusion') for old in renamed)} (the length of the "
+                             "occlusions; max_gap limits the fill)")
+    limits: dict[str, Any] = {}
+    if max_gap is not None or edges != "fill":
+        from ..guards.limits import check_edges, parse_max_gap
+
+        limits = {"max_gap": None if max_gap is None else parse_max_gap(max_gap, data.rate, name="max_gap"),
+                  "edges": check_edges(edges, name="edges")}
     if any(kind != "marker" for kind in data.kinds):  # scored on the markers: what a fill fills
         from ..pipeline import fill_columns, subset
 
@@ -326,6 +366,7 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
     from ..methods import get_method
 
     accepted = _method_parameters(methods)
+    references = tuple(_check_references(data, reference))
     ik_setup = None
     if ik is not None:
         from ..kinematics.opensim_ik import load_setup
@@ -351,7 +392,12 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
             raise MethodError(f"method {name!r} needs --{required.replace('_', '-')} (evaluate(..., {required}=...))")
     seeded = frozenset(name for name in methods if "seed" in accepted[name])
     settings: dict[str, Any] = {"options": dict(options or {}), "method_options": dict(method_options or {}),
-                                "reject_outliers": reject_outliers}
+                                "reject_outliers": reject_outliers,
+                                "oracle": reject_outliers == "clean",
+                                "references": [getattr(r, "path", None) or f"reference {k + 1}"
+                                               for k, r in enumerate(references)]}
+    if limits:
+        settings.update({"max_gap_frames": limits["max_gap"], "edges": limits["edges"]})
     if occlusions is not None:
         protocol = "replay"
         if isinstance(occlusions, (str, os.PathLike)):
@@ -365,17 +411,17 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
     else:
         if protocol not in PROTOCOLS:
             raise MocapfillError(f"unknown protocol {protocol!r}; choose one of {', '.join(PROTOCOLS)}")
-        lo, hi = gap_range(protocol, data.n_frames, data.rate, gap_min, gap_max)
-        settings.update({"gap_min_frames": lo, "gap_max_frames": hi, **protocol_options})
-        trial_list = make_occlusions(data, protocol, trials=trials, seed=seed, gap_min=gap_min, gap_max=gap_max,
-                                     **protocol_options)
+        lo, hi = gap_range(protocol, data.n_frames, data.rate, occlusion_min, occlusion_max)
+        settings.update({"occlusion_min_frames": lo, "occlusion_max_frames": hi, **protocol_options})
+        trial_list = make_occlusions(data, protocol, trials=trials, seed=seed, gap_min=occlusion_min,
+                                     gap_max=occlusion_max, **protocol_options)
     if not trial_list:
         raise MocapfillError("no trials to run")
     if save_occlusions is not None:
         # the protocol's own settings (gap range in frames, missing, radius, events, ...) are for the reader only
         source = {"file": data.path, "protocol": protocol, "seed": seed,
                   **{k: v for k, v in settings.items() if k not in ("options", "method_options", "reject_outliers",
-                                                                   "occlusions")}}
+                                                                   "occlusions", "max_gap_frames", "edges")}}
         save_spec(trial_list, data, save_occlusions, source=source)
     # Method seeds: one per trial, from a stream independent of the occlusions' streams.
     seeds = [int(s.generate_state(1, np.uint32)[0]) for s in np.random.SeedSequence([seed, 1]).spawn(len(trial_list))]
@@ -389,7 +435,9 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
                      "truth_seconds": truth_angles.seconds, "frames": int(len(truth_angles.frames)),
                      "coordinates": dict(zip(truth_angles.names, truth_angles.kinds))}
         settings["ik"] = {"setup": ik_setup.setup, "model": ik_setup.model}
-    config = RunConfig(tuple(methods), per_method, reject_outliers, seeded, ik_setup, truth_angles)
+    referenced = frozenset(name for name in methods if "reference_frames" in accepted[name])
+    config = RunConfig(tuple(methods), per_method, reject_outliers, seeded, references, referenced, ik_setup,
+                       truth_angles, limits)
     scores = run_trials(data, trial_list, seeds, config, jobs=jobs, progress=progress)
     left = [s for s in scores if s.method == LEFT_MISSING]
     scores = [s for s in scores if s.method != LEFT_MISSING]

@@ -150,8 +150,8 @@ def parse_length(value: str | int | float, n_frames: int, rate: float, *, name: 
 def gap_range(protocol: str, n_frames: int, rate: float, gap_min=None, gap_max=None) -> tuple[int, int]:
     """(min, max) gap length in frames for ``protocol``, clipped so an interior gap fits in ``n_frames``."""
     lo_default, hi_default = DEFAULT_GAPS[protocol]
-    lo = parse_length(lo_default if gap_min is None else gap_min, n_frames, rate, name="--gap-min")
-    hi = parse_length(hi_default if gap_max is None else gap_max, n_frames, rate, name="--gap-max")
+    lo = parse_length(lo_default if gap_min is None else gap_min, n_frames, rate, name="--occlusion-min")
+    hi = parse_length(hi_default if gap_max is None else gap_max, n_frames, rate, name="--occlusion-max")
     if protocol in ("marker", "limb") and rate and rate > 0:
         if gap_min is None:
             lo = min(lo, max(1, round(DEFAULT_CAPS_SECONDS[0] * rate)))
@@ -161,10 +161,11 @@ def gap_range(protocol: str, n_frames: int, rate: float, gap_min=None, gap_max=N
     if longest < 1:
         raise MocapfillError(f"the clip has {n_frames} frames: too short to hide an interior gap")
     if gap_min is not None and lo > longest:
-        raise MocapfillError(f"--gap-min {gap_min} is {lo} frames, longer than the {longest} an interior gap can "
+        raise MocapfillError(f"--occlusion-min {gap_min} is {lo} frames, longer than the {longest} an interior gap can "
                              f"have in a {n_frames}-frame clip")
     if gap_min is not None and gap_max is not None and lo > hi:
-        raise MocapfillError(f"--gap-min {gap_min} ({lo} frames) is longer than --gap-max {gap_max} ({hi} frames)")
+        raise MocapfillError(f"--occlusion-min {gap_min} ({lo} frames) is longer than --occlusion-max {gap_max} "
+                             f"({hi} frames)")
     hi = min(hi, longest)
     lo = min(lo, hi)
     return lo, hi

@@ -61,8 +61,11 @@ class RunConfig:
     options: dict[str, dict[str, Any]]  # per method: the keyword options for mocapfill.api.fill
     reject_outliers: str | None = None  # None, "self" (the corrupted clip is its own reference) or "clean"
     seeded: frozenset = frozenset()  # methods that take a ``seed``: they get the trial's seed
+    references: tuple = ()  # reference takes (MarkerData), never the test capture: matched to each corrupted clip
+    referenced: frozenset = frozenset()  # methods that take ``reference_frames``: they get the references
     ik: Any = None  # mocapfill.kinematics.opensim_ik.IKSetup: score joint angles too (needs opensim)
     ik_truth: Any = None  # mocapfill.kinematics.angles.IKAngles of the complete clip
+    limits: dict[str, Any] = field(default_factory=dict)  # ``max_gap`` / ``edges`` for every method (api.fill)
 
 
 #: The pseudo-method of a trial's IK with the hidden markers left out (empty TRC cells), as OpenSim does with gaps.
@@ -125,11 +128,14 @@ def run_trial(truth: MarkerData, index: int, trial: Trial, method_seed: int, con
         opts = dict(config.options.get(method, {}))
         if method in config.seeded:
             opts.setdefault("seed", method_seed)
+        if config.references and method in config.referenced:
+            # matched and weighed against the corrupted clip (what a user has), never the clean one
+            opts["reference"] = list(config.references)
         t0 = time.perf_counter()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:
-                result = fill(data, method, **opts)
+                result = fill(data, method, **config.limits, **opts)
             except MocapfillError as exc:
                 result, error = None, str(exc)
             else:

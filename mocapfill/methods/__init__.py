@@ -20,13 +20,16 @@ from .base import FillResult, finish
 
 
 class MethodSpec(NamedTuple):
-    """A registered method: its CLI name, where its function lives, and a one-line summary."""
+    """A registered method: its CLI name, where its function lives, a one-line summary, whether it gives a std, and
+    whether it may decline a gap (the suites' fills: ``woltring``, ``pattern``, ``rigid``)."""
 
     name: str
     target: str  # "module:function", module relative to mocapfill.methods
     summary: str
     uncertainty: bool  # whether the method returns a per-sample std
     requires: str | None = None  # an option the method cannot run without (the CLI names it when it is missing)
+    #: whether the method may decline a gap (leave it missing, listed in ``info["declined"]``) rather than fill it
+    may_decline: bool = False
 
     def load(self) -> Callable[..., FillResult]:
         module_name, func_name = self.target.split(":")
@@ -50,11 +53,19 @@ METHODS: dict[str, MethodSpec] = {
         MethodSpec("bilinear", "bilinear:fill_bilinear", "DCT-conditioned bilinear spatiotemporal basis", False),
         MethodSpec("pca", "pca:fill_pca", "distance-weighted PCA (Gloersen & Federolf 2016)", True),
         MethodSpec("auto", "auto:fill_auto", "the most accurate combination measured (default)", True),
+        MethodSpec("woltring", "suite:fill_woltring", "quintic spline through the frames around each gap (Nexus)",
+                   False, may_decline=True),
+        MethodSpec("pattern", "suite:fill_pattern", "one donor's shape + a linear bridge of the offset (Nexus)",
+                   False, may_decline=True),
+        MethodSpec("rigid", "suite:fill_rigid", "3+ donors carried as a rigid body, both ends blended (Nexus)",
+                   False, may_decline=True),
         MethodSpec("auto-next", "auto_next:fill_auto_next", "local weighted PCA fused with a white-jerk motion "
                    "model by one smoother", True),
         MethodSpec("opensim-ik", "kinematic:fill_opensim_ik", "kinematic fill: OpenSim IK on the observed markers, "
                    "the missing ones read off the fitted model (needs --ik-model; extra mocapfill[opensim])", True,
                    "ik_model"),
+        MethodSpec("learned", "learned:fill_learned", "denoiser learnt from clean takes of the layout (Holden "
+                   "2018; needs --model)", False, "model"),
     ]
 }
 

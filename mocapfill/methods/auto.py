@@ -131,6 +131,15 @@ GUIDE_MISSING = 0.07
 #: mixing it in took the default from 12.5 to 23.4 mm there.
 GUIDE_MIN_SPLINES = 4
 
+#: Where reference takes trained the local PCA (:mod:`mocapfill.references`) its uncertainty bounds of trust are this
+#: many times wider: its model has seen the body in many more poses, and a fallback through a long gap (spline,
+#: line, a dynamics guide learnt from the gappy capture alone) is far worse than a PCA doubting itself by 5-15 cm.
+REFERENCE_STD_SCALE = 4.0
+#: ... and no dynamics guide runs, when at least this fraction of the local models kept the references: the guide
+#: learns from the gappy capture alone (CMU 07_12 with 07_01 as reference, segment / dense 30 %: 57 -> 22, 70 -> 27,
+#: 111 -> 35 mm RMSE without it).
+REFERENCE_MODELS = 0.5
+
 GUIDE_NAMES = {"dynammo": "DynaMMo", "bolero-sc": "BoLeRO-SC"}
 
 
@@ -145,6 +154,8 @@ def fill_auto(
     knn: int = 10,
     refine: bool = True,
     jobs: int = 1,
+    reference_frames: np.ndarray | None = None,
+    reference_weights: np.ndarray | None = None,
 ) -> FillResult:
     """Fill gaps with the default pipeline (see the module docstring).
 
@@ -161,6 +172,11 @@ def fill_auto(
     bones : BoneSet, None (estimate from the observed frames) or False (no bone refinement).
     knn : neighbours of the nearest-pose residual correction (0 disables it).
     refine : apply the bone refinement (same as ``bones=False`` when False).
+    reference_frames, reference_weights : frames (n_ref_frames, n_markers, 3) of reference takes of the same marker
+        set in this capture's units and marker order (NaN where a reference lacks a marker), and their weights
+        (n_ref_frames,) in [0, 1]; they train the local PCA beside the capture's frames
+        (:func:`~mocapfill.engines.local_pca.reconstruct_local`).  ``mocapfill.fill(..., reference=[...])`` builds
+        them (:mod:`mocapfill.references`).
     jobs : local worker processes for the windows of a long take (1, the default: here; 0: every core); the output
         does not depend on it.  Workers are spawned: a script needs the ``if __name__ == "__main__":`` guard.
 
@@ -180,23 +196,30 @@ def fill_auto(
         raise MethodError(f"positions must have shape (n_frames, n_markers, 3), got {positions.shape}")
     if labels is not None and len(labels) != positions.shape[1]:
         raise MethodError(f"{len(labels)} labels for {positions.shape[1]} markers")
-    core = partial(_fill_auto, units=units, labels=labels, rate=rate, bones=bones, knn=knn, refine=refine)
+    core = partial(_fill_auto, units=units, labels=labels, rate=rate, bones=bones, knn=knn, refine=refine,
+                   reference_frames=reference_frames, reference_weights=reference_weights)
     with single_blas_thread():  # thousands of small decompositions: BLAS threads only add contention
         if positions.shape[0] > DEFAULT_WINDOW:  # long takes: overlapping windows, time linear in frames
             return fill_in_windows(positions, core, jobs=jobs)
         return core(positions)
 
 
-def _fill_auto(positions: np.ndarray, *, units: str, labels, rate, bones, knn: int, refine: bool) -> FillResult:
+def _fill_auto(positions: np.ndarray, *, units: str, labels, rate, bones, knn: int, refine: bool,
+               reference_frames: np.ndarray | None = None, reference_weights: np.ndarray | None = None
+               ) -> FillResult:
     """The body of :func:`fill_auto` (positions (n_frames, n_markers, 3), already validated)."""
     mm = length_factor("mm", units)  # data units per millimetre
     missing = np.isnan(positions).any(axis=2)
     pca, pca_std, local_info = reconstruct_local(positions, scales=tuple(DEFAULT_SCALES_MM * mm),
-                                                 align_scale=DEFAULT_ALIGN_MM * mm, knn=knn)
+                                                 align_scale=DEFAULT_ALIGN_MM * mm, knn=knn,
+                                                 reference_frames=reference_frames,
+                                                 reference_weights=reference_weights)
     spline_max = int(round(SPLINE_SECONDS * rate)) if rate else SPLINE_FRAMES
     info: dict[str, Any] = {"pipeline": "local-frame weighted PCA + bone refinement, checked against a "
                                         "smooth fallback",
                             "fallback": local_info["fallback"], "spline_max_frames": spline_max}
+    if "references" in local_info:
+        info["references"] = local_info["references"]
     use_bones = refine and bones is not False  # False: no bone refinement
     boneset = resolve_bones(positions, bones, units=units, labels=labels) if use_bones else None
     if boneset is not None and len(boneset):
@@ -207,10 +230,15 @@ def _fill_auto(positions: np.ndarray, *, units: str, labels, rate, bones, knn: i
     info["bones"] = 0 if boneset is None else int(len(boneset))
     speed = observed_speed(positions, missing, floor=MIN_SPEED_MM * mm)
     limit = step_reference(positions, missing, speed)
-    trust, why = pca_trust(positions, pca, pca_std, limit, mm)
+    refs = local_info.get("references", {})
+    with_refs = refs.get("used", 0) >= REFERENCE_MODELS * max(refs.get("models", 0), 1)
+    trust, why = pca_trust(positions, pca, pca_std, limit, mm, REFERENCE_STD_SCALE if with_refs else 1.0)
     gap = missing & ~missing.all(axis=0)
-    guide, guide_std, guide_name = dynamics_guide(positions, trust, gap, spline_max, boneset=boneset, units=units,
-                                                  labels=labels)
+    if with_refs:  # the local model learnt the body from the references: a guide from the gappy capture only hurts
+        guide, guide_std, guide_name = None, None, "none"
+    else:
+        guide, guide_std, guide_name = dynamics_guide(positions, trust, gap, spline_max, boneset=boneset,
+                                                      units=units, labels=labels)
     info["fallback_guide"] = guide_name
     for attempt in range(JUMP_PASSES):
         fallback, splined = fallback_path(positions, pca, trust >= 1.0, spline_max, guide)
@@ -409,7 +437,7 @@ def fallback_path(positions: np.ndarray, pca: np.ndarray, trusted: np.ndarray, l
 
 
 def pca_trust(positions: np.ndarray, pca: np.ndarray, std: np.ndarray, limit: np.ndarray,
-              mm: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+              mm: float, std_scale: float = 1.0) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Per-sample trust in the local PCA estimate, in [0, 1], and the reasons it is lowered.
 
     positions / pca (n_frames, n_markers, 3); std (n_frames, n_markers) the PCA's uncertainty (NaN where it made
@@ -418,12 +446,13 @@ def pca_trust(positions: np.ndarray, pca: np.ndarray, std: np.ndarray, limit: np
     falls linearly from 1 to 0 as the uncertainty grows from ``TRUST_STD_MM`` to ``DISTRUST_STD_MM`` and as the
     estimate's step to the next or previous frame grows from ``FAST`` to ``STEP_BOUND`` times the reference step.
     Returns trust (n_frames, n_markers) (1 on observed samples, 0 where there is no estimate) and masks
-    ``uncertain``, ``fast`` and ``jump`` (filled by the caller's final check).
+    ``uncertain``, ``fast`` and ``jump`` (filled by the caller's final check).  ``std_scale`` multiplies both
+    uncertainty bounds (:data:`REFERENCE_STD_SCALE` where reference takes trained the PCA).
     """
     missing = np.isnan(positions).any(axis=2)
     est = missing & np.isfinite(std)
     trust = np.where(missing, 0.0, 1.0)
-    lo, hi = TRUST_STD_MM * mm, DISTRUST_STD_MM * mm
+    lo, hi = TRUST_STD_MM * mm * std_scale, DISTRUST_STD_MM * mm * std_scale
     by_std = np.clip((hi - np.nan_to_num(std, nan=np.inf)) / (hi - lo), 0.0, 1.0)
     # the PCA path: observations where observed, the estimate where it exists
     path = np.where(est[..., None], pca, positions)

@@ -90,6 +90,20 @@ def finish(
     )
 
 
+def declined_mask(info: dict[str, Any] | None, shape: tuple[int, int]) -> np.ndarray:
+    """(n_frames, n_markers) bool: the samples of the gaps a method declined (``info["declined"]``: one record per
+    gap with ``marker_index``, ``start`` (0-based frame) and ``length``, as the suites' fills write it); their status
+    is ``Status.MISSING_DECLINED``.  ``shape`` is (n_frames, n_markers); all False when nothing was declined."""
+    mask = np.zeros(shape, dtype=bool)
+    for rec in (info or {}).get("declined", []) or []:
+        try:
+            m, start, length = int(rec["marker_index"]), int(rec["start"]), int(rec["length"])
+        except (KeyError, TypeError, ValueError):
+            continue
+        mask[start:start + length, m] = True
+    return mask
+
+
 def check_positions(positions: np.ndarray) -> np.ndarray:
     """Validate and return ``positions`` as float64 (n_frames, n_markers, 3); a partly-NaN sample becomes all-NaN."""
     from ..errors import MethodError

@@ -24,6 +24,8 @@ def fill_pca(
     variance: float = 0.99,
     strategy: str = "separate",
     normalise: bool = True,
+    reference_frames: np.ndarray | None = None,
+    reference_weights: np.ndarray | None = None,
 ) -> FillResult:
     """Fill gaps with the distance-weighted PCA reconstruction of Gløersen & Federolf (2016).
 
@@ -43,6 +45,8 @@ def fill_pca(
         One marker at a time, or all markers missing in a frame together.
     normalise : bool
         Divide each centred coordinate by its training standard deviation before weighting.
+    reference_frames, reference_weights : frames of reference takes (n_ref, n_markers, 3), in this capture's units and
+        marker order, and their weights (n_ref,): extra training frames (``mocapfill.fill(..., reference=[...])``).
 
     Returns
     -------
@@ -59,6 +63,7 @@ def fill_pca(
     width = weight_width(units, scale)
     with single_blas_thread():  # many small decompositions: BLAS threads only add contention
         estimate, std, info = reconstruct(positions, scale=width, missing_weight=missing_weight, variance=variance,
-                                          strategy=strategy, normalise=normalise)
+                                          strategy=strategy, normalise=normalise,
+                                          reference_frames=reference_frames, reference_weights=reference_weights)
     info.update({"scale": width, "missing_weight": missing_weight, "variance": variance})
     return finish(positions, estimate, std=std, info=info)

@@ -79,7 +79,8 @@ def _frames_mask(records: list[dict], labels: list[str], first: int, shape: tupl
 
 def _summary_rows(report: dict) -> list[tuple[str, str]]:
     s = report["summary"]
-    settings = ", ".join(f"{k}={v}" for k, v in s["settings"].items()) or "defaults"
+    shown = {k: v for k, v in s["settings"].items() if k not in ("references", "denoise")}
+    settings = ", ".join(f"{k}={v}" for k, v in shown.items()) or "defaults"
     method = s["method"]
     if s["methods_used"]:
         method += f" (gaps filled by: {', '.join(s['methods_used'])})"
@@ -101,7 +102,33 @@ def _summary_rows(report: dict) -> list[tuple[str, str]]:
                     f"{s['gap_count']} gaps"),
         ("Filled", f"{s['filled_samples']} samples ({s['percent_filled']:.1f} % of the missing)"),
         ("Left unfilled", str(s["unfilled_samples"])),
+    ]
+    if s.get("left_missing_gaps"):
+        rows.append(("Left missing as asked", f"{s['left_missing_gaps']} gaps ({s['left_missing_samples']} samples), "
+                                              "listed below"))
+    if s.get("markers_not_chosen"):
+        names = s["markers_not_chosen"]
+        rows.append(("Not filled (not chosen)", ", ".join(names[:20]) + (f" and {len(names) - 20} more"
+                                                                         if len(names) > 20 else "")))
+    if "edges" in s and (s["edges"] != "fill" or s["edge_gaps_filled"]):
+        filled_at_edges = [f"{g['marker']} {g['first_frame']}-{g['last_frame']}" for g in report["gaps"]
+                           if (g["at_start"] or g["at_end"]) and g["status"] == "filled"]
+        listed = ", ".join(filled_at_edges[:10]) + (", ..." if len(filled_at_edges) > 10 else "")
+        rows.append(("Gaps at the edges", f"--edges {s['edges']}: {s['edge_gaps_filled']} filled"
+                     + (f" ({listed})" if listed else "") + f", {s['edge_gaps_left']} left missing"))
+    if s.get("fragments") is not None:
+        rows.append(("Short fragments", f"{s['fragments']} dropped and filled over ({s['fragment_samples']} samples)"))
+    if "observed_changed" in s:
+        rows.append(("Observed samples", "changed by " + ", ".join(s["observed_changed"]) if s["observed_changed"]
+                     else "returned bit-identical"))
+    rows += [
         ("Outliers rejected" if not s.get("held") else "Rejected (outliers, held)", str(s["rejected_samples"])),
+        *[(f"Reference take {k + 1}", f"{r['name']}: {r['frames']} frames{' (static trial)' if r['static'] else ''}, "
+                                      f"weight {r['weight']}; " + "; ".join(f"{stage}: {text}" for stage, text
+                                                                           in r["stages"].items()))
+          for k, r in enumerate(s["settings"].get("references", []))],
+        *([("Repaired by the denoiser", f"{s['settings']['denoise']['repaired']} observed samples judged displaced "
+                                        f"or swapped, refilled")] if "denoise" in s["settings"] else []),
         ("Uncertainty", "yes (per-sample standard deviation)" if s["uncertainty"] else "not given by this method"),
         ("Smoothed after filling", "yes" if s["smoothed"] else "no"),
         ("Time", f"{s['seconds']:.2f} s"),
@@ -178,6 +205,8 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
         points = LONG_PLOT_POINTS
         max_markers, max_bones = min(max_markers, LONG_TAKE_PLOTS), min(max_bones, LONG_TAKE_PLOTS)
     rejected = _frames_mask(report["rejected"], labels, first, (n_frames, n_markers))
+    # observed samples the fill saw as gaps besides the outliers: short fragments dropped (--min-fragment)
+    rejected |= np.asarray(result.filled, dtype=bool) & ~data.missing
     observed = data.positions.copy()
     observed[rejected] = np.nan
     missing = np.isnan(observed).any(axis=2)
@@ -196,11 +225,15 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
     conv = s["convergence"]
     if conv["n_iter"] and not conv["converged"]:
         alerts.append(f"The method stopped at its iteration cap ({conv['n_iter']} iterations) before converging.")
-    if s["unfilled_samples"]:
-        alerts.append(f"{s['unfilled_samples']} samples are still missing in the output "
+    asked = s.get("left_missing_samples", 0)
+    if s["unfilled_samples"] > asked:
+        alerts.append(f"{s['unfilled_samples'] - asked} samples are still missing in the output "
                       f"({len(report['unfilled'])} stretches, listed below).")
     if s["missing_samples"] == 0:
         parts.append('<div class="alert ok">The input had no gaps: nothing was filled.</div>')
+    elif not alerts and asked:
+        parts.append(f'<div class="alert ok">Every gap was filled ({s["filled_samples"]} samples) but the '
+                     f'{s["left_missing_gaps"]} left missing as asked (listed below).</div>')
     elif not alerts:
         parts.append(f'<div class="alert ok">Every gap was filled ({s["filled_samples"]} samples).</div>')
     parts.extend(f'<div class="alert">{escape(a)}</div>' for a in alerts)
@@ -264,6 +297,12 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
                          "(--report file.json) lists them all.</p>")
     else:
         parts.append("<p>No gaps.</p>")
+    if report.get("left_missing"):
+        parts.append(f"<h3>Left missing as asked ({len(report['left_missing'])} gaps)</h3>")
+        rows = [[escape(g["marker"]), str(g["first_frame"]), str(g["last_frame"]), str(g["length"]),
+                 _num(g["seconds"], 3), escape(g["reason"])] for g in report["left_missing"][:MAX_TABLE_ROWS]]
+        parts.append(html_table(["marker", "first frame", "last frame", "frames", "seconds", "reason"], rows,
+                                {1, 2, 3, 4}))
     if report["unfilled"]:
         parts.append("<h3>Left unfilled</h3>")
         rows = [[escape(u["marker"]), str(u["first_frame"]), str(u["length"])] for u in report["unfilled"][:MAX_TABLE_ROWS]]

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..gaps import find_gaps, runs
+from ..guards.fragments import count_fragments
 
 #: Identifies the document layout; bump on incompatible changes.
 SCHEMA_ID = "mocapfill-fill-report/1"
@@ -131,7 +132,9 @@ def _bone_records(positions_in: np.ndarray, positions_out: np.ndarray, filled: n
 
 def build_fill_report(data, result, *, method: str, settings: dict[str, Any] | None, seconds: float,
                       input_path: str | None, output_path: str | None, bones=None, rejected: np.ndarray | None = None,
-                      smoothed: bool = False) -> dict[str, Any]:
+                      smoothed: bool = False, fragments: np.ndarray | None = None, left: np.ndarray | None = None,
+                      chosen: np.ndarray | None = None, edges: str = "fill",
+                      observed_changed: list[str] | None = None) -> dict[str, Any]:
     """The JSON-ready record of one fill.
 
     Parameters
@@ -156,13 +159,26 @@ def build_fill_report(data, result, *, method: str, settings: dict[str, Any] | N
         Outlier samples removed before filling (they count as missing).
     smoothed : bool
         Whether the output was smoothed after filling.
+    fragments : ndarray of bool, shape (n_frames, n_markers), optional
+        Short observed fragments dropped before filling (``--min-fragment``; they count as missing).
+    left : ndarray of int8, shape (n_frames, n_markers), optional
+        Missing samples left missing on request: the :class:`~mocapfill.status.Status` code of the reason
+        (``--max-gap``, ``--edges leave``, markers not chosen), 0 elsewhere.
+    chosen : ndarray of bool, shape (n_markers,), optional
+        The markers chosen for filling (``--markers`` / ``--exclude``).
+    edges : "fill" or "leave"
+        What the fill did with the gaps touching the first or last frame.
+    observed_changed : list of str, optional
+        The options that changed or dropped observed samples, with counts (empty: all returned bit-identical).
 
     Returns
     -------
     dict
-        Keys ``schema``, ``mocapfill_version``, ``created``, ``summary``, ``gaps``, ``unfilled``, ``rejected``,
-        ``bones``, ``info``; see ``fill_report.schema.json``.
+        Keys ``schema``, ``mocapfill_version``, ``created``, ``summary``, ``gaps``, ``unfilled``, ``left_missing``,
+        ``rejected``, ``bones``, ``info``; see ``fill_report.schema.json``.
     """
+    from ..status import NAMES, Status
+
     from .. import __version__
 
     labels = list(data.labels)
@@ -172,6 +188,9 @@ def build_fill_report(data, result, *, method: str, settings: dict[str, Any] | N
     missing = data.missing.copy()
     rej = np.zeros_like(missing) if rejected is None else np.asarray(rejected, dtype=bool).reshape(missing.shape)
     missing |= rej
+    frag = np.zeros_like(missing) if fragments is None else np.asarray(fragments, dtype=bool).reshape(missing.shape)
+    missing |= frag
+    reasons = np.zeros(missing.shape, dtype=np.int8) if left is None else np.asarray(left).reshape(missing.shape)
     filled = np.asarray(result.filled, dtype=bool) & missing
     unfilled = missing & ~filled
     std = None if result.std is None else np.asarray(result.std, dtype=float)
@@ -191,7 +210,8 @@ def build_fill_report(data, result, *, method: str, settings: dict[str, Any] | N
         hits = [(m, why) for (mk, s, ln, m, why) in gap_methods
                 if mk == gap.marker and s < gap.stop and s + ln > gap.start]
         names = sorted({m for m, _ in hits})
-        reasons = list(dict.fromkeys(why for _, why in hits if why))
+        why_text = list(dict.fromkeys(why for _, why in hits if why))
+        left_code = int(reasons[gap.start, gap.marker])
         gaps.append({
             "marker": labels[gap.marker],
             "first_frame": first + gap.start,
@@ -206,13 +226,19 @@ def build_fill_report(data, result, *, method: str, settings: dict[str, Any] | N
             "mean_std": mean_std,
             "max_std": max_std,
             "method": "+".join(names) if names else None,
-            "reason": "; ".join(reasons) if reasons else None,
+            "reason": "; ".join(why_text) if why_text else None,
+            "left": NAMES[Status(left_code)] if left_code else None,
+            "fragment_samples": int(frag[sl, gap.marker].sum()),
         })
 
     unfilled_runs = [
         {"marker": labels[m], "first_frame": first + start, "length": length}
         for m in range(n_markers) for start, length in runs(unfilled[:, m])
     ]
+    left_missing = [{"marker": g["marker"], "first_frame": g["first_frame"], "last_frame": g["last_frame"],
+                     "length": g["length"], "seconds": g["seconds"], "reason": g["left"]}
+                    for g in gaps if g["left"]]
+    edge_gaps = [g for g in gaps if g["at_start"] or g["at_end"]]
     rej_f, rej_m = np.nonzero(rej.T)[::-1]  # ordered by marker, then frame
     rejected_list = [{"marker": labels[m], "frame": first + int(f)} for f, m in zip(rej_f, rej_m)]
 
@@ -243,6 +269,15 @@ def build_fill_report(data, result, *, method: str, settings: dict[str, Any] | N
         "seconds": float(seconds),
         "uncertainty": std is not None,
         "smoothed": bool(smoothed),
+        "left_missing_gaps": len(left_missing),
+        "left_missing_samples": int((reasons != 0).sum()),
+        "edges": str(edges),
+        "edge_gaps_filled": sum(1 for g in edge_gaps if g["status"] == "filled"),
+        "edge_gaps_left": sum(1 for g in edge_gaps if g["left"]),
+        "fragments": count_fragments(frag) if fragments is not None else None,
+        "fragment_samples": int(frag.sum()),
+        "markers_not_chosen": [] if chosen is None else [labels[m] for m in np.flatnonzero(~np.asarray(chosen))],
+        "observed_changed": [str(c) for c in (observed_changed or [])],
         "convergence": {
             "n_iter": int(result.n_iter),
             "converged": bool(result.converged),
@@ -257,6 +292,7 @@ def build_fill_report(data, result, *, method: str, settings: dict[str, Any] | N
         "summary": summary,
         "gaps": gaps,
         "unfilled": unfilled_runs,
+        "left_missing": left_missing,
         "rejected": rejected_list,
         "bones": _bone_records(data.positions, np.asarray(result.positions), filled, bones, labels),
         "info": jsonable({k: v for k, v in (result.info or {}).items()}),

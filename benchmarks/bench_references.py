@@ -1,0 +1,142 @@
+"""Benchmark of issue 26, part 1: reference takes for the default fill (``fill --reference``).
+
+On the CMU 41-marker layout (``sample_data/85_02.c3d``, ``../shared/data/cmu-train/`` (12 clips, 9 subjects),
+``../shared/data/bolero/127_07.csv`` read at 120 Hz), every clip restricted to the 41 markers of 85_02 (matched by
+label, a ``Subject:`` prefix aside):
+
+- **same subject**: each clip of CMU subjects 16 (16_07, 16_08, 16_57) and 07 (07_01, 07_12) is a held-out test
+  capture; the subject's other clip(s) are its references (one or two takes: the lab's static trial / other takes of
+  the session).  The test clip is never a reference of itself.
+- **other subjects / motions**: three test clips, each with two clips of other subjects (other motions too).
+
+Protocols (``mocapfill.evaluate``): ``dense`` at 20 % and 30 % missing and ``segment``; ``--trials`` seeded trials per
+clip and protocol, the same occlusions with and without references.  Per trial the RMSE over the hidden samples (mm)
+of ``auto`` without references and with them; per set and protocol the median over trials of each, the median
+reduction and the worst ratio (with / without).  Targets (issue 26): same subject, median >= 30 % lower; other
+subjects, median ratio <= 1.05 and no trial above 1.1.  No mode here uses the clean test capture (no oracle).
+
+``--force-weight`` sets every reference's weight to 1 (the body-fit weighting off), so that only each local
+model's cross-validation on the capture's own frames keeps other subjects' frames out (written with ``--results
+benchmarks/results/bench_references_forced.json``).
+
+Run from the repository root (about 40 min on the shared, heavily loaded 2-core machine)::
+
+    python benchmarks/bench_references.py [--trials 2] [--seed 26] [--sets same,other]
+
+Writes ``benchmarks/results/bench_references.json``; tables on stderr.
+"""
+
+from __future__ import annotations
+
+import harness
+
+harness.pin_blas()
+
+import argparse  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+import warnings  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+import mocapfill  # noqa: E402
+from harness import cmu41_clip as load, cmu41_layout as layout  # noqa: E402
+
+SAME = {"16_07": ["16_08", "16_57"], "16_08": ["16_07", "16_57"], "16_57": ["16_07", "16_08"],
+        "07_01": ["07_12"], "07_12": ["07_01"]}
+OTHER = {"85_02": ["16_07", "07_01"], "16_08": ["02_01", "82_08"], "127_07": ["133_01", "49_04"]}
+PROTOCOLS = [("dense 20 %", "dense", {"missing": 0.2}), ("dense 30 %", "dense", {"missing": 0.3}),
+             ("segment", "segment", {})]
+
+
+def run_set(name: str, table: dict[str, list[str]], labels: list[str], trials: int, seed: int, log) -> list[list]:
+    rows = []
+    for test, ref_names in table.items():
+        truth = load(test, labels)
+        refs = [load(r, labels) for r in ref_names]
+        for pname, protocol, opts in PROTOCOLS:
+            t0 = time.perf_counter()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                plain = mocapfill.evaluate(truth, ["auto"], protocol, trials=trials, seed=seed, **opts)
+                t1 = time.perf_counter()
+                withr = mocapfill.evaluate(truth, ["auto"], protocol, trials=trials, seed=seed, reference=refs, **opts)
+                t2 = time.perf_counter()
+            a = plain.values("rmse")[:, 0]
+            b = withr.values("rmse")[:, 0]
+            for k in range(len(a)):
+                rows.append([name, test, "+".join(ref_names), pname, k, round(float(a[k]), 2), round(float(b[k]), 2),
+                             round(float(b[k] / a[k]), 3)])
+            log(f"{name:5} {test:6} <- {'+'.join(ref_names):14} {pname:10} without {np.median(a):7.1f}  with "
+                f"{np.median(b):7.1f} mm  ({t1 - t0:.0f} s / {t2 - t1:.0f} s)")
+    return rows
+
+
+def summarise(rows: list[list]) -> tuple[list[list], dict]:
+    out, figures = [], {}
+    for name in ("same", "other"):
+        for pname, _, _ in PROTOCOLS + [("all", None, None)]:
+            sel = [r for r in rows if r[0] == name and (pname == "all" or r[3] == pname)]
+            if not sel:
+                continue
+            a = np.array([r[5] for r in sel])
+            b = np.array([r[6] for r in sel])
+            ratio = b / a
+            out.append([name, pname, len(sel), round(float(np.median(a)), 1), round(float(np.median(b)), 1),
+                        round(float(100 * (1 - np.median(b) / np.median(a))), 1),
+                        round(float(np.median(ratio)), 3), round(float(ratio.max()), 3)])
+            key = f"{name}_{pname.replace(' %', '').replace(' ', '')}"
+            if name == "same":
+                figures[f"{key}_median_reduction"] = {"value": out[-1][5], "unit": "%", "better": "higher"}
+            else:
+                figures[f"{key}_median_ratio"] = {"value": out[-1][6], "unit": "x", "better": "lower"}
+                figures[f"{key}_max_ratio"] = {"value": out[-1][7], "unit": "x", "better": "lower"}
+    return out, figures
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--trials", type=int, default=2)
+    parser.add_argument("--seed", type=int, default=26)
+    parser.add_argument("--sets", default="same,other")
+    parser.add_argument("--force-weight", action="store_true",
+                        help="weight every reference 1 (the body-fit weighting off): what the per-model "
+                             "cross-validation alone keeps out")
+    harness.add_results_argument(parser)
+    args = parser.parse_args()
+
+    def log(text: str) -> None:
+        print(text, file=sys.stderr, flush=True)
+
+    labels = layout()
+    if args.force_weight:
+        import mocapfill.references as references
+
+        def weigh_all(positions, refs, units):
+            for ref in refs:
+                ref.shape_rms, ref.weight = float("nan"), 1.0
+
+        references.weigh = weigh_all
+    rows = []
+    started = time.perf_counter()
+    for name in args.sets.split(","):
+        rows += run_set(name, SAME if name == "same" else OTHER, labels, args.trials, args.seed, log)
+    summary, figures = summarise(rows)
+    log("\nset    protocol    trials  without  with (median RMSE, mm)  reduction %  median ratio  max ratio")
+    for r in summary:
+        log(f"{r[0]:6} {r[1]:11} {r[2]:6} {r[3]:8} {r[4]:8} {r[5]:22} {r[6]:12} {r[7]:10}")
+    results = harness.Results("bench_references.py", path=args.results, note=args.note)
+    results.table("summary", "auto with and without reference takes: median over trials of the per-trial RMSE (mm); "
+                  "reduction of the median; ratio with / without per trial (median, max). No oracle: the test clip "
+                  "is never a reference.", ["set", "protocol", "trials", "median RMSE without", "median RMSE with",
+                                            "reduction %", "median ratio", "max ratio"], summary)
+    results.table("trials", "every trial: RMSE (mm) of auto without / with the references",
+                  ["set", "test clip", "references", "protocol", "trial", "RMSE without", "RMSE with", "ratio"], rows)
+    for name, fig in figures.items():
+        results.figure(name, fig["value"], fig["unit"], fig["better"])
+    results.write()
+    log(f"({time.perf_counter() - started:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,317 @@
+"""Reference takes: other captures of the same marker set that the stages of a fill can learn from.
+
+A lab never has one capture: it has the subject's static trial, the other takes of the session, and earlier clean
+takes of the same marker set.  ``fill --reference A.c3d --reference B.c3d`` (``reference=`` in Python) hands them to
+every stage that can use them, each where it fits:
+
+- the fill's body model (the default's local PCA, ``pca``): a reference's frames train it beside the capture's own,
+  each reference weighted by how well its body fits the capture (:func:`weigh`), so that a take of another subject
+  is used little or not at all;
+- ``--reject-outliers``: the distance ranges come from the *moving* references only.  A static trial (a nearly
+  motionless take, :func:`is_static`) has exact ranges that would reject normal joint motion, so it gives the body's
+  shape to the fill and nothing to the outlier ranges.
+
+Matching (:func:`match_reference`): by label, exactly or with a ``Subject:`` prefix aside, in any order; the markers
+the two share are used, a capture marker the reference lacks is NaN in its frames; the reference's units are
+converted to the capture's (:func:`mocapfill.units.length_factor`).  Fewer than :data:`MIN_SHARED` shared markers is
+an error naming the reference; a partial match is a warning naming the markers it lacks.
+
+Everything here is pure NumPy on arrays of shape (n_frames, n_markers, 3) in the capture's units and marker order.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from .errors import DataWarning, MocapfillError
+from .units import length_factor
+
+#: A reference sharing fewer markers than this with the capture cannot teach it anything (a local frame needs 3).
+MIN_SHARED = 3
+#: A take is static (a standing trial) when the median over its markers of each marker's RMS distance from its mean
+#: position is below this (mm): a static trial sways by a few mm, the slowest CMU take (77_02, standing) moves its
+#: markers by 60 mm and more.
+STATIC_MM = 25.0
+#: Body-shape fit: each marker's SHAPE_PAIRS most rigid partners in the capture form the pairs whose median lengths
+#: are compared; they carry the subject's proportions and marker placement, not the pose.
+SHAPE_PAIRS = 3
+#: Weight of a reference = exp(-(shape RMS / SHAPE_SCALE_MM)^2 / 2): the RMS difference of those median lengths.
+#: Among the 15 CMU clips of the 41-marker set, takes of one subject differ by 2-12 mm there (median 3.5), takes of
+#: two subjects by 20-80 mm (median 37): weight 0.3-0.97 for the first, below 0.05 (left out) for the second.
+SHAPE_SCALE_MM = 8.0
+#: A method that takes ``reference_frames`` but no weights gets only the references weighted at least this much.
+FULL_WEIGHT = 0.5
+#: References weighted below this are left out of the fill altogether (they would only cost time).
+MIN_WEIGHT = 0.05
+#: Frames read per take for the shape statistics (evenly spaced): enough for medians, bounded on long takes.
+STAT_FRAMES = 1000
+#: Frames one reference gives the fill at most (evenly spaced): every local model trains on all of them, so a
+#: long take would cost time in every model and outweigh the capture; 2,000 frames (17 s at 120 Hz) cover a motion.
+MAX_FILL_FRAMES = 2000
+
+
+class ReferenceError(MocapfillError):
+    """A reference take cannot be matched to the capture (too few shared marker labels)."""
+
+
+@dataclass
+class Reference:
+    """One reference take, matched to a capture.
+
+    Attributes
+    ----------
+    name : str
+        Where it came from (its path, or ``reference N``), for messages and reports.
+    positions : ndarray (n_ref_frames, n_markers, 3)
+        In the capture's units and marker order; NaN where the reference lacks a marker or a sample.
+    shared, lacking : list of str
+        Capture labels the reference carries / lacks.
+    static : bool
+        A nearly motionless take (:func:`is_static`): shape for the fill, no outlier ranges.
+    weight : float
+        How much the fill uses it, in [0, 1] relative to one frame of the capture (:func:`weigh`); NaN until weighed.
+    shape_rms : float
+        RMS difference (capture units) of the median lengths of near marker pairs between the reference and the
+        capture; NaN until weighed.
+    stages : dict
+        Which stage used it and how: ``{"fill": "...", "reject_outliers": "..."}``.
+    """
+
+    name: str
+    positions: np.ndarray
+    shared: list[str]
+    lacking: list[str]
+    static: bool
+    weight: float = float("nan")
+    shape_rms: float = float("nan")
+    stages: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.positions.shape[0])
+
+    def record(self, units: str) -> dict[str, Any]:
+        """What a report says about it (JSON-ready)."""
+        return {"name": self.name, "frames": self.n_frames, "static": bool(self.static),
+                "shared_markers": len(self.shared), "lacking": list(self.lacking),
+                "weight": None if not np.isfinite(self.weight) else round(float(self.weight), 4),
+                "shape_rms": None if not np.isfinite(self.shape_rms) else round(float(self.shape_rms), 3),
+                "units": units, "stages": dict(self.stages)}
+
+
+def bare_label(label: str) -> str:
+    """A marker label without its ``Subject:`` prefix (``"Male:LKNE"`` -> ``"LKNE"``)."""
+    return str(label).rsplit(":", 1)[-1].strip()
+
+
+def match_reference(labels: Sequence[str], units: str, ref_positions: np.ndarray, ref_labels: Sequence[str],
+                    ref_units: str, *, name: str = "reference") -> Reference:
+    """Match one reference take to a capture's ``labels`` and ``units``.
+
+    ref_positions (n_ref_frames, n_ref_markers, 3) in ``ref_units``.  Returns a :class:`Reference` with positions
+    (n_ref_frames, len(labels), 3) in ``units``.  Raises :class:`ReferenceError` when fewer than
+    :data:`MIN_SHARED` markers match; warns (:class:`~mocapfill.errors.DataWarning`) naming the capture's markers
+    the reference lacks.
+    """
+    ref_positions = np.asarray(ref_positions, dtype=np.float64)
+    if ref_positions.ndim != 3 or ref_positions.shape[2] != 3 or ref_positions.shape[1] != len(ref_labels):
+        raise ReferenceError(f"{name}: positions must have shape (n_frames, {len(ref_labels)}, 3), "
+                             f"got {ref_positions.shape}")
+    exact = {str(label): k for k, label in enumerate(ref_labels)}
+    bare: dict[str, list[int]] = {}
+    for k, label in enumerate(ref_labels):
+        bare.setdefault(bare_label(label), []).append(k)
+    factor = length_factor(ref_units, units)
+    out = np.full((ref_positions.shape[0], len(labels), 3), np.nan)
+    shared, lacking = [], []
+    for m, label in enumerate(labels):
+        k = exact.get(str(label))
+        if k is None:
+            hits = bare.get(bare_label(label), [])
+            k = hits[0] if len(hits) == 1 else None
+        if k is None:
+            lacking.append(str(label))
+            continue
+        out[:, m] = ref_positions[:, k] * factor
+        shared.append(str(label))
+    if len(shared) < MIN_SHARED:
+        sample = ", ".join(bare_label(x) for x in list(labels)[:5])
+        raise ReferenceError(f"{name}: shares {len(shared)} marker label(s) with the capture (which has {sample}, "
+                             f"...); a reference needs at least {MIN_SHARED} of the same marker set")
+    if lacking:
+        shown = ", ".join(lacking[:12]) + (f" and {len(lacking) - 12} more" if len(lacking) > 12 else "")
+        warnings.warn(f"{name}: lacks {len(lacking)} of the capture's markers ({shown}); it is used for the "
+                      f"{len(shared)} it shares", DataWarning, stacklevel=2)
+    out[np.isnan(out).any(axis=2)] = np.nan
+    return Reference(name, out, shared, lacking, is_static(out, units))
+
+
+def _sample(positions: np.ndarray) -> np.ndarray:
+    """At most :data:`STAT_FRAMES` evenly spaced frames of positions (n_frames, n_markers, 3)."""
+    n = positions.shape[0]
+    if n <= STAT_FRAMES:
+        return positions
+    return positions[np.linspace(0, n - 1, STAT_FRAMES).round().astype(int)]
+
+
+def is_static(positions: np.ndarray, units: str) -> bool:
+    """Whether a take (n_frames, n_markers, 3) is nearly motionless (a static trial): see :data:`STATIC_MM`."""
+    x = _sample(positions)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        mean = np.nanmean(x, axis=0, keepdims=True)
+        spread = np.sqrt(np.nanmean(((x - mean) ** 2).sum(axis=2), axis=0))  # (n_markers,)
+    spread = spread[np.isfinite(spread)]
+    if spread.size == 0:
+        return False
+    return bool(np.median(spread) < STATIC_MM * length_factor("mm", units))
+
+
+def _median_lengths(positions: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    x = _sample(positions)
+    d = np.linalg.norm(x[:, pairs[:, 0]] - x[:, pairs[:, 1]], axis=2)  # (n, P)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmedian(d, axis=0)
+
+
+def shape_difference(positions: np.ndarray, reference: np.ndarray) -> float:
+    """RMS difference of median pair lengths between a capture and a reference, both (n, n_markers, 3) alike.
+
+    The pairs: each marker with its :data:`SHAPE_PAIRS` most rigid partners in the capture (smallest spread, 10th to
+    90th percentile, of their distance over the frames where both are observed), among markers both takes carry:
+    their lengths are the subject's proportions and marker placement, not the pose.  NaN when no pair can be
+    compared.
+    """
+    n_markers = positions.shape[1]
+    iu, ju = np.triu_indices(n_markers, 1)
+    x = _sample(positions)
+    d = np.linalg.norm(x[:, iu] - x[:, ju], axis=2)  # (n, P)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        lo, hi = np.nanpercentile(d, [10, 90], axis=0)
+    spread = np.full((n_markers, n_markers), np.inf)
+    ok = np.isfinite(hi - lo) & (np.isfinite(d).sum(axis=0) >= 10)
+    spread[iu[ok], ju[ok]] = (hi - lo)[ok]
+    spread[ju[ok], iu[ok]] = (hi - lo)[ok]
+    has_ref = ~np.isnan(reference).any(axis=2).all(axis=0)
+    spread[:, ~has_ref] = np.inf
+    chosen = set()
+    for m in np.flatnonzero(has_ref):
+        for k in np.argsort(spread[m])[:SHAPE_PAIRS]:
+            if np.isfinite(spread[m, k]):
+                chosen.add((min(m, k), max(m, k)))
+    if not chosen:
+        return float("nan")
+    pairs = np.array(sorted(chosen))
+    a = _median_lengths(positions, pairs)
+    b = _median_lengths(reference, pairs)
+    diff = (a - b)[np.isfinite(a - b)]
+    return float(np.sqrt(np.mean(diff ** 2))) if diff.size else float("nan")
+
+
+def weigh(positions: np.ndarray, references: Sequence[Reference], units: str) -> None:
+    """Set each reference's ``shape_rms`` and ``weight`` from how well its body fits the capture's.
+
+    positions (n_frames, n_markers, 3), NaN = missing (only observed samples are used).  The weight is
+    exp(-(rms / :data:`SHAPE_SCALE_MM`)^2 / 2): near 1 for another take of the same subject and marker placement,
+    near 0 for another body.  The fill's own cross-validation then decides, per model, whether the weighted
+    references help at all (:mod:`mocapfill.engines.local_pca`).
+    """
+    scale = SHAPE_SCALE_MM * length_factor("mm", units)
+    for ref in references:
+        rms = shape_difference(positions, ref.positions)
+        ref.shape_rms = rms
+        ref.weight = float(np.exp(-0.5 * (rms / scale) ** 2)) if np.isfinite(rms) else 0.0
+
+
+def training_frames(references: Sequence[Reference]) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The fill's reference frames and their weights: ``(frames (n, n_markers, 3), weights (n,))``.
+
+    References weighted below :data:`MIN_WEIGHT` are left out (and their ``stages["fill"]`` says so); (None, None)
+    when none is left.  Frames without any observed marker are dropped; a longer reference gives
+    :data:`MAX_FILL_FRAMES` evenly spaced frames.
+    """
+    frames, weights = [], []
+    for ref in references:
+        if not np.isfinite(ref.weight) or ref.weight < MIN_WEIGHT:
+            ref.stages["fill"] = "not used: its body differs from the capture's"
+            continue
+        rows = np.flatnonzero(~np.isnan(ref.positions).any(axis=2).all(axis=1))
+        if len(rows) > MAX_FILL_FRAMES:
+            rows = rows[np.linspace(0, len(rows) - 1, MAX_FILL_FRAMES).round().astype(int)]
+        frames.append(ref.positions[rows])
+        weights.append(np.full(len(rows), ref.weight))
+        ref.stages["fill"] = f"{len(rows)} frames train the body model, weight {ref.weight:.2f}"
+    if not frames:
+        return None, None
+    return np.concatenate(frames), np.concatenate(weights)
+
+
+def method_options(references: Sequence[Reference], method: str, accepted: set[str]) -> dict[str, np.ndarray]:
+    """The keyword options that hand the references to a fill method: ``reference_frames`` / ``reference_weights``
+    when the method takes them (its parameter names ``accepted``) and some reference is weighted in; else none, and
+    each reference's ``stages["fill"]`` says why."""
+    if "reference_frames" not in accepted:
+        for ref in references:
+            ref.stages["fill"] = f"not used: method {method!r} takes no reference frames"
+        return {}
+    frames, weights = training_frames(references)
+    if frames is None:
+        return {}
+    if "reference_weights" not in accepted:  # a method without weights gets only the references weighted near 1
+        keep = weights >= FULL_WEIGHT
+        for ref in references:
+            if ref.stages.get("fill", "").endswith(f"weight {ref.weight:.2f}") and ref.weight < FULL_WEIGHT:
+                ref.stages["fill"] = f"not used: method {method!r} takes no weights, and its weight is {ref.weight:.2f}"
+        return {"reference_frames": frames[keep]} if keep.any() else {}
+    return {"reference_frames": frames, "reference_weights": weights}
+
+
+def outlier_frames(references: Sequence[Reference]) -> np.ndarray | None:
+    """Frames (n, n_markers, 3) of the moving references for ``--reject-outliers``'s distance ranges, or None.
+
+    A static reference gives none (its exact ranges would reject normal joint motion), nor does one whose body
+    differs from the capture's (weight below :data:`MIN_WEIGHT`: its pair lengths are another body's); their
+    ``stages`` say so.
+    """
+    frames = []
+    for ref in references:
+        if ref.static:
+            ref.stages["reject_outliers"] = "not used: a static trial's distance ranges would reject joint motion"
+            continue
+        if np.isfinite(ref.weight) and ref.weight < MIN_WEIGHT:
+            ref.stages["reject_outliers"] = "not used: its body differs from the capture's"
+            continue
+        frames.append(ref.positions)
+        ref.stages["reject_outliers"] = f"{ref.n_frames} frames give the distance ranges"
+    return np.concatenate(frames) if frames else None
+
+
+def prepare(data: Any, references: Sequence[Any], *, rate: float | None = None) -> list[Reference]:
+    """Match and weigh references for a capture ``data`` (:class:`~mocapfill.markers.MarkerData`).
+
+    Each item of ``references`` is a MarkerData, a path (read with :func:`mocapfill.io.read`; ``rate`` for a file
+    that carries none, the capture's by default) or a :class:`Reference` already matched.  Returns the matched
+    references with their weights set.
+    """
+    out = []
+    for k, item in enumerate(references):
+        if isinstance(item, Reference):
+            out.append(item)
+            continue
+        if isinstance(item, (str,)) or hasattr(item, "__fspath__"):
+            from .io import read
+
+            name = str(item)
+            item = read(item, rate=rate if rate is not None else data.rate, override_rate=True)
+        else:
+            name = getattr(item, "path", None) or f"reference {k + 1}"
+        out.append(match_reference(list(data.labels), data.units, item.positions, list(item.labels), item.units,
+                                   name=name))
+    weigh(data.positions, out, data.units)
+    return out

@@ -1,0 +1,163 @@
+"""Reference takes (issue 26): matching by label, units, static trials, weights, and their use by every stage."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+import warnings
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import mocapfill
+from mocapfill.cli import cli
+from mocapfill.errors import DataWarning, MocapfillError
+from mocapfill.markers import MarkerData
+from mocapfill.references import (MIN_WEIGHT, ReferenceError, is_static, match_reference, outlier_frames, prepare,
+                                  training_frames)
+
+
+@pytest.fixture(scope="module")
+def cmu(sample_data):
+    return mocapfill.read(sample_data / "85_02.c3d")
+
+
+@pytest.fixture(scope="module")
+def halves(cmu):
+    """The CMU take's first half (the capture) and second half (a reference take of the same subject)."""
+    first = MarkerData(cmu.positions[:405].copy(), list(cmu.labels), cmu.rate, cmu.units, path="first")
+    second = MarkerData(cmu.positions[405:].copy(), list(cmu.labels), cmu.rate, cmu.units, path="second")
+    return first, second
+
+
+def test_matched_by_label_in_any_order_without_prefix_and_converted(cmu):
+    order = np.random.default_rng(0).permutation(cmu.n_markers)
+    ref_labels = [cmu.labels[k].split(":")[-1] for k in order]  # no "Male:" prefix, shuffled
+    ref = match_reference(cmu.labels, "mm", cmu.positions[:50, order] / 1000.0, ref_labels, "m", name="r.c3d")
+    assert ref.shared == list(cmu.labels) and not ref.lacking
+    np.testing.assert_allclose(ref.positions, cmu.positions[:50], atol=1e-9)
+
+
+def test_unmatched_markers_are_named(cmu):
+    with pytest.warns(DataWarning, match=r"r\.c3d: lacks 2 of the capture's markers \(Male:LFWT, Male:RFWT\)"):
+        ref = match_reference(cmu.labels, "mm", cmu.positions[:20, 2:], cmu.labels[2:], "mm", name="r.c3d")
+    assert np.isnan(ref.positions[:, :2]).all()
+    with pytest.raises(ReferenceError, match=r"^other\.c3d: shares 2 marker label\(s\) with the capture"):
+        match_reference(cmu.labels, "mm", cmu.positions[:20, :2], ["LFWT", "RFWT"], "mm", name="other.c3d")
+
+
+def test_a_static_trial_is_recognised(cmu):
+    rng = np.random.default_rng(1)
+    static = cmu.positions[:1].repeat(200, axis=0) + rng.normal(scale=2.0, size=(200, cmu.n_markers, 3))
+    assert is_static(static, "mm") and is_static(static / 1000.0, "m")
+    assert not is_static(cmu.positions, "mm")
+
+
+def test_weights_follow_the_body(halves, sample_data):
+    first, second = halves
+    serve = mocapfill.read(sample_data / "kinematics_tennis_serve.c3d")  # another lab, subject and unit (metres)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DataWarning)
+        same, other = prepare(first, [second, serve])
+    assert same.weight > 0.3 and other.weight < MIN_WEIGHT
+    frames, weights = training_frames([same, other])
+    assert len(frames) == second.n_frames and np.all(weights == same.weight)
+    assert other.stages["fill"].startswith("not used")
+
+
+def test_static_trial_gives_shape_but_no_outlier_ranges(halves):
+    first, second = halves
+    static = MarkerData(np.repeat(second.positions[:1], 100, axis=0), list(second.labels), 120.0, "mm", path="st")
+    refs = prepare(first, [static, second])
+    assert refs[0].static and not refs[1].static
+    ranges = outlier_frames(refs)
+    assert len(ranges) == second.n_frames
+    assert refs[0].stages["reject_outliers"].startswith("not used: a static trial")
+
+
+def test_references_make_the_default_and_pca_better(halves):
+    from mocapfill.evaluation.occlusions import make_occlusions
+
+    first, second = halves
+    trial = make_occlusions(first, "dense", trials=1, seed=2, missing=0.2)[0]
+    corrupted, hidden, _ = trial.apply(first.positions)
+    gappy = first.with_positions(corrupted)
+
+    def rmse(result):
+        return np.sqrt(np.mean(((result.positions - first.positions)[hidden]) ** 2) * 3)
+
+    for method in ("pca", "auto"):
+        plain = mocapfill.fill(gappy, method)
+        with_ref = mocapfill.fill(gappy, method, reference=second)
+        assert rmse(with_ref) < 0.7 * rmse(plain), method
+        assert with_ref.info["reference_takes"][0]["name"] == "second"
+        observed = ~np.isnan(corrupted).any(axis=2)
+        assert np.array_equal(with_ref.positions[observed], corrupted[observed])
+
+
+def test_reference_frames_argument_checks_its_shape(halves):
+    first, _ = halves
+    with pytest.raises(MocapfillError, match="reference_frames must have shape"):
+        mocapfill.fill(first.positions, "auto", reference_frames=np.zeros((5, 3, 3)))
+
+
+def test_cli_repeatable_reference_and_report(halves, sample_data, tmp_path):
+    first, second = halves
+    gappy = first.positions.copy()
+    gappy[100:160, 5] = np.nan
+    gappy[200:230, 20] = np.nan
+    src, ref = tmp_path / "take.c3d", tmp_path / "other_take.csv"
+    mocapfill.write(MarkerData(gappy, list(first.labels), 120.0, "mm"), src)
+    mocapfill.write(second, ref)
+    report = tmp_path / "r.json"
+    result = CliRunner().invoke(cli, ["fill", str(src), str(tmp_path / "o.c3d"), "-m", "pca", "--reference",
+                                      str(ref), "--reference", str(sample_data / "kinematics_tennis_serve.c3d"),
+                                      "--reject-outliers", "--report", str(report)])
+    assert result.exit_code == 0, result.output
+    assert "reference " in result.stderr and "weight" in result.stderr
+    assert "lacks" in result.stderr  # the tennis serve's marker set differs: named on one line
+    refs = json.loads(report.read_text())["summary"]["settings"]["references"]
+    assert [r["frames"] for r in refs] == [second.n_frames, 1092]
+    assert refs[0]["stages"]["fill"].startswith(f"{second.n_frames} frames train")
+    assert refs[0]["stages"]["reject_outliers"].endswith("give the distance ranges")
+    assert refs[1]["weight"] < MIN_WEIGHT
+
+
+def test_evaluate_refuses_the_test_capture_and_labels_the_oracle(halves):
+    first, second = halves
+    with pytest.raises(MocapfillError, match="is the test capture itself"):
+        mocapfill.evaluate(first, ["linear"], "marker", trials=1, seed=0, reference=[first])
+    result = mocapfill.evaluate(first, ["pca"], "marker", trials=1, seed=0, reference=[second],
+                                reject_outliers="clean")
+    assert result.settings["oracle"] is True and result.settings["references"] == ["second"]
+
+
+def test_batch_hands_references_to_every_file(halves, tmp_path):
+    first, second = halves
+    folder = tmp_path / "session"
+    folder.mkdir()
+    gappy = first.positions.copy()
+    gappy[100:140, 7] = np.nan
+    mocapfill.write(MarkerData(gappy, list(first.labels), 120.0, "mm"), folder / "take.c3d")
+    ref = tmp_path / "static.csv"
+    mocapfill.write(MarkerData(np.repeat(second.positions[:1], 60, axis=0), list(first.labels), 120.0, "mm"), ref)
+    rows = mocapfill.batch(folder, tmp_path / "out", method="pca", reference=[str(ref)], report="json")
+    assert [r.status for r in rows] == ["filled"], rows[0].error
+    doc = json.loads(Path(rows[0].report).read_text())
+    (record,) = doc["summary"]["settings"]["references"]
+    assert record["static"] and record["frames"] == 60
+
+
+def test_a_method_without_weights_gets_only_the_well_fitting_references(halves):
+    from mocapfill.references import method_options
+
+    first, second = halves
+    (ref,) = prepare(first, [second])
+    ref.weight = 0.9
+    options = method_options([ref], "x", {"reference_frames"})
+    assert set(options) == {"reference_frames"} and len(options["reference_frames"]) == second.n_frames
+    ref.weight = 0.2
+    assert method_options([ref], "x", {"reference_frames"}) == {}
+    assert "takes no weights" in ref.stages["fill"]
+    assert method_options([ref], "linear", set()) == {} and ref.stages["fill"].startswith("not used: method")
