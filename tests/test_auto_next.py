@@ -10,8 +10,9 @@ from mocapfill.engines.motion_smoother import (JERK_GAIN, MotionModel, jerk_dens
 from mocapfill.errors import MethodError
 from test_auto import tumbling_body  # the tests folder is on sys.path (no package)
 from mocapfill.methods import get_method
-from mocapfill.methods.auto_next import (DEFAULT_CONFIG, ModelConfig, fill_auto_next, gap_records, motion_model,
-                                         spatial_stage, temporal_stage)
+from mocapfill.engines.local_pca import rigid_prediction
+from mocapfill.methods.auto_next import (DEFAULT_CONFIG, ModelConfig, body_stage, fill_auto_next, gap_records,
+                                         motion_model, spatial_stage, temporal_stage)
 
 
 def model(n_series: int, q: float = 1e-3, gain=None) -> MotionModel:
@@ -98,6 +99,35 @@ def test_spatial_stage_predicts_a_rigid_marker():
     assert np.abs(pred[100:160, 0] - pos[100:160, 0]).max() < 5.0
     assert np.isfinite(sd[100:160, 0]).all() and np.isnan(sd[:100]).all()
     assert np.isfinite(edge[97:100, 0]).all() and np.isnan(edge[:90, 0]).all()
+
+
+def test_rigid_prediction_carries_a_marker_on_its_nearest_seen_markers():
+    pos = tumbling_body()
+    gapped = pos.copy()
+    gapped[100:160, :2] = np.nan  # marker 0 and one neighbour vanish together
+    todo = np.isnan(gapped).any(axis=2)
+    est, sd, edge, edge_sd = rigid_prediction(gapped, todo, nearest=3, align_scale=200.0, edge_frames=2)
+    assert np.isfinite(edge_sd[[98, 99, 160, 161], 0]).all() and np.isnan(edge_sd[[97, 162], 0]).all()
+    assert np.abs(edge[98, 0] - pos[98, 0]).max() < 1.0
+    assert np.abs(est[100:160, 0] - pos[100:160, 0]).max() < 1.0  # a rigid body: exact up to round-off
+    assert np.isfinite(sd[100:160, :2]).all() and np.isnan(sd[:100]).all() and sd[120, 0] < 1.0
+
+
+def test_body_stage_fills_only_samples_without_a_spatial_prediction():
+    pos = tumbling_body()
+    gapped = pos.copy()
+    gapped[100:160, 0] = np.nan
+    pred = np.full_like(pos, np.nan)
+    sd = np.full(pos.shape[:2], np.nan)
+    pred[100:130, 0], sd[100:130, 0] = 7.0, 3.0  # the local PCA's (kept) and none for frames 130-159
+    none = np.full_like(pos, np.nan)
+    out, out_sd, edge, edge_sd = body_stage(gapped, pred, sd, none, sd * np.nan, ModelConfig(rigid_nearest=3), 1.0)
+    assert np.all(out[100:130, 0] == 7.0) and np.all(out_sd[100:130, 0] == 3.0)
+    assert np.abs(out[130:160, 0] - pos[130:160, 0]).max() < 1.0 and np.isfinite(out_sd[130:160, 0]).all()
+    assert np.isnan(out_sd[:100]).all()
+    assert np.isfinite(edge_sd[160, 0]) and np.isnan(edge_sd[:97]).all()
+    off = body_stage(gapped, pred, sd, none, sd * np.nan, ModelConfig(rigid_nearest=0), 1.0)[0]
+    assert np.isnan(off[130:160, 0]).all()
 
 
 def test_gap_records_flag_uncertain_gaps_with_the_config_number():

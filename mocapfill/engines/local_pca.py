@@ -522,6 +522,14 @@ def reconstruct_local(
     return estimate, std, info
 
 
+def empty_estimates(n_frames: int, n_markers: int) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """NaN estimate (n_frames, n_markers, 3), std (n_frames, n_markers) and ``{"edge_estimate", "edge_std"}`` of
+    the same shapes, for the reconstructions that fill them marker by marker."""
+    return (np.full((n_frames, n_markers, 3), np.nan), np.full((n_frames, n_markers), np.nan),
+            {"edge_estimate": np.full((n_frames, n_markers, 3), np.nan),
+             "edge_std": np.full((n_frames, n_markers), np.nan)})
+
+
 def reconstruct_completed(
     positions: np.ndarray,
     completed: np.ndarray,
@@ -537,6 +545,7 @@ def reconstruct_completed(
     edge_frames: int = 0,
     reference: np.ndarray | None = None,
     leverage_weight: float = 1.0,
+    trust: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The local model refitted on a completed take (one EM-style imputation step).
 
@@ -550,6 +559,9 @@ def reconstruct_completed(
     n_markers, 3) and std (n_frames, n_markers) at the missing samples (NaN elsewhere and where no model could be
     fitted), and the reconstruction / std at up to ``edge_frames`` observed frames either side of each gap.
     ``leverage_weight`` scales how much a frame's leverage grows its std (1: as :func:`reconstruct_local`).
+    ``trust`` (data units) or None: when given, only neighbours whose RMS completed std over the marker's gap frames
+    is at most ``trust`` are predictors: a neighbour that vanished with the marker (filled, uncertain) does not steer
+    its prediction, and the cross-validated error is that of the markers still known there.
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
@@ -559,17 +571,20 @@ def reconstruct_completed(
         var = np.concatenate([var, np.zeros(reference.shape[:2])])
     known = np.concatenate([~missing, np.isfinite(reference).all(axis=2)]) if reference is not None else ~missing
     finite = np.isfinite(data).all(axis=2)
-    estimate = np.full((n_frames, n_markers, 3), np.nan)
-    std = np.full((n_frames, n_markers), np.nan)
-    info = {"edge_estimate": np.full((n_frames, n_markers, 3), np.nan),
-            "edge_std": np.full((n_frames, n_markers), np.nan)}
+    estimate, std, info = empty_estimates(n_frames, n_markers)
     for m in np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0)):
         group = np.flatnonzero(missing[:, m])
         dist = mean_distances(np.where(known[..., None], data, np.nan), m)
         weights, align_weight = marker_weights(dist, m, scales, align_scale, missing_weight)
+        sure = np.ones(n_markers, dtype=bool)
+        if trust is not None:
+            # a neighbour filled with little certainty during this marker's gaps (it vanished with it) is no
+            # predictor: the model and its cross-validated error are those of the markers still known there
+            with np.errstate(invalid="ignore"):
+                sure = np.nan_to_num(var[group].mean(axis=0), nan=np.inf) <= trust ** 2
         others = np.flatnonzero(np.arange(n_markers) != m)
         near = others[np.isfinite(dist[others]) & (dist[others] <= reach * max(scales))
-                      & finite[group][:, others].all(axis=0)]
+                      & finite[group][:, others].all(axis=0) & sure[others]]
         near = near[np.argsort(dist[near], kind="stable")]
         train = np.flatnonzero(known[:, m] & finite[:, near].all(axis=1)) if len(near) else np.zeros(0, int)
         if len(near) < 3 or len(train) < MIN_TRAINING_FRAMES:
@@ -590,6 +605,67 @@ def reconstruct_completed(
                           np.sqrt(rms_mix ** 2 * (1.0 + leverage_weight * leverage[:n_train][own]) + spread_t),
                           edge_frames)
     return estimate, std, info["edge_estimate"], info["edge_std"]
+
+
+def rigid_prediction(positions: np.ndarray, todo: np.ndarray, *, nearest: int = 3, align_scale: float,
+                     edge_frames: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The body's answer where the local PCA has none: each wanted sample rigidly attached to its nearest markers
+    observed at that frame.
+
+    positions (n_frames, n_markers, 3), NaN = missing; todo (n_frames, n_markers) bool: the missing samples wanted.
+    Per marker and per set of its ``nearest`` nearest (mean distance) markers observed at a wanted frame, the
+    marker's mean position in their weighted local frame (:func:`local_frames`, Gaussian weights of width
+    ``align_scale``) over the frames where all are observed is carried to the wanted frames; its standard deviation
+    per coordinate is the RMS scatter of that local position there (how far the marker moves relative to them: a
+    foot relative to its shank is honest about the ankle's angle), times sqrt(1 + 1 / n_train).  A run of wanted
+    frames keeps one anchor set where markers seen throughout it allow.  Returns estimate (n_frames, n_markers, 3)
+    and std (n_frames, n_markers), NaN where not wanted or fewer than ``MIN_TRAINING_FRAMES`` frames saw the
+    marker with its anchors, and the same prediction (and std) at up to ``edge_frames`` observed frames on either
+    side of each run (NaN elsewhere), where a smoother learns its error.
+    """
+    n_frames, n_markers, _ = positions.shape
+    missing = np.isnan(positions).any(axis=2)
+    estimate, std, edges = empty_estimates(n_frames, n_markers)
+    for m in np.flatnonzero(todo.any(axis=0) & ~missing.all(axis=0)):
+        dist = mean_distances(positions, m)
+        dist[m] = np.nan
+        order = np.flatnonzero(np.isfinite(dist))
+        order = order[np.argsort(dist[order], kind="stable")]
+        frames = np.flatnonzero(todo[:, m])
+        seen = ~missing[np.ix_(frames, order)]
+        # one anchor set per run of wanted frames where the run allows it (the markers seen throughout it): a set
+        # that changed from frame to frame would make the prediction jump where it changes
+        run_id = np.cumsum(np.diff(frames, prepend=-2) != 1)
+        for r in np.unique(run_id):
+            rows = run_id == r
+            whole = seen[rows].all(axis=0)
+            if whole.sum() >= 3:
+                seen[rows] = whole
+        rank = np.cumsum(seen, axis=1)
+        pattern = seen & (rank <= nearest)
+        uniq, inverse = np.unique(pattern, axis=0, return_inverse=True)
+        inverse = np.asarray(inverse).ravel()
+        for p in range(len(uniq)):
+            anchors = order[uniq[p]]
+            if len(anchors) < 3:
+                continue
+            group = frames[inverse == p]
+            train = _training(missing, m, anchors)
+            if len(train) < MIN_TRAINING_FRAMES:
+                continue
+            weights = gaussian_weights(dist[anchors], align_scale) + 1e-6
+            used = np.concatenate([train, group])
+            centre, rot = local_frames(positions, used, anchors, weights, np.arange(len(train)))
+            local = np.einsum("tc,tcd->td", positions[train, m] - centre[:len(train)], rot[:len(train)])
+            mu = local.mean(axis=0)
+            sigma = np.sqrt(np.mean(np.sum((local - mu) ** 2, axis=1)) / 3.0 * (1.0 + 1.0 / len(train)))
+            n = len(train)
+            estimate[group, m] = centre[n:] + np.einsum("d,tcd->tc", mu, rot[n:])
+            std[group, m] = sigma
+            if edge_frames:
+                _edge_samples(edges, m, group, train, centre[:n] + np.einsum("d,tcd->tc", mu, rot[:n]),
+                              np.full(n, sigma), edge_frames)
+    return estimate, std, edges["edge_estimate"], edges["edge_std"]
 
 
 def fill_local_pca(
