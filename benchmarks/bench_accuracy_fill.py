@@ -14,7 +14,7 @@ The trial protocol is the one of ``tests/test_accuracy_fill.py`` (same generator
 
 Run from the repository root::
 
-    /work/venv/bin/python benchmarks/bench_accuracy_fill.py [--trials 10] [--seed 0] [--methods linear,spline,...]
+    python benchmarks/bench_accuracy_fill.py [--trials 10] [--seed 0] [--methods linear,spline,...]
 
 BLAS threads: pinned to one unless the environment says otherwise (small matrices; threads only add contention on
 a shared machine).  The setting, the machine and its load are printed.

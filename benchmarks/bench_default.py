@@ -15,7 +15,7 @@ at 120 Hz, jumps and flips; ``sample_data/kinematics_tennis_serve.c3d``: OptiTra
 
 Run from the repository root::
 
-    /work/venv/bin/python benchmarks/bench_default.py [--trials 20] [--seed 0] [--methods spline,bolero-sc]
+    python benchmarks/bench_default.py [--trials 20] [--seed 0] [--methods spline,bolero-sc]
 
 BLAS threads: the fills run NumPy's BLAS on one thread themselves (:mod:`mocapfill.runtime.blas`; they work
 on many small matrices, at most 123 x 123, where threads only add contention: on the shared 2-core development
