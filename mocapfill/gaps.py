@@ -37,6 +37,20 @@ def runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return [(int(a), int(b - a)) for a, b in zip(starts, stops)]
 
 
+def fragments(missing: np.ndarray, longest: int) -> np.ndarray:
+    """(n_frames, n_markers) bool: the observed samples in runs of at most ``longest`` frames with a missing sample
+    right before and right after them (``missing`` (n_frames, n_markers) bool).  A run touching the first or last
+    frame is not between gaps and is never marked."""
+    missing = np.asarray(missing, dtype=bool)
+    out = np.zeros(missing.shape, dtype=bool)
+    n_frames = missing.shape[0]
+    for m in np.flatnonzero(missing.any(axis=0)):
+        for start, length in runs(~missing[:, m]):
+            if length <= longest and start > 0 and start + length < n_frames:
+                out[start:start + length, m] = True
+    return out
+
+
 def brownian_variance(start: int, length: int, n_frames: int) -> np.ndarray:
     """(length,) variance per unit rate of a random walk across the gap [start, start + length) of a capture of
     ``n_frames``, pinned at the observed frame on either side: ``d_a d_b / (length + 1)`` with d_a, d_b the distances

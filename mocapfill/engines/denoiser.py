@@ -38,6 +38,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import MocapfillError
+from .body_frame import nearest_rotation
 
 #: What the model file says it is; a file of another format is refused with a one-line error.
 MODEL_FORMAT = "mocapfill-denoiser/1"
@@ -171,13 +172,7 @@ def kabsch(points: np.ndarray, template: np.ndarray, weights: np.ndarray) -> tup
     ct = (w @ template) / safe  # (n, 3)
     xc = x - cx[:, None, :]
     tc = template[None] - ct[:, None, :]
-    h = np.einsum("tf,tfi,tfj->tij", w, xc, tc)  # (n, 3, 3)
-    u, _, vt = np.linalg.svd(h)
-    det = np.sign(np.linalg.det(u @ vt))
-    det[det == 0] = 1.0
-    fix = np.ones((len(h), 3))
-    fix[:, 2] = det
-    R = (u * fix[:, None, :]) @ vt
+    R = nearest_rotation(np.einsum("tf,tfi,tfj->tij", w, xc, tc))  # (n, 3, 3)
     few = (w > 0).sum(axis=1) < 3
     R[few] = np.eye(3)
     # local = (x - c) @ R must put the centroid cx on ct: c = cx - ct @ R^T

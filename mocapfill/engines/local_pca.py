@@ -36,6 +36,7 @@ from ..gaps import end_blend
 from ..methods.base import FillResult, finish
 from ..runtime.blas import single_blas_thread
 from ..units import length_factor
+from .body_frame import nearest_rotation
 from .weighted_pca import (
     MIN_TRAINING_FRAMES,
     cv_curve,
@@ -66,13 +67,8 @@ def kabsch_rotations(shapes: np.ndarray, reference: np.ndarray, weights: np.ndar
     shapes (n, p, 3) and reference (p, 3) are already centred on their weighted centroids; weights (p,).
     Row-vector convention: an aligned point is ``x @ R``.
     """
-    h = np.einsum("tjc,j,jd->tcd", shapes, weights, reference)  # (n, 3, 3) weighted cross-covariance
-    u, _, vt = np.linalg.svd(h)
-    det = np.sign(np.linalg.det(u @ vt))
-    det[det == 0] = 1.0
-    fix = np.ones((len(h), 3))
-    fix[:, 2] = det  # reflection guard: the best proper rotation
-    return (u * fix[:, None, :]) @ vt
+    # the best proper rotation of the weighted cross-covariance (n, 3, 3)
+    return nearest_rotation(np.einsum("tjc,j,jd->tcd", shapes, weights, reference))
 
 
 def local_frames(

@@ -25,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from ..gaps import fragments
+
 __all__ = ["SHORT_FRAGMENT", "PERCENTILE", "PERCENTILE_FACTOR", "MIN_FILLED_FOR_PERCENTILE", "GUARD_MASKS",
            "Smoothness", "accelerations", "short_fragments", "smoothness", "smooth_enough", "outcome_smoothness"]
 
@@ -118,24 +120,9 @@ def accelerations(positions: np.ndarray) -> np.ndarray:
 
 
 def short_fragments(missing: np.ndarray, longest: int = SHORT_FRAGMENT) -> np.ndarray:
-    """(n_frames, n_markers) bool: observed samples in a run of at most ``longest`` observed frames with a missing
-    sample right before and right after it (``missing`` (n_frames, n_markers) bool).  A run that touches the first or
-    last frame is not between missing ones and is not marked."""
-    miss = np.asarray(missing, dtype=bool)
-    n_frames = miss.shape[0]
-    out = np.zeros_like(miss)
-    obs = ~miss
-    for length in range(1, int(longest) + 1):
-        if n_frames < length + 2:
-            break
-        # run of exactly `length` observed frames starting at s (1 <= s <= n_frames - length - 1)
-        span = n_frames - length - 1
-        run = miss[: span] & miss[length + 1: length + 1 + span]  # frames s - 1 and s + length
-        for k in range(length):
-            run = run & obs[1 + k: 1 + k + span]
-        for k in range(length):
-            out[1 + k: 1 + k + span] |= run
-    return out
+    """(n_frames, n_markers) bool: observed samples in a run of at most ``longest`` observed frames between missing
+    ones (:func:`mocapfill.gaps.fragments`, with the measure's default length)."""
+    return fragments(missing, longest)
 
 
 def smoothness(output: np.ndarray, missing: np.ndarray, *, points: np.ndarray | None = None,

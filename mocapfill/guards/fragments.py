@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import MethodError
-from ..gaps import runs
+from ..gaps import fragments, runs
 
 
 def short_fragments(missing: np.ndarray, min_fragment: int) -> np.ndarray:
@@ -29,16 +29,9 @@ def short_fragments(missing: np.ndarray, min_fragment: int) -> np.ndarray:
     ndarray of bool, shape (n_frames, n_markers)
         True on the samples of each such fragment (never on a stretch that touches the first or last frame).
     """
-    missing = np.asarray(missing, dtype=bool)
     if int(min_fragment) < 1:
         raise MethodError(f"--min-fragment must be at least 1 frame, got {min_fragment}")
-    out = np.zeros(missing.shape, dtype=bool)
-    n_frames = missing.shape[0]
-    for m in range(missing.shape[1]):
-        for start, length in runs(~missing[:, m]):
-            if length < min_fragment and start > 0 and start + length < n_frames:
-                out[start:start + length, m] = True
-    return out
+    return fragments(missing, int(min_fragment) - 1)
 
 
 def count_fragments(fragments: np.ndarray) -> int:

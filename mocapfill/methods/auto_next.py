@@ -43,7 +43,7 @@ import numpy as np
 from ..engines.local_pca import reconstruct_local
 from ..engines.motion_smoother import MotionModel, jerk_density, jerk_gain, smooth
 from ..errors import MethodError
-from ..gaps import find_gaps
+from ..gaps import find_gaps, fragments
 from ..guards.windows import DEFAULT_WINDOW, fill_in_windows
 from ..runtime.blas import single_blas_thread
 from ..units import length_factor
@@ -330,20 +330,6 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
     fill[:, todo] = np.where(missing[:, todo, None], mean, positions[:, todo])
     sd_out[:, todo] = np.where(missing[:, todo], sd, 0.0)
     return fill, sd_out, outliers
-
-
-def fragments(missing: np.ndarray, longest: int) -> np.ndarray:
-    """(n_frames, n_markers) bool: observed samples in runs of at most ``longest`` frames with a missing sample on
-    both sides; missing (n_frames, n_markers)."""
-    from ..gaps import runs
-
-    out = np.zeros_like(missing)
-    n = len(missing)
-    for m in np.flatnonzero(missing.any(axis=0)):
-        for start, length in runs(~missing[:, m]):
-            if length <= longest and start > 0 and start + length < n:
-                out[start:start + length, m] = True
-    return out
 
 
 def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outliers: np.ndarray,
