@@ -27,6 +27,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .bones.distances import pair_distances
 from .errors import DataWarning, MocapfillError
 from .units import length_factor
 
@@ -173,7 +174,7 @@ def is_static(positions: np.ndarray, units: str) -> bool:
 
 def _median_lengths(positions: np.ndarray, pairs: np.ndarray) -> np.ndarray:
     x = _sample(positions)
-    d = np.linalg.norm(x[:, pairs[:, 0]] - x[:, pairs[:, 1]], axis=2)  # (n, P)
+    d = pair_distances(x, pairs)  # (n, P)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         return np.nanmedian(d, axis=0)
@@ -190,7 +191,7 @@ def shape_difference(positions: np.ndarray, reference: np.ndarray) -> float:
     n_markers = positions.shape[1]
     iu, ju = np.triu_indices(n_markers, 1)
     x = _sample(positions)
-    d = np.linalg.norm(x[:, iu] - x[:, ju], axis=2)  # (n, P)
+    d = pair_distances(x, np.stack([iu, ju], axis=1))  # (n, P)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         lo, hi = np.nanpercentile(d, [10, 90], axis=0)
