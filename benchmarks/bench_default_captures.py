@@ -22,7 +22,10 @@ Checks (printed as PASS / FAIL lines naming the failing cases), for the method `
 Cache: each (method, capture, protocol, draw) result is one JSON file in ``--cache`` (the per-sample errors as
 base64 float32, the scores, the git commit that made it).  A run fills only what the cache lacks, so after a change to
 the default, ``--rerun auto`` re-runs the default alone and takes every other method from the cache.  ``--report``
-only reads the cache.
+only reads the cache.  ``--peers FILE --peer-methods bolero-hc,bolero-sc`` takes those methods' figures (pooled
+RMSE and median, the RMSE of each draw) from the ``cases`` table of an earlier results file instead of the cache:
+the draws are seeded, so they are the same draws (check it on a cheap method run both ways); the captures-pooled
+check then leaves out the methods without per-sample errors.
 
 Run from the repository root (CPU-heavy: ``bolero-hc`` takes minutes per fill; run it apart)::
 
@@ -271,6 +274,31 @@ def collect(cache: Path, captures: list[str], protocols: list[str], draws: int, 
     return found, missing
 
 
+def peers_from(path: Path, methods: list[str], captures: list[str], protocols: list[str], draws: int, seed: int
+               ) -> dict:
+    """{(capture, protocol, method): pooled figures} of ``methods`` from the ``cases`` table of an earlier results
+    file of this script (the same seed and number of draws); ``errors`` is None (not stored there)."""
+    doc = json.loads(Path(path).read_text())
+    table = doc["tables"]["cases"]
+    if f"{draws} draws, seed {seed}" not in table["title"]:
+        raise SystemExit(f"{path}: its cases are not {draws} draws with seed {seed} ({table['title'][:80]})")
+    col = {name: i for i, name in enumerate(table["columns"])}
+    out = {}
+    for row in table["rows"]:
+        c, p, m = row[col["capture"]], row[col["protocol"]], row[col["method"]]
+        if m not in methods or c not in captures or p not in protocols:
+            continue
+        per_draw = [None if x == "-" else float(x) for x in str(row[col["RMSE per draw"]]).split(" / ")]
+        ratio = row[col["err/std (median)"]]
+        out[c, p, m] = {"rmse": float(row[col["pooled RMSE"]]), "median": float(row[col["pooled median"]]),
+                        "per_draw": per_draw, "draw_median": float(row[col["median of draws"]]),
+                        "unfilled": int(row[col["unfilled"]]), "failures": int(row[col["failed"]]),
+                        "seconds": float(row[col["s per fill"]]), "errors": None,
+                        "error_ratio": [None if ratio in ("-", None) else float(ratio)],
+                        "commits": [f"from {Path(path).name}"]}
+    return out
+
+
 def checks(pooled: dict, captures: list[str], protocols: list[str], methods: list[str], default: str
            ) -> list[tuple[str, bool, list[str]]]:
     """The issue's checks: (name, passed, failing cases)."""
@@ -326,7 +354,9 @@ def checks(pooled: dict, captures: list[str], protocols: list[str], methods: lis
                 e = np.concatenate(errs) if errs else np.zeros(0)
                 return (np.median(e), np.sqrt(np.mean(e ** 2))) if e.size else (np.nan, np.nan)
             med, rmse = pooled_all(default)
-            behind = [m for m in others if not (med < pooled_all(m)[0] and rmse < pooled_all(m)[1])]
+            behind = [m for m in others if all(pooled[c, p, m]["errors"] is not None
+                                               for c in captures if (c, p, m) in pooled)
+                      and not (med < pooled_all(m)[0] and rmse < pooled_all(m)[1])]
             if behind:
                 fails.append(f"{p} (not ahead of {', '.join(behind)})")
         out.append((f"{default} beats every other method at every density, captures pooled", not fails, fails))
@@ -334,12 +364,14 @@ def checks(pooled: dict, captures: list[str], protocols: list[str], methods: lis
 
 
 def report(cache: Path, captures: list[str], protocols: list[str], draws: int, seed: int, methods: list[str],
-           default: str, command: str, out_path: Path) -> None:
-    found, missing = collect(cache, captures, protocols, draws, seed, methods)
+           default: str, command: str, out_path: Path, peers: dict | None = None) -> None:
+    peer_methods = {k[2] for k in peers or {}}
+    found, missing = collect(cache, captures, protocols, draws, seed, [m for m in methods if m not in peer_methods])
     if missing:
         print(f"(cache lacks {len(missing)} result(s), e.g. {', '.join(missing[:3])}: those cases are left out)",
               file=sys.stderr)
     pooled = {k: _pool(v) for k, v in found.items()}
+    pooled.update(peers or {})
     present = [m for m in methods if any(k[2] == m for k in pooled)]
     rows = []
     print(f"\n## Per capture, protocol and method ({draws} draws, seed {seed}; errors in mm over the hidden samples)")
@@ -386,7 +418,7 @@ def report(cache: Path, captures: list[str], protocols: list[str], draws: int, s
     for m in present:
         for p in protocols:
             errs = [pooled[c, p, m]["errors"] for c in captures if (c, p, m) in pooled]
-            if errs:
+            if errs and all(e is not None for e in errs):
                 e = np.concatenate(errs)
                 figures[f"{m} {p} pooled RMSE"] = {"value": round(float(np.sqrt(np.mean(e ** 2))), 2), "unit": "mm",
                                                    "better": "lower"}
@@ -441,6 +473,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--cache", default=str(CACHE), help="directory of the per-draw JSON results")
     parser.add_argument("--out", default=str(RESULTS), help="results JSON")
     parser.add_argument("--report", action="store_true", help="no fills: tables and checks from the cache")
+    parser.add_argument("--peers", default="", help="an earlier results JSON of this script: --peer-methods' figures "
+                        "come from its cases table (same seed and draws), not from the cache")
+    parser.add_argument("--peer-methods", default="bolero-hc,bolero-sc",
+                        help="comma-separated methods taken from --peers (default: the two slow ones)")
     parser.add_argument("--table-methods", default="",
                         help="methods in the tables and checks (default: every method the cache holds)")
     args = parser.parse_args(argv)
@@ -503,7 +539,12 @@ def main(argv: list[str] | None = None) -> None:
         print(f"filled in {time.perf_counter() - started:.0f} s; load now {os.getloadavg()[0]:.2f}", file=sys.stderr)
     # the tables hold every method the cache has for these cases, not only those filled now
     table_methods = _names(args.table_methods, list(METHODS), "method") if args.table_methods else list(METHODS)
-    report(cache, captures, protocols, args.draws, args.seed, table_methods, args.default, command, Path(args.out))
+    peers = None
+    if args.peers:
+        peer_methods = _names(args.peer_methods, list(METHODS), "method")
+        peers = peers_from(Path(args.peers), peer_methods, captures, protocols, args.draws, args.seed)
+    report(cache, captures, protocols, args.draws, args.seed, table_methods, args.default, command, Path(args.out),
+           peers)
 
 
 if __name__ == "__main__":
