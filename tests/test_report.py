@@ -86,7 +86,8 @@ def _fill(data, leave=()):
             est[~ok, m] = np.nan
     std = np.full(pos.shape[:2], 2.0)
     return finish(pos, est, std=std, n_iter=3, converged=False, objective=[10.0, 5.0, float("nan")],
-                  info={"gap_methods": [{"marker": "M1", "start": 20, "length": 15, "method": "dynammo", "reason": "long gap"},
+                  info={"gap_methods": [{"marker": "M1", "start": 20, "length": 15, "method": "dynammo", "reason": "long gap",
+                                         "review": True},
                                         {"marker": 2, "first_frame": 60, "method": "pca"}],
                         "hidden": 16})
 
@@ -126,6 +127,7 @@ def test_json_report_validates_and_holds_the_facts(case, tmp_path):
     assert by_marker["M1"]["method"] == "dynammo" and by_marker["M2"]["method"] == "pca"
     assert by_marker["M1"]["mean_std"] == 2.0 and by_marker["M1"]["reason"] == "long gap"
     assert by_marker["M2"]["reason"] is None
+    assert by_marker["M1"]["review"] and not by_marker["M2"]["review"] and s["review_gaps"] == 1
     assert by_marker["M3"]["status"] == "unfilled" and by_marker["M3"]["at_start"]
     assert by_marker["M4"]["rejected_samples"] == 2
     assert doc["unfilled"] == [{"marker": "M3", "first_frame": 10, "length": 5}]
@@ -179,6 +181,7 @@ def test_html_report_is_self_contained_with_one_plot_per_filled_marker(case, tmp
     assert not [u for u in parser.external if u.startswith(("http:", "https:", "//"))]
     assert "<script src" not in text and 'id="player"' in text  # the player is the one (inline) script
     assert "NOT converged" in text and "still missing" in text
+    assert "1 gap to review" in text and "M1 30-44" in text  # the gap the method flagged, in file numbering
 
 
 def test_html_report_caps_plots_and_says_what_was_left_out(case, tmp_path):

@@ -198,6 +198,13 @@ def _summary(outcome, method: str, report_path, status_path, quiet: bool) -> Non
         gaps = f"{len(declined)} gap" + ("s" if len(declined) != 1 else "")
         out.print(f"{method} declined {gaps}, left missing: {shown_gaps}{more}", markup=False, highlight=False,
                   soft_wrap=True)
+    review = [rec for rec in result.info.get("gap_methods") or [] if isinstance(rec, dict) and rec.get("review")]
+    if review:  # the gaps the method itself is unsure of: what a technician checks first
+        shown_gaps = ", ".join(f"{rec['marker']} {data.first_frame + rec['start']}-"
+                               f"{data.first_frame + rec['start'] + rec['length'] - 1}" for rec in review[:8])
+        more = f", ... {len(review) - 8} more (see --report)" if len(review) > 8 else ""
+        out.print(f"review {len(review)} gap{'s' if len(review) != 1 else ''} (marker frames; the fill is unsure "
+                  f"there): {shown_gaps}{more}", markup=False, highlight=False, soft_wrap=True)
     dead = [labels[m] for m in all_missing_markers(missing)]
     if dead:
         out.print(f"never observed, left empty: {', '.join(dead)}", markup=False, highlight=False)

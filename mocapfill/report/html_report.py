@@ -237,6 +237,12 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
     elif not alerts:
         parts.append(f'<div class="alert ok">Every gap was filled ({s["filled_samples"]} samples).</div>')
     parts.extend(f'<div class="alert">{escape(a)}</div>' for a in alerts)
+    review = [g for g in report["gaps"] if g.get("review")]
+    if review:
+        listed = ", ".join(f'{g["marker"]} {g["first_frame"]}-{g["last_frame"]}' for g in review[:10])
+        more = f" and {len(review) - 10} more" if len(review) > 10 else ""
+        parts.append(f'<div class="alert">{len(review)} gap{"s" if len(review) != 1 else ""} to review (the method '
+                     f'is unsure of the fill; marked \u2691 in the gap table): {escape(listed)}{more}.</div>')
     if s["notes"]:
         parts.append(reader_notes(s["notes"]))
     player_at = len(parts)  # the player goes here, sized last to what the rest of the page leaves (fit_player)
@@ -267,6 +273,9 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
             headers += [f"mean std ({units})", f"max std ({units})"]
         if has_method:
             headers += ["filled by"]
+        has_review = any(g.get("review") for g in gaps)
+        if has_review:
+            headers += ["review"]
         rows = []
         for g in gaps:
             row = [escape(g["marker"]), str(g["first_frame"]), str(g["last_frame"]), str(g["length"]),
@@ -280,6 +289,9 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
                 if g.get("reason"):
                     cell = f'<span title="{escape(g["reason"])}">{cell}</span>'
                 row += [cell]
+            if has_review:
+                row += ['<span title="the method is unsure of this fill: check it">\u2691</span>'
+                        if g.get("review") else ""]
             rows.append(row)
         numeric = {1, 2, 3, 4} | ({6, 7} if has_std else set())
         if len(gaps) > OPEN_TABLE_ROWS:

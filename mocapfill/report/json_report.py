@@ -64,12 +64,14 @@ def report_json(report: dict[str, Any]) -> str:
 
 
 def _gap_method_records(info: dict[str, Any], labels: list[str], first_frame: int
-                        ) -> list[tuple[int, int, int, str, str | None]]:
-    """Per-gap method records from ``info["gap_methods"]`` as (marker index, start index, length, method, reason).
+                        ) -> list[tuple[int, int, int, str, str | None, bool]]:
+    """Per-gap method records from ``info["gap_methods"]`` as (marker index, start index, length, method, reason,
+    review).
 
     Accepted record layout (what the ``auto`` method writes): a list of dicts with ``marker`` (index or label),
     ``start`` (0-based frame index) or ``first_frame`` (file numbering), optional ``length`` (default 1),
-    ``method`` (str) and optional ``reason`` (str).  Malformed records are skipped: the report is informative, never
+    ``method`` (str), optional ``reason`` (str) and optional ``review`` (bool: the method asks a person to check the
+    gap).  Malformed records are skipped: the report is informative, never
     a reason to fail a fill.
     """
     out = []
@@ -96,7 +98,8 @@ def _gap_method_records(info: dict[str, Any], labels: list[str], first_frame: in
         except (TypeError, ValueError):
             continue
         reason = rec.get("reason")
-        out.append((marker, start, length, str(rec["method"]), None if reason is None else str(reason)))
+        out.append((marker, start, length, str(rec["method"]), None if reason is None else str(reason),
+                    rec.get("review") is True))
     return out
 
 
@@ -207,10 +210,10 @@ def build_fill_report(data, result, *, method: str, settings: dict[str, Any] | N
             vals = vals[np.isfinite(vals)]
             if vals.size:
                 mean_std, max_std = float(vals.mean()), float(vals.max())
-        hits = [(m, why) for (mk, s, ln, m, why) in gap_methods
+        hits = [(m, why, rev) for (mk, s, ln, m, why, rev) in gap_methods
                 if mk == gap.marker and s < gap.stop and s + ln > gap.start]
-        names = sorted({m for m, _ in hits})
-        why_text = list(dict.fromkeys(why for _, why in hits if why))
+        names = sorted({m for m, _, _ in hits})
+        why_text = list(dict.fromkeys(why for _, why, _ in hits if why))
         left_code = int(reasons[gap.start, gap.marker])
         gaps.append({
             "marker": labels[gap.marker],
@@ -227,6 +230,7 @@ def build_fill_report(data, result, *, method: str, settings: dict[str, Any] | N
             "max_std": max_std,
             "method": "+".join(names) if names else None,
             "reason": "; ".join(why_text) if why_text else None,
+            "review": any(rev for _, _, rev in hits),
             "left": NAMES[Status(left_code)] if left_code else None,
             "fragment_samples": int(frag[sl, gap.marker].sum()),
         })
@@ -266,6 +270,7 @@ def build_fill_report(data, result, *, method: str, settings: dict[str, Any] | N
         "percent_missing": 100.0 * n_missing / n_total if n_total else 0.0,
         "percent_filled": 100.0 * n_filled / n_missing if n_missing else 100.0,
         "gap_count": len(gaps),
+        "review_gaps": sum(1 for g in gaps if g["review"]),
         "seconds": float(seconds),
         "uncertainty": std is not None,
         "smoothed": bool(smoothed),
