@@ -569,9 +569,10 @@ def reconstruct_completed(
     known = np.concatenate([~missing, np.isfinite(reference).all(axis=2)]) if reference is not None else ~missing
     finite = np.isfinite(data).all(axis=2)
     estimate, std, info = empty_estimates(n_frames, n_markers)
+    known_data = np.where(known[..., None], data, np.nan)  # once, not per marker
     for m in np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0)):
         group = np.flatnonzero(missing[:, m])
-        dist = mean_distances(np.where(known[..., None], data, np.nan), m)
+        dist = mean_distances(known_data, m)
         weights, align_weight = marker_weights(dist, m, scales, align_scale, missing_weight)
         sure = np.ones(n_markers, dtype=bool)
         if trust is not None:
