@@ -41,7 +41,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..engines.local_pca import reconstruct_local
-from ..engines.motion_smoother import MotionModel, jerk_density, jerk_gain, smooth
+from ..engines.motion_smoother import MotionModel, acceleration_memory, jerk_density, jerk_gain, smooth
 from ..errors import MethodError
 from ..gaps import find_gaps, fragments
 from ..guards.windows import DEFAULT_WINDOW, fill_in_windows
@@ -85,7 +85,8 @@ class ModelConfig:
     gain_seconds: float = 0.1
     #: Smallest jerk gain: a still moment must not pin a fill that has to move.
     gain_floor: float = 0.05
-    #: Relaxation time of velocity and acceleration: far from any measurement a fill comes to rest.
+    #: Relaxation time of velocity, and the longest of the acceleration (whose own is measured per capture,
+    #: :func:`~mocapfill.engines.motion_smoother.acceleration_memory`): far from any measurement a fill comes to rest.
     rest_seconds: float = 0.5
     #: Standard deviation of an observed sample (mm): sub-millimetre camera noise.
     obs_sd_mm: float = 0.5
@@ -284,9 +285,13 @@ def motion_model(positions: np.ndarray, missing: np.ndarray, config: ModelConfig
     third differences (:func:`~mocapfill.engines.motion_smoother.jerk_density`), the config's times in frames."""
     q = jerk_density(positions, missing, floor=config.jerk_floor_mm2 * mm ** 2) * config.jerk_scale
     gain = jerk_gain(positions, missing, q, window=int(round(config.gain_seconds * rate)), floor=config.gain_floor)
-    return MotionModel(q=q, rho=float(np.exp(-1.0 / (config.rest_seconds * rate))),
+    rest = config.rest_seconds * rate
+    # how long this capture's accelerations persist: where they are mostly noise, an acceleration estimated at a
+    # gap's edge (often a poor sample) must not be carried into the gap
+    tau_acc = min(acceleration_memory(positions, missing, max_lag=int(np.ceil(rest))), rest)
+    return MotionModel(q=q, rho=float(np.exp(-1.0 / rest)),
                        phi=float(np.exp(-1.0 / (config.bias_seconds * rate))), r_obs=(config.obs_sd_mm * mm) ** 2,
-                       gain=gain)
+                       gain=gain, rho_acc=float(np.exp(-1.0 / max(tau_acc, 1e-3))))
 
 
 def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, edge: np.ndarray,
