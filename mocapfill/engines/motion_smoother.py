@@ -13,9 +13,9 @@ The model (one per marker; its three axes share the covariances, each has its ow
 
     (x, v, a) is the discretised white-jerk model (jerk spectral density q, data units^2 / frame^5) whose velocity
     relaxes with rho = exp(-1 / tau) (tau frames: far from any measurement a fill comes to rest instead of flying
-    off) and acceleration with rho_a = exp(-1 / tau_a), tau_a the capture's own acceleration memory
-    (:func:`acceleration_memory`: where the observed accelerations are mostly noise, the one estimated at a gap's
-    edge is not carried into it); b is an Ornstein-Uhlenbeck process with phi = exp(-1 / tau_b):
+    off) and acceleration with rho_a (by default rho; optionally exp(-1 / tau_a), tau_a the capture's own
+    acceleration memory, :func:`acceleration_memory`: where the observed accelerations are mostly noise, the one
+    estimated at a gap's edge is then not carried into it); b is an Ornstein-Uhlenbeck process with phi = exp(-1 / tau_b):
     the error of a spatial prediction is correlated over neighbouring frames, so averaging many of them does not
     make it vanish, and a residual seen next to a gap is carried into it.
 
