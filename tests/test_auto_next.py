@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mocapfill.engines.motion_smoother import (JERK_GAIN, MotionModel, jerk_density, jerk_gain, smooth,
-                                               transition)
+from mocapfill.engines.motion_smoother import (JERK_GAIN, MotionModel, acceleration_memory, jerk_density,
+                                               jerk_gain, smooth, transition)
 from mocapfill.errors import MethodError
 from test_auto import tumbling_body  # the tests folder is on sys.path (no package)
 from mocapfill.methods import get_method
@@ -41,6 +41,25 @@ def test_jerk_density_recovers_simulated_white_jerk():
     assert np.allclose(est * JERK_GAIN, q, rtol=0.05)
     gain = jerk_gain(x, np.zeros((20000, 2), bool), est, window=10, floor=0.05)
     assert gain.shape == (20000,) and abs(np.median(gain) - 1.0) < 0.2
+
+
+def test_acceleration_memory_is_short_for_noise_and_long_for_smooth_motion():
+    rng = np.random.default_rng(1)
+    t = np.arange(2000, dtype=float)
+    none = np.zeros((2000, 2), bool)
+    noise = rng.normal(size=(2000, 2, 3))
+    # second differences of white noise: lag-1 autocorrelation -2/3, so the memory is under a frame
+    assert acceleration_memory(noise, none, max_lag=50) < 1.0
+    # a sinusoid of period 100 frames: autocorrelation cos(2 pi lag / 100) falls to 1/e at ~19.1 frames
+    wave = np.stack([np.sin(2 * np.pi * t / 100)] * 3, axis=1)[:, None, :].repeat(2, axis=1)
+    missing = none.copy()
+    missing[500:560, 0] = True
+    wave[500:560, 0] = np.nan
+    assert acceleration_memory(wave, missing, max_lag=50) == pytest.approx(100 / (2 * np.pi) * np.arccos(np.exp(-1)),
+                                                                          abs=0.3)
+    assert acceleration_memory(wave, missing, max_lag=10) == 10.0
+    still = np.zeros((50, 2, 3))  # no acceleration at all: nothing to measure
+    assert acceleration_memory(still, np.zeros((50, 2), bool), max_lag=7) == 7.0
 
 
 def test_smoother_keeps_observations_and_bridges_a_gap_smoothly():

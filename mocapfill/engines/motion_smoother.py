@@ -8,12 +8,14 @@ The model (one per marker; its three axes share the covariances, each has its ow
 
         F = [[1, 1, 1/2, 0],              Q = [[q/20, q/8, q/6, 0],
              [0, rho, 1, 0],                   [q/8,  q/3, q/2, 0],
-             [0, 0, rho, 0],                   [q/6,  q/2, q,   0],
+             [0, 0, rho_a, 0],                 [q/6,  q/2, q,   0],
              [0, 0, 0, phi]]                   [0,    0,   0,   1 - phi^2]]
 
     (x, v, a) is the discretised white-jerk model (jerk spectral density q, data units^2 / frame^5) whose velocity
-    and acceleration relax with rho = exp(-1 / tau) (tau frames: far from any measurement a fill comes to rest
-    instead of flying off along its last acceleration); b is an Ornstein-Uhlenbeck process with phi = exp(-1 / tau_b):
+    relaxes with rho = exp(-1 / tau) (tau frames: far from any measurement a fill comes to rest instead of flying
+    off) and acceleration with rho_a (by default rho; optionally exp(-1 / tau_a), tau_a the capture's own
+    acceleration memory, :func:`acceleration_memory`: where the observed accelerations are mostly noise, the one
+    estimated at a gap's edge is then not carried into it); b is an Ornstein-Uhlenbeck process with phi = exp(-1 / tau_b):
     the error of a spatial prediction is correlated over neighbouring frames, so averaging many of them does not
     make it vanish, and a residual seen next to a gap is carried into it.
 
@@ -45,9 +47,9 @@ JERK_GAIN = 11.0 / 20.0
 class MotionModel(NamedTuple):
     """Parameters of :func:`smooth` (see the module docstring).
 
-    ``q`` (n_series,) jerk spectral density per series (data units^2 / frame^5); ``rho`` velocity / acceleration
-    relaxation per frame; ``phi`` correlation per frame of the spatial error; ``r_obs`` variance of an observed
-    sample (data units^2); ``gain`` (n_frames,) or None: the jerk density at frame t is q * gain[t] (the body moves
+    ``q`` (n_series,) jerk spectral density per series (data units^2 / frame^5); ``rho`` velocity relaxation per
+    frame; ``rho_acc`` the acceleration's (None: ``rho``); ``phi`` correlation per frame of the spatial error;
+    ``r_obs`` variance of an observed sample (data units^2); ``gain`` (n_frames,) or None: the jerk density at frame t is q * gain[t] (the body moves
     faster at some moments than at others).
     """
 
@@ -56,12 +58,14 @@ class MotionModel(NamedTuple):
     phi: float
     r_obs: float
     gain: np.ndarray | None = None
+    rho_acc: float | None = None
 
 
 def transition(model: MotionModel) -> tuple[np.ndarray, np.ndarray]:
     """F (4, 4) and Q (n_series, 4, 4) of the model."""
     rho, phi = model.rho, model.phi
-    F = np.array([[1.0, 1.0, 0.5, 0.0], [0.0, rho, 1.0, 0.0], [0.0, 0.0, rho, 0.0], [0.0, 0.0, 0.0, phi]])
+    rho_a = rho if model.rho_acc is None else model.rho_acc
+    F = np.array([[1.0, 1.0, 0.5, 0.0], [0.0, rho, 1.0, 0.0], [0.0, 0.0, rho_a, 0.0], [0.0, 0.0, 0.0, phi]])
     jerk = np.array([[1 / 20, 1 / 8, 1 / 6], [1 / 8, 1 / 3, 1 / 2], [1 / 6, 1 / 2, 1.0]])
     Q = np.zeros((len(model.q), N_STATE, N_STATE))
     Q[:, :3, :3] = np.asarray(model.q, dtype=float)[:, None, None] * jerk
@@ -88,6 +92,36 @@ def jerk_density(positions: np.ndarray, missing: np.ndarray, *, floor: float) ->
     known = np.isfinite(q)
     fill = float(np.median(q[known])) if known.any() else floor
     return np.maximum(np.where(known, q, fill), floor)
+
+
+def acceleration_memory(positions: np.ndarray, missing: np.ndarray, *, max_lag: int) -> float:
+    """How many frames the capture's accelerations persist: the lag (frames, interpolated, at most ``max_lag``) at
+    which the autocorrelation of its observed second differences falls to 1/e.
+
+    positions (n_frames, n_markers, 3); missing (n_frames, n_markers).  Pooled over markers and axes, each lag over
+    the pairs of second differences whose samples are all observed.  Where the observed accelerations are mostly
+    noise (they change sign from frame to frame) this is under a frame: an acceleration estimated at a gap's edge
+    is then not carried into the gap.  ``max_lag`` when nothing can be measured.
+    """
+    n_frames = positions.shape[0]
+    if n_frames < 4:
+        return float(max_lag)
+    acc = positions[2:] - 2 * positions[1:-1] + positions[:-2]
+    ok = ~(missing[2:] | missing[1:-1] | missing[:-2])
+    acc = np.where(ok[..., None], np.nan_to_num(acc), 0.0)
+    prev = 1.0
+    power = float((acc ** 2).sum() / max(3 * ok.sum(), 1))
+    if power <= 0:
+        return float(max_lag)
+    for lag in range(1, min(int(max_lag), len(acc) - 1) + 1):
+        both = ok[lag:] & ok[:-lag]
+        if not both.any():
+            break
+        corr = float((acc[lag:] * acc[:-lag]).sum() / (3 * both.sum())) / power
+        if corr < np.exp(-1.0):
+            return lag - 1 + (prev - np.exp(-1.0)) / (prev - corr)
+        prev = corr
+    return float(max_lag)
 
 
 def jerk_gain(positions: np.ndarray, missing: np.ndarray, q: np.ndarray, *, window: int, floor: float
@@ -181,7 +215,8 @@ def smooth(
     # velocity and acceleration start from their stationary spread (not diffuse: a gap at the take's start must not
     # be extrapolated backwards through an unbounded velocity)
     q0 = np.asarray(model.q, dtype=float) * (1.0 if model.gain is None else float(np.median(model.gain)))
-    var_a = q0 / max(1.0 - model.rho ** 2, 1e-9)
+    rho_a = model.rho if model.rho_acc is None else model.rho_acc
+    var_a = q0 / max(1.0 - rho_a ** 2, 1e-9)
     P[:, 2, 2] = var_a
     P[:, 1, 1] = var_a / max(1.0 - model.rho, 1e-9) ** 2
     P[:, 3, 3] = 1.0
