@@ -21,7 +21,9 @@ benchmarks/results/bench_references_forced.json``).
 
 Run from the repository root (about 40 min on the shared, heavily loaded 2-core machine)::
 
-    python benchmarks/bench_references.py [--trials 2] [--seed 26] [--sets same,other]
+    python benchmarks/bench_references.py [--trials 2] [--seed 26] [--sets same,other] [--method auto-next]
+
+(``--method auto-next --results benchmarks/results/bench_references_auto_next.json``: the candidate default.)
 
 Writes ``benchmarks/results/bench_references.json``; tables on stderr.
 """
@@ -49,26 +51,28 @@ PROTOCOLS = [("dense 20 %", "dense", {"missing": 0.2}), ("dense 30 %", "dense", 
              ("segment", "segment", {})]
 
 
-def run_set(name: str, table: dict[str, list[str]], labels: list[str], trials: int, seed: int, log) -> list[list]:
+def run_set(name: str, table: dict[str, list[str]], labels: list[str], trials: int, seed: int, log,
+            method: str = "auto") -> list[list]:
     rows = []
     for test, ref_names in table.items():
         truth = load(test, labels)
         refs = [load(r, labels) for r in ref_names]
         for pname, protocol, opts in PROTOCOLS:
-            t0 = time.perf_counter()
+            t0 = time.process_time()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                plain = mocapfill.evaluate(truth, ["auto"], protocol, trials=trials, seed=seed, **opts)
-                t1 = time.perf_counter()
-                withr = mocapfill.evaluate(truth, ["auto"], protocol, trials=trials, seed=seed, reference=refs, **opts)
-                t2 = time.perf_counter()
+                plain = mocapfill.evaluate(truth, [method], protocol, trials=trials, seed=seed, **opts)
+                t1 = time.process_time()
+                withr = mocapfill.evaluate(truth, [method], protocol, trials=trials, seed=seed, reference=refs,
+                                           **opts)
+                t2 = time.process_time()
             a = plain.values("rmse")[:, 0]
             b = withr.values("rmse")[:, 0]
             for k in range(len(a)):
                 rows.append([name, test, "+".join(ref_names), pname, k, round(float(a[k]), 2), round(float(b[k]), 2),
                              round(float(b[k] / a[k]), 3)])
             log(f"{name:5} {test:6} <- {'+'.join(ref_names):14} {pname:10} without {np.median(a):7.1f}  with "
-                f"{np.median(b):7.1f} mm  ({t1 - t0:.0f} s / {t2 - t1:.0f} s)")
+                f"{np.median(b):7.1f} mm  ({t1 - t0:.0f} / {t2 - t1:.0f} CPU s)")
     return rows
 
 
@@ -99,6 +103,8 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=2)
     parser.add_argument("--seed", type=int, default=26)
     parser.add_argument("--sets", default="same,other")
+    parser.add_argument("--method", default="auto", help="the fill measured with and without references (e.g. "
+                        "auto-next, the candidate default)")
     parser.add_argument("--force-weight", action="store_true",
                         help="weight every reference 1 (the body-fit weighting off): what the per-model "
                              "cross-validation alone keeps out")
@@ -120,17 +126,17 @@ def main() -> None:
     rows = []
     started = time.perf_counter()
     for name in args.sets.split(","):
-        rows += run_set(name, SAME if name == "same" else OTHER, labels, args.trials, args.seed, log)
+        rows += run_set(name, SAME if name == "same" else OTHER, labels, args.trials, args.seed, log, args.method)
     summary, figures = summarise(rows)
     log("\nset    protocol    trials  without  with (median RMSE, mm)  reduction %  median ratio  max ratio")
     for r in summary:
         log(f"{r[0]:6} {r[1]:11} {r[2]:6} {r[3]:8} {r[4]:8} {r[5]:22} {r[6]:12} {r[7]:10}")
     results = harness.Results("bench_references.py", path=args.results, note=args.note)
-    results.table("summary", "auto with and without reference takes: median over trials of the per-trial RMSE (mm); "
+    results.table("summary", f"{args.method} with and without reference takes: median over trials of the per-trial RMSE (mm); "
                   "reduction of the median; ratio with / without per trial (median, max). No oracle: the test clip "
                   "is never a reference.", ["set", "protocol", "trials", "median RMSE without", "median RMSE with",
                                             "reduction %", "median ratio", "max ratio"], summary)
-    results.table("trials", "every trial: RMSE (mm) of auto without / with the references",
+    results.table("trials", f"every trial: RMSE (mm) of {args.method} without / with the references",
                   ["set", "test clip", "references", "protocol", "trial", "RMSE without", "RMSE with", "ratio"], rows)
     for name, fig in figures.items():
         results.figure(name, fig["value"], fig["unit"], fig["better"])

@@ -497,6 +497,8 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
         result = FillResult(work.positions.copy(), np.zeros(work.positions.shape[:2], dtype=bool))
     result, left_view = apply_limits(result, work.missing, max_gap=max_gap, edges=settings.edges, chosen=chosen_view)
     seconds = time.perf_counter() - started
+    if isinstance(result.info.get("prior"), dict):  # the model as the default's second spatial measurement
+        record["model_prior"] = result.info["prior"]
     if refs:
         used = result.info.get("references")
         if isinstance(used, dict) and used.get("models"):

@@ -140,3 +140,30 @@ def test_bad_model_files_and_missing_model(tmp_path, cmu):
         mocapfill.fill(cmu, "learned", model=other)
     result = CliRunner().invoke(cli, ["fill", str(bad), str(tmp_path / "o.c3d"), "--denoise"])
     assert result.exit_code == 2 and "--denoise needs --model" in result.output
+
+
+def test_the_model_is_a_prior_of_the_default(tiny, cmu, tmp_path):
+    """``fill --model M`` with the candidate default: the network's estimate joins the spatial model (its sd learnt
+    from hiding observed samples with a gap frame's missing markers), the observed samples come back bit-identical and the report says so."""
+    from mocapfill.methods.auto_next import DEFAULT_CONFIG, prior_estimate
+
+    model, path = tiny
+    gappy = cmu.positions.copy()
+    gappy[650:680, 30] = np.nan
+    gappy[:, 5] = np.nan  # never observed: no prior either
+    labels = list(cmu.labels)
+    est, sd = prior_estimate(gappy, model, labels=labels, units="mm", rate=cmu.rate, config=DEFAULT_CONFIG)
+    assert est.shape == gappy.shape and sd.shape == (cmu.n_markers,)
+    assert sd[30] > 0 and np.isnan(np.delete(sd, 30)).all()  # only a marker with gaps (never observed: none)
+    src = tmp_path / "gappy.c3d"
+    mocapfill.write(cmu.with_positions(gappy), src)
+    report = tmp_path / "r.json"
+    result = CliRunner().invoke(cli, ["fill", str(src), str(tmp_path / "o.c3d"), "-m", "auto-next", "--model",
+                                      str(path), "--report", str(report)])
+    assert result.exit_code == 0, result.output
+    settings = json.loads(report.read_text())["summary"]["settings"]
+    assert settings["model"] == str(path) and settings["model_prior"]["markers"] == 1
+    out = mocapfill.read(tmp_path / "o.c3d")
+    observed = ~np.isnan(gappy).any(axis=2)
+    assert np.array_equal(out.positions[observed], gappy[observed])
+    assert np.isfinite(out.positions[650:680, 30]).all()

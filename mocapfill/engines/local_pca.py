@@ -543,6 +543,8 @@ def reconstruct_completed(
     reference: np.ndarray | None = None,
     leverage_weight: float = 1.0,
     trust: float | None = None,
+    reference_weights: np.ndarray | None = None,
+    used_references: list | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The local model refitted on a completed take (one EM-style imputation step).
 
@@ -559,9 +561,21 @@ def reconstruct_completed(
     ``trust`` (data units) or None: when given, only neighbours whose RMS completed std over the marker's gap frames
     is at most ``trust`` are predictors: a neighbour that vanished with the marker (filled, uncertain) does not steer
     its prediction, and the cross-validated error is that of the markers still known there.
+    ``reference_weights`` (n,) in [0, 1] or None (every reference frame counts as the capture's own): each reference
+    frame's weight as a training row, and each model keeps the references only where they lower its cross-validated
+    error on the capture's own frames (as in :func:`reconstruct_local`); whether each model kept them is appended to
+    ``used_references`` (a list) when given.
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
+    row_weight = None
+    if reference is not None and reference_weights is not None:
+        ref_w = np.clip(np.asarray(reference_weights, dtype=np.float64), 0.0, 1.0)
+        if ref_w.shape != (len(reference),):
+            raise MethodError(f"reference_weights must have shape ({len(reference)},), got {ref_w.shape}")
+        reference = reference[ref_w > 0]
+        # a reference row weighs < 1 here, so the capture's own rows are those of weight 1 (as reconstruct_local)
+        row_weight = np.concatenate([np.ones(n_frames), np.minimum(ref_w[ref_w > 0], 1.0 - 1e-9)])
     data = completed if reference is None else np.concatenate([completed, reference])
     var = np.nan_to_num(completed_std, nan=np.inf) ** 2
     if reference is not None:
@@ -589,7 +603,8 @@ def reconstruct_completed(
             continue
         est_all, leverage, rms_mix, _, _, _, sens = group_model(
             data, m, group, near, train, weights, align_weight, dist, scales, reach=reach, normalise=normalise,
-            folds=folds, knn=knn)
+            folds=folds, knn=knn, row_weight=row_weight,
+            used_references=used_references if row_weight is not None else None)
         n_train = len(train)
         with np.errstate(invalid="ignore"):
             spread = var[group][:, near] @ sens[near]  # propagated predictor variance (n_group,)
