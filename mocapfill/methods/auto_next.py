@@ -75,6 +75,12 @@ class ModelConfig:
     #: well-known neighbours, it gave 85_02 30 % dense RMSE 28.8 against 31.2 mm, pooled 21.0 against 21.8, segment
     #: unchanged, but basket_sprint's largest filled acceleration 0.20 against 0.054 m/frame^2, observed 0.074).
     rigid_nearest: int = 0
+    #: Where the local PCA still has no prediction (a marker seen in too few frames to train a local model), the
+    #: global distance-weighted PCA of ``pca`` (Gloersen & Federolf) predicts it with this sd (mm; 0: off).  ``pca``'s
+    #: own std is no guide there (16x its error on CMU 16_08).  16_08 (239 frames, dense 20 %): markers seen in 6 of
+    #: 239 frames were bridged by the motion alone 1.8 m off; ``pca``'s error there was 66 mm median, 135 at the 90th
+    #: percentile.
+    global_sd_mm: float = 100.0
     #: Observed frames on either side of a gap where the spatial model's error is measured for the smoother.
     edge_frames: int = 3
     #: Correlation time of the spatial prediction's error (the old edge bridge's 30 frames at 120 Hz).
@@ -227,6 +233,10 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         info["prior"] = {"markers": int(np.isfinite(prior_est[1]).sum()),
                          "median_sd": float(np.nanmedian(prior_est[1])) if np.isfinite(prior_est[1]).any()
                          else None}
+    glob = None
+    if config.global_sd_mm and (missing & ~np.isfinite(pred_sd)).any():
+        glob = global_prediction(positions, units)
+        pred, pred_sd = global_stage(positions, pred, pred_sd, *glob, config, mm)
     boneset = None
     if refine and bones is not False:
         from ..bones.boneset import resolve_bones
@@ -244,6 +254,8 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
                                                        reference_weights=reference_weights, used_references=used_refs)
         if prior_est is not None:
             pred, pred_sd, edge, edge_sd = prior_stage(positions, pred, pred_sd, edge, edge_sd, *prior_est)
+        if glob is not None:
+            pred, pred_sd = global_stage(positions, pred, pred_sd, *glob, config, mm)
         if boneset is not None and len(boneset):
             pred = bone_stage(positions, pred, pred_sd, boneset, config, mm)
         fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate)
@@ -302,6 +314,28 @@ def body_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, edge: np
     at_edge = ~np.isfinite(edge_sd) & np.isfinite(r_edge_sd)
     return (np.where(use[..., None], est, pred), np.where(use, est_sd, sd), np.where(at_edge[..., None], r_edge, edge),
             np.where(at_edge, r_edge_sd, edge_sd))
+
+
+def global_prediction(positions: np.ndarray, units: str) -> tuple[np.ndarray, np.ndarray]:
+    """Stage 1c's prediction: the global distance-weighted PCA (:func:`mocapfill.methods.pca.fill_pca`) of every
+    missing sample.  positions (n_frames, n_markers, 3); returns its fill (n_frames, n_markers, 3) and a (n_frames,
+    n_markers) mask of where it has one."""
+    from .pca import fill_pca
+
+    res = fill_pca(positions, units=units)
+    return res.positions, np.isfinite(res.positions).all(axis=2)
+
+
+def global_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, glob: np.ndarray, has: np.ndarray,
+                 config: ModelConfig, mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Stage 1c: missing samples the local model could not predict (NaN ``sd``, (n_frames, n_markers)) take the
+    global PCA's prediction ``glob`` (n_frames, n_markers, 3; ``has`` where it has one) with sd
+    ``config.global_sd_mm``, so a marker seen in few frames still moves with the body; the smoother weighs it like
+    any spatial prediction.  Returns pred and sd with those samples filled."""
+    todo = np.isnan(positions).any(axis=2) & ~np.isfinite(sd) & has
+    if not todo.any():
+        return pred, sd
+    return np.where(todo[..., None], glob, pred), np.where(todo, config.global_sd_mm * mm, sd)
 
 
 def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, config: ModelConfig, mm: float, *,
