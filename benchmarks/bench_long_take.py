@@ -6,7 +6,8 @@ seed 0).  Each fill runs in its own subprocess, which reports its wall time and 
 (``resource.getrusage(RUSAGE_SELF).ru_maxrss``: interpreter, data and fill):
 
 - ``part``: frames 0-4,999 of the take with the same gaps, filled with ``mocapfill.fill(data)`` (the default);
-- ``default``: the whole take with ``mocapfill.fill(data)``: whatever ``auto`` is in this checkout;
+- ``default``: the whole take with ``mocapfill.fill(data)``: whatever ``auto`` is in this checkout (``--method``: that
+  registered method instead, in every mode);
 - ``windows``: the whole take with ``mocapfill.guards.windows.fill_in_windows(positions, default fill)`` applied
   from the outside (windows of at most 5,000 frames, 400 shared), i.e. what ``auto`` gives once it delegates long
   takes to the windows; ``windows-2jobs``: the same with two windows at a time in worker processes (``jobs=2``).
@@ -18,6 +19,7 @@ median error at most 1.5x the part's.
 Run from the repository root::
 
     python benchmarks/bench_long_take.py [--frames 72000] [--part 5000] [--modes part,windows,windows-2jobs,default]
+        [--method auto-next]
 """
 
 from __future__ import annotations
@@ -54,17 +56,20 @@ def build_take(frames: int, missing: float, seed: int):
     return truth, trial.hidden_mask(*take.shape[:2]) & ~np.isnan(take).any(axis=2)
 
 
-def fill_window(positions: np.ndarray, labels: list, rate: float, units: str):
-    """The default fill of one window (positions (n, n_markers, 3)) of the take: picklable, for worker processes."""
+def fill_window(positions: np.ndarray, labels: list, rate: float, units: str, method: str | None = None):
+    """The fill (``method``, default the default) of one window (positions (n, n_markers, 3)) of the take:
+    picklable, for worker processes."""
     import mocapfill
     from mocapfill.markers import MarkerData
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return mocapfill.fill(MarkerData(positions, labels, rate, units))
+        data = MarkerData(positions, labels, rate, units)
+        return mocapfill.fill(data) if method is None else mocapfill.fill(data, method)
 
 
-def worker(mode: str, frames: int, part: int, missing: float, seed: int, window: int, overlap: int) -> dict:
+def worker(mode: str, frames: int, part: int, missing: float, seed: int, window: int, overlap: int,
+           method: str | None = None) -> dict:
     """One fill in this process; returns the figures as a dict."""
     import mocapfill
     from mocapfill.markers import MarkerData
@@ -84,10 +89,11 @@ def worker(mode: str, frames: int, part: int, missing: float, seed: int, window:
         if mode in ("windows", "windows-2jobs"):
             # a window is the same capture (labels, rate, units) over fewer frames
             result = fill_in_windows(corrupted, partial(fill_window, labels=data.labels, rate=data.rate,
-                                                        units=data.units),
+                                                        units=data.units, method=method),
                                      window=window, overlap=overlap, jobs=2 if mode == "windows-2jobs" else 1)
         else:
-            result = mocapfill.fill(data, jobs=2)  # the processes the figure was measured with (2 cores)
+            # the processes the figure was measured with (2 cores)
+            result = mocapfill.fill(data, jobs=2) if method is None else mocapfill.fill(data, method, jobs=2)
     seconds = time.perf_counter() - t0
     err = np.linalg.norm(result.positions[hidden] - truth.positions[hidden], axis=1)
     return {"mode": mode, "frames": int(truth.n_frames), "markers": int(truth.n_markers),
@@ -107,24 +113,25 @@ def main() -> None:
     parser.add_argument("--window", type=int, default=5_000)
     parser.add_argument("--overlap", type=int, default=400)
     parser.add_argument("--modes", default="part,windows,windows-2jobs,default")
+    parser.add_argument("--method", default=None, help="registered fill method (default: the default)")
     parser.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     harness.add_results_argument(parser)
     args = parser.parse_args()
     if args.worker:
         print(json.dumps(worker(args.worker, args.frames, args.part, args.missing, args.seed, args.window,
-                                args.overlap)))
+                                args.overlap, args.method)))
         return
 
     harness.banner(__file__)
     results = harness.Results(__file__, path=args.results, note=args.note)
     print(f"# take: {CLIP.name} forwards and backwards to {args.frames} frames; dense protocol, {args.missing:.0%} "
           f"missing, seed {args.seed}; part = frames 0-{args.part - 1}; windows {args.window} / overlap "
-          f"{args.overlap}")
+          f"{args.overlap}; method {args.method or 'the default'}")
     rows = {}
     for mode in [m.strip() for m in args.modes.split(",") if m.strip()]:
         cmd = [sys.executable, __file__, "--worker", mode, "--frames", str(args.frames), "--part", str(args.part),
                "--missing", str(args.missing), "--seed", str(args.seed), "--window", str(args.window),
-               "--overlap", str(args.overlap)]
+               "--overlap", str(args.overlap)] + (["--method", args.method] if args.method else [])
         out = subprocess.run(cmd, capture_output=True, text=True,
                              env={**os.environ, "PYTHONPATH": str(harness.REPO)})
         if out.returncode:
@@ -160,7 +167,7 @@ def main() -> None:
         print(f"# {mode}: time {row['seconds']:.1f} s <= 60 s {ok(row['seconds'] <= 60)}; {ratio_t:.1f}x the part "
               f"<= 16x {ok(ratio_t <= 16)}; peak {peak:.0f} MB (all processes) <= 1536 MB {ok(peak <= 1536)}; "
               f"median error {ratio_e:.2f}x the part's <= 1.5x {ok(ratio_e <= 1.5)}")
-    results.table("modes", f"{CLIP.name} forwards and backwards to {args.frames} frames x 41 markers, "
+    results.table("modes", f"{args.method or 'the default'}: {CLIP.name} forwards and backwards to {args.frames} frames x 41 markers, "
                   f"{args.missing:.0%} missing (dense protocol, seed {args.seed}); part = its first {args.part} "
                   "frames; peak RSS over all processes; errors over the hidden samples",
                   ["mode", "frames", "windows", "seconds", "x the part's time", "peak MB", "median mm", "RMSE mm",

@@ -29,6 +29,51 @@ def _patterns(missing: np.ndarray, frames: np.ndarray) -> list[tuple[np.ndarray,
     return [(frames[inverse == p], np.flatnonzero(uniq[p])) for p in range(len(uniq))]
 
 
+def _bone_sums(ia: np.ndarray, ib: np.ndarray, k: int):
+    """Sparse sums over the bones for the Gauss-Newton gradient and Hessian of :func:`refine_bones`.
+
+    ia, ib (nb,) slot (0..k-1) of each bone's ends among the k moved markers, -1 where the end is fixed.  Bone j's
+    residual has Jacobian +u_j at slot ia[j] and -u_j at slot ib[j]; summing only those blocks (instead of a dense
+    (n, nb, 3k) Jacobian contracted with itself) keeps the cost linear in bones, not bones x (3k)^2.  Returns
+    grad_sum(v (n, nb, 3)) -> (n, k, 3) = sum_j J_j^T v_j and hess_sum(o (n, nb, 3, 3)) -> (n, 3k, 3k) =
+    sum_j J_j^T o_j J_j (o_j the per-bone outer products times the bone's weight).
+    """
+    ends = [(j, s, sign) for j in range(len(ia)) for s, sign in ((ia[j], 1.0), (ib[j], -1.0)) if s >= 0]
+    bone = np.array([e[0] for e in ends], dtype=int)
+    slot = np.array([e[1] for e in ends], dtype=int)
+    sign = np.array([e[2] for e in ends])
+
+    def segments(keys: np.ndarray):
+        order = np.argsort(keys, kind="stable")  # bones ascending within a slot, as the dense sum adds them
+        uniq, starts = np.unique(keys[order], return_index=True)
+        return order, uniq, starts
+
+    g_order, g_slots, g_starts = segments(slot)
+    # Hessian blocks: every pair of ends of one bone, sign +1 on the same slot and -1 across
+    first = np.searchsorted(bone, np.arange(len(ia)))  # each bone's first end (bone is ascending)
+    count = np.bincount(bone, minlength=len(ia))
+    pa = np.concatenate([first[count >= 1], first[count == 2], first[count == 2] + 1, first[count == 2] + 1])
+    pb = np.concatenate([first[count >= 1], first[count == 2] + 1, first[count == 2], first[count == 2] + 1])
+    h_bone, h_sign = bone[pa], sign[pa] * sign[pb]
+    h_order, h_keys, h_starts = segments(slot[pa] * k + slot[pb])
+
+    def grad_sum(v: np.ndarray) -> np.ndarray:
+        out = np.zeros((v.shape[0], k, 3))
+        if len(g_order):
+            terms = v[:, bone[g_order]] * sign[g_order][None, :, None]
+            out[:, g_slots] = np.add.reduceat(terms, g_starts, axis=1)
+        return out
+
+    def hess_sum(o: np.ndarray) -> np.ndarray:
+        out = np.zeros((o.shape[0], k * k, 3, 3))
+        if len(h_order):
+            terms = o[:, h_bone[h_order]] * h_sign[h_order][None, :, None, None]
+            out[:, h_keys] = np.add.reduceat(terms, h_starts, axis=1)
+        return out.reshape(o.shape[0], k, k, 3, 3).transpose(0, 1, 3, 2, 4).reshape(o.shape[0], 3 * k, 3 * k)
+
+    return grad_sum, hess_sum
+
+
 def refine_bones(
     estimate: np.ndarray,
     positions: np.ndarray,
@@ -105,19 +150,14 @@ def refine_bones(
         r0 = np.abs(r)
         lam = np.full(len(rows), 1e-3)
         eye = np.eye(3 * k)
+        grad_sum, hess_sum = _bone_sums(ia, ib, k)
         for _ in range(max_iter):
             norm = np.maximum(np.linalg.norm(d, axis=2, keepdims=True), 1e-300)
             unit = d / norm  # (n, nb, 3): dr/dy_a = unit, dr/dy_b = -unit
-            jac = np.zeros((len(rows), len(bl), k, 3))
-            for j in range(len(bl)):
-                if ia[j] >= 0:
-                    jac[:, j, ia[j]] += unit[:, j]
-                if ib[j] >= 0:
-                    jac[:, j, ib[j]] -= unit[:, j]
-            jac = jac.reshape(len(rows), len(bl), 3 * k)
+            weighted = unit * bw[None, :, None]
             grad = (np.repeat(prec, 3, axis=1) * (y - target).reshape(len(rows), 3 * k)
-                    + np.einsum("nbp,b,nb->np", jac, bw, r))
-            hess = np.einsum("nbp,b,nbq->npq", jac, bw, jac)
+                    + grad_sum(weighted * r[:, :, None]).reshape(len(rows), 3 * k))
+            hess = hess_sum(weighted[:, :, :, None] * unit[:, :, None, :])
             hess[:, np.arange(3 * k), np.arange(3 * k)] += np.repeat(prec, 3, axis=1)
             diag = hess[:, np.arange(3 * k), np.arange(3 * k)]
             damped = hess + (lam[:, None] * diag)[:, :, None] * eye

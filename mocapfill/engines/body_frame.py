@@ -186,13 +186,53 @@ def _rotation_about(axis: int, angle: np.ndarray) -> np.ndarray:
     return R
 
 
+# cofactor k of a 3 x 3 matrix stored as 9 entries (3 r + c): entries P1 * P2 - P3 * P4
+_P1 = np.array([4, 5, 3, 7, 8, 6, 1, 2, 0])
+_P2 = np.array([8, 6, 7, 2, 0, 1, 5, 3, 4])
+_P3 = np.array([5, 3, 4, 8, 6, 7, 2, 0, 1])
+_P4 = np.array([7, 8, 6, 1, 2, 0, 4, 5, 3])
+_ROW0 = np.array([0, 1, 2])
+
+
 def nearest_rotation(A: np.ndarray) -> np.ndarray:
-    """The proper rotation R maximising trace(R^T A[t]) per frame (Kabsch via SVD), A (T, 3, 3) -> R (T, 3, 3)."""
-    U, _, Vt = np.linalg.svd(A)
-    s = np.sign(np.linalg.det(U @ Vt))
-    s[s == 0] = 1.0
-    U[:, :, 2] *= s[:, None]  # no reflections
-    return U @ Vt
+    """The proper rotation R maximising trace(R^T A[t]) per frame (Kabsch via SVD), A (T, 3, 3) -> R (T, 3, 3).
+
+    Where det A > 0 that is the orthogonal polar factor of A, found by a scaled Newton iteration with closed-form
+    3 x 3 inverses (a tenth of the cost of T batched SVDs; equal to the SVD's answer to round-off); frames with
+    det A <= 0, poorly conditioned or not converged take the SVD.
+    """
+    A = np.asarray(A, dtype=np.float64)
+    R = np.full(A.shape, np.nan)
+    X = A.reshape(-1, 9).T.copy()  # (9, T): entry 3 r + c of each frame's matrix
+    det = (X[_ROW0] * (X[_P1[:3]] * X[_P2[:3]] - X[_P3[:3]] * X[_P4[:3]])).sum(axis=0)
+    norm = np.sqrt((X ** 2).sum(axis=0))
+    with np.errstate(all="ignore"):
+        # det / |A|^3 = s1 s2 s3 / (s1^2 + s2^2 + s3^2)^1.5: small when A is near singular (then the SVD decides)
+        newton = np.flatnonzero(np.isfinite(det) & (det > 1e-6 * norm ** 3))
+        if len(newton) >= 32:  # fewer: the SVD's fixed cost is lower
+            X = X[:, newton] / norm[newton]
+            last = False
+            for _ in range(30):
+                cof = X[_P1] * X[_P2] - X[_P3] * X[_P4]  # det X * X^-T, closed form
+                inv_t = cof / (X[_ROW0] * cof[_ROW0]).sum(axis=0)
+                # Higham's scaling: gamma = (|X^-1| / |X|)^(1/2)
+                gamma = np.sqrt(np.sqrt((inv_t ** 2).sum(axis=0) / (X ** 2).sum(axis=0)))
+                nxt = 0.5 * (gamma * X + inv_t / gamma)
+                change = np.abs(nxt - X).max(axis=0)
+                X = nxt
+                if last:
+                    break
+                last = change.max() < 1e-7  # quadratic convergence: one more step reaches round-off
+            done = change < 1e-12
+            R[newton[done]] = X[:, done].T.reshape(-1, 3, 3)
+    rest = np.flatnonzero(~np.isfinite(R[:, 0, 0]))
+    if len(rest):
+        U, _, Vt = np.linalg.svd(A[rest])
+        s = np.sign(np.linalg.det(U @ Vt))
+        s[s == 0] = 1.0
+        U[:, :, 2] *= s[:, None]  # no reflections
+        R[rest] = U @ Vt
+    return R
 
 
 def fit_frames(positions: np.ndarray, weights: np.ndarray, *, axis: int | None, rounds: int = 3

@@ -68,7 +68,8 @@ def kabsch_rotations(shapes: np.ndarray, reference: np.ndarray, weights: np.ndar
     Row-vector convention: an aligned point is ``x @ R``.
     """
     # the best proper rotation of the weighted cross-covariance (n, 3, 3)
-    return nearest_rotation(np.einsum("tjc,j,jd->tcd", shapes, weights, reference))
+    # matmul instead of einsum: the same sums (to round-off), ten times faster on these shapes
+    return nearest_rotation(np.swapaxes(shapes, 1, 2) @ (weights[:, None] * reference))
 
 
 def local_frames(
@@ -88,7 +89,7 @@ def local_frames(
     # pass changed no benchmark figure).
     reference = shapes[reference_frames[len(reference_frames) // 2]]
     rot = kabsch_rotations(shapes[reference_frames], reference, weights)
-    reference = np.einsum("tjc,tcd->tjd", shapes[reference_frames], rot).mean(axis=0)
+    reference = (shapes[reference_frames] @ rot).mean(axis=0)
     reference -= (weights[:, None] * reference).sum(axis=0) / wsum
     rot = kabsch_rotations(shapes, reference, weights)
     return centre, rot
@@ -325,7 +326,7 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
     n_train = len(train)
     centre, rot = local_frames(positions, used, anchors, align_weight[anchors], np.arange(n_train))
     local = np.full((len(used), n_markers, 3), np.nan)
-    local[:, needed] = np.einsum("tjc,tcd->tjd", positions[used][:, needed] - centre[:, None, :], rot)
+    local[:, needed] = (positions[used][:, needed] - centre[:, None, :]) @ rot
     flat = local.reshape(len(used), 3 * n_markers)
     tr = np.arange(n_train)
     target = np.array([m])
@@ -376,7 +377,7 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
     leverage = np.einsum("s,st->t", mix, np.stack(levs))
     rms_mix = float(np.dot(mix, rmss_a)) if np.isfinite(rmss_a).all() else np.nan
     # back to the laboratory frame: x = local R^T + centre
-    est_all = np.einsum("tc,tdc->td", est_local, rot) + centre
+    est_all = (rot @ est_local[:, :, None])[:, :, 0] + centre
     sensitivity = (np.einsum("s,sqc->qc", mix, np.stack(sens)) ** 2).reshape(n_markers, 9).sum(axis=1) / 3.0
     return est_all, leverage, rms_mix, ks, rmss, anchors, sensitivity
 
@@ -568,9 +569,10 @@ def reconstruct_completed(
     known = np.concatenate([~missing, np.isfinite(reference).all(axis=2)]) if reference is not None else ~missing
     finite = np.isfinite(data).all(axis=2)
     estimate, std, info = empty_estimates(n_frames, n_markers)
+    known_data = np.where(known[..., None], data, np.nan)  # once, not per marker
     for m in np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0)):
         group = np.flatnonzero(missing[:, m])
-        dist = mean_distances(np.where(known[..., None], data, np.nan), m)
+        dist = mean_distances(known_data, m)
         weights, align_weight = marker_weights(dist, m, scales, align_scale, missing_weight)
         sure = np.ones(n_markers, dtype=bool)
         if trust is not None:

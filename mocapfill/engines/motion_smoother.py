@@ -187,33 +187,30 @@ def smooth(
     P[:, 3, 3] = 1.0
     mf = np.empty((T, S, N_STATE, 3))
     Pf = np.empty((T, S, N_STATE, N_STATE))
-    H = np.zeros((S, N_STATE))
+    mpred = np.empty((T, S, N_STATE, 3))  # predictions from t - 1 (the backward pass reuses them)
+    Ppred = np.empty((T, S, N_STATE, N_STATE))
     for t in range(T):
         if t:
-            m = np.einsum("ij,sjc->sic", F, m)
-            P = F @ P @ F.T + _noise(Q, model.gain, t - 1)
+            m = mpred[t] = np.einsum("ij,sjc->sic", F, m)
+            P = Ppred[t] = F @ P @ F.T + _noise(Q, model.gain, t - 1)
         # observation: H = e_x
         if has_obs[t].any():
             r = model.r_obs if obs_var is None else obs_var[t]
-            m, P = _update(m, P, _unit_x(S), y_obs[t], np.where(has_obs[t], r, np.inf))
+            m, P = _update(m, P, None, y_obs[t], np.where(has_obs[t], r, np.inf))
         if has_sp[t].any():
-            H[:] = 0.0
-            H[:, 0] = 1.0
-            H[:, 3] = s_sp[t]
-            m, P = _update(m, P, H, y_sp[t], r_sp[t])
+            m, P = _update(m, P, None, y_sp[t], r_sp[t], bias=s_sp[t])
         mf[t], Pf[t] = m, P
     # backward (RTS)
     ms, Ps = mf[-1].copy(), Pf[-1].copy()
     mean = np.empty((T, S, 3))
     var = np.empty((T, S))
     mean[-1], var[-1] = ms[:, 0], Ps[:, 0, 0]
+    if T > 1:  # the gains of every frame in one batched solve: G = Pf F^T Pp^-1  <=>  Pp G^T = F Pf
+        Pp_all = (Ppred[1:] + np.swapaxes(Ppred[1:], 2, 3)) / 2
+        G_all = np.swapaxes(np.linalg.solve(Pp_all, F @ Pf[:-1]), 2, 3)
     for t in range(T - 2, -1, -1):
-        Pp = F @ Pf[t] @ F.T + _noise(Q, model.gain, t)
-        mp = np.einsum("ij,sjc->sic", F, mf[t])
-        Pp = (Pp + np.swapaxes(Pp, 1, 2)) / 2
-        # G = Pf F^T Pp^-1  <=>  Pp G^T = F Pf
-        G = np.swapaxes(np.linalg.solve(Pp, F @ Pf[t]), 1, 2)
-        ms = mf[t] + G @ (ms - mp)
+        G, Pp = G_all[t], Pp_all[t]
+        ms = mf[t] + G @ (ms - mpred[t + 1])
         Ps = Pf[t] + G @ (Ps - Pp) @ np.swapaxes(G, 1, 2)
         mean[t], var[t] = ms[:, 0], Ps[:, 0, 0]
     return mean, np.sqrt(np.clip(var, 0.0, None))
@@ -234,17 +231,25 @@ def _unit_x(n: int) -> np.ndarray:
     return H
 
 
-def _update(m: np.ndarray, P: np.ndarray, H: np.ndarray, y: np.ndarray, r: np.ndarray
-            ) -> tuple[np.ndarray, np.ndarray]:
+def _update(m: np.ndarray, P: np.ndarray, H: np.ndarray | None, y: np.ndarray, r: np.ndarray,
+            bias: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """One scalar-measurement Kalman update per series (shared by the three axes).
 
-    m (S, 4, 3), P (S, 4, 4), H (S, 4), y (S, 3), r (S,) (inf: no measurement, the series is left alone).
+    m (S, 4, 3), P (S, 4, 4), H (S, 4), y (S, 3), r (S,) (inf: no measurement, the series is left alone).  H None:
+    H = e_x + bias e_b with bias (S,) (None: 0), computed without the zero terms.
     """
     ok = np.isfinite(r)
-    PH = np.einsum("sij,sj->si", P, H)  # (S, 4)
-    innov_var = np.einsum("si,si->s", H, PH) + np.where(ok, r, 0.0)
+    if H is None:  # H = e_x + bias e_b: the same sums as below without their zero terms (identical results)
+        s = (np.zeros(len(m)) if bias is None else bias)[:, None]
+        PH = P[:, :, 0] + P[:, :, 3] * s  # (S, 4)
+        innov_var = (PH[:, 0] + PH[:, 3] * s[:, 0]) + np.where(ok, r, 0.0)
+        Hm = m[:, 0] + m[:, 3] * s
+    else:
+        PH = np.einsum("sij,sj->si", P, H)  # (S, 4)
+        innov_var = np.einsum("si,si->s", H, PH) + np.where(ok, r, 0.0)
+        Hm = np.einsum("si,sic->sc", H, m)
     K = np.where(ok[:, None], PH / np.where(ok, innov_var, 1.0)[:, None], 0.0)  # (S, 4)
-    resid = y - np.einsum("si,sic->sc", H, m)  # (S, 3)
+    resid = y - Hm  # (S, 3)
     resid = np.where(ok[:, None], resid, 0.0)
     m = m + K[:, :, None] * resid[:, None, :]
     # Joseph-free form is fine for scalar updates with r > 0; symmetrise against round-off

@@ -309,9 +309,15 @@ def cv_curve(
         scores = z @ model.basis  # (b, K)
         # reconstruction with the first k components, for every k: cumulative sum over components
         contrib = scores[:, :, None] * model.basis[:nt][None, :, :].transpose(0, 2, 1)  # (b, K, nt)
-        recon = np.cumsum(contrib, axis=1) / model.weight[:nt] * model.scale[:nt] + model.mean[:nt]
+        # in place (the same operations in the same order, without four temporaries of this size)
+        recon = np.cumsum(contrib, axis=1, out=contrib)
+        recon /= model.weight[:nt]
+        recon *= model.scale[:nt]
+        recon += model.mean[:nt]
+        recon -= held[:, None, :nt]
+        recon *= recon
         k_avail = recon.shape[1]
-        err = ((recon - held[:, None, :nt]) ** 2).sum(axis=0)  # (K, nt)
+        err = recon.sum(axis=0)  # (K, nt)
         sq[:k_avail] += err
         if k_avail < len(columns):  # rank-deficient fold: later truncations equal the last
             sq[k_avail:] += err[-1]

@@ -15,7 +15,6 @@ Shapes: ``positions`` is ``(n_frames, n_markers, 3)`` float64 with NaN = missing
 from __future__ import annotations
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 from ..gaps import all_missing_markers, missing_mask
 from .base import FillResult, finish
@@ -86,6 +85,8 @@ def _spline_marker(frames: np.ndarray, seen: np.ndarray, values: np.ndarray) -> 
             # Not-a-knot through every observed frame: C2 at the gap ends, so the fill leaves each gap with the
             # slope and curvature the marker had when it disappeared (scipy degrades to a parabola / line for 3 / 2
             # observations).
+            from scipy.interpolate import CubicSpline  # here: scipy.interpolate costs ~0.3 s to import
+
             spline = CubicSpline(t_seen, values[seen], axis=0, bc_type="not-a-knot")
             out[inside] = spline(frames[inside])
     out[gone & (frames < first)] = values[seen][0]

@@ -1,0 +1,57 @@
+"""Fast paths that must equal the plain computation they replace (helper "speed", issue 21)."""
+
+import numpy as np
+
+from mocapfill.bones.refinement import _bone_sums
+
+
+def test_bone_sums_equal_dense_jacobian():
+    # bones among 4 moved markers (slots 0-3) and fixed ones (-1), with a repeated bone
+    ia = np.array([0, 1, -1, 2, 0, 3, 0])
+    ib = np.array([1, -1, 2, 3, 2, -1, 1])
+    k, n = 4, 5
+    rng = np.random.default_rng(1)
+    unit = rng.normal(size=(n, len(ia), 3))
+    bw = rng.random(len(ia))
+    jac = np.zeros((n, len(ia), k, 3))
+    for j in range(len(ia)):
+        if ia[j] >= 0:
+            jac[:, j, ia[j]] += unit[:, j]
+        if ib[j] >= 0:
+            jac[:, j, ib[j]] -= unit[:, j]
+    jac = jac.reshape(n, len(ia), 3 * k)
+    grad_sum, hess_sum = _bone_sums(ia, ib, k)
+    r = rng.normal(size=(n, len(ia)))
+    dense_grad = np.einsum("nbp,b,nb->np", jac, bw, r)
+    dense_hess = np.einsum("nbp,b,nbq->npq", jac, bw, jac)
+    weighted = unit * bw[None, :, None]
+    np.testing.assert_allclose(grad_sum(weighted * r[:, :, None]).reshape(n, 3 * k), dense_grad, atol=1e-12)
+    np.testing.assert_allclose(hess_sum(weighted[:, :, :, None] * unit[:, :, None, :]), dense_hess, atol=1e-12)
+
+
+def _svd_rotation(A):
+    U, _, Vt = np.linalg.svd(A)
+    s = np.sign(np.linalg.det(U @ Vt))
+    s[s == 0] = 1.0
+    U[:, :, 2] *= s[:, None]
+    return U @ Vt
+
+
+def test_nearest_rotation_equals_svd_kabsch():
+    from mocapfill.engines.body_frame import nearest_rotation
+
+    rng = np.random.default_rng(2)
+    shape = rng.normal(size=(6, 3)) * 100
+    q = rng.normal(size=(200, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    rot = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
+                    2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+                    2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=1).reshape(-1, 3, 3)
+    A = np.swapaxes(shape[None] @ rot + rng.normal(size=(200, 6, 3)), 1, 2) @ shape
+    A[0] = -A[0]  # a reflection: the SVD's sign rule
+    A[1, :, 2] = 0.0  # rank-deficient
+    A[2] = 0.0
+    A = np.concatenate([A, rng.normal(size=(100, 3, 3))])
+    np.testing.assert_allclose(nearest_rotation(A), _svd_rotation(A), atol=1e-12)
+    np.testing.assert_allclose(nearest_rotation(A[:5]), _svd_rotation(A[:5]), atol=1e-12)
