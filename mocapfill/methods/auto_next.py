@@ -65,8 +65,10 @@ class ModelConfig:
     seed_knn: int = 0
     #: Width of the weights of the local frame's alignment (Kabsch) on the neighbours.
     align_mm: float = 200.0
-    #: Nearest training poses whose mean residual corrects the linear reconstruction (0: none).
-    knn: int = 10
+    #: Nearest training poses whose mean residual corrects the linear reconstruction (0: none; bench_default medians
+    #: 85_02 one-marker / limb, tennis one-marker / limb: 5: 12.04/13.27/3.77/5.90, 10: 11.70/12.98/3.71/5.92,
+    #: 20: 11.49/12.76/3.69/5.97; biogesta and bench_messy segment unchanged).
+    knn: int = 20
     #: How much a frame's leverage grows the spatial std the smoother weighs (85_02 one-marker, 10 trials: median
     #: 13.6 mm with 1, 11.4 with 0: a high-leverage pose is not a worse prediction there, the dynamics were).
     leverage_weight: float = 0.0
