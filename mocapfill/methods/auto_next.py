@@ -57,16 +57,21 @@ from .base import FillResult, check_positions, finish
 class ModelConfig:
     """Every tunable of the default's model, once (lengths in mm, times in seconds; converted on use)."""
 
-    #: Widths of the spatial model's distance weights, one reconstruction each, averaged by inverse CV variance.
-    scales_mm: tuple[float, ...] = (150.0, 200.0, 300.0)
+    #: Widths of the spatial model's distance weights, one reconstruction each, averaged by inverse CV variance; the
+    #: near-global last width lets the model fall back towards a global weighted PCA where that cross-validates
+    #: better (biogesta dense-30 pooled 102.5 -> 79.9 mm, pca 98.0: a club marker far from the body; bench_default
+    #: 85_02 one-marker 11.82 -> 11.70, tennis limb 6.04 -> 5.92; a 1000 mm width: 11.77, 5.88, club 447 vs 434 mm).
+    scales_mm: tuple[float, ...] = (150.0, 200.0, 300.0, 3000.0)
     #: The first pass only seeds the refit on the completed take (stage 4), which makes the prediction: one width and
     #: no nearest-pose correction there (a third of the cost on captures with gaps everywhere).
     seed_scales_mm: tuple[float, ...] = (200.0,)
     seed_knn: int = 0
     #: Width of the weights of the local frame's alignment (Kabsch) on the neighbours.
     align_mm: float = 200.0
-    #: Nearest training poses whose mean residual corrects the linear reconstruction (0: none).
-    knn: int = 10
+    #: Nearest training poses whose mean residual corrects the linear reconstruction (0: none; bench_default medians
+    #: 85_02 one-marker / limb, tennis one-marker / limb: 5: 12.04/13.27/3.77/5.90, 10: 11.70/12.98/3.71/5.92,
+    #: 20: 11.49/12.76/3.69/5.97; biogesta and bench_messy segment unchanged).
+    knn: int = 20
     #: How much a frame's leverage grows the spatial std the smoother weighs (85_02 one-marker, 10 trials: median
     #: 13.6 mm with 1, 11.4 with 0: a high-leverage pose is not a worse prediction there, the dynamics were).
     leverage_weight: float = 0.0
