@@ -87,3 +87,26 @@ def test_each_model_keeps_a_wrong_body_out(halves, gappy):
                             reference_weights=np.ones(len(other)), rate=data.rate)
     assert forced.info["references"]["used"] < forced.info["references"]["models"]
     assert rmse(forced, first, hidden) < 1.1 * rmse(plain, first, hidden)
+
+
+def test_fill_reference_reports_how_much_auto_next_used_it(halves, tmp_path):
+    """``fill --reference`` reaches auto-next with its weight; the report says how many local models kept it."""
+    import json
+
+    from click.testing import CliRunner
+
+    from mocapfill.cli import cli
+
+    first, second = halves
+    gappy = first.positions.copy()
+    gappy[100:160, 20] = np.nan
+    gappy[200:230, 7] = np.nan
+    mocapfill.write(first.with_positions(gappy), tmp_path / "a.c3d")
+    mocapfill.write(second, tmp_path / "b.c3d")
+    report = tmp_path / "r.json"
+    result = CliRunner().invoke(cli, ["fill", str(tmp_path / "a.c3d"), str(tmp_path / "o.c3d"), "-m", "auto-next",
+                                      "--reference", str(tmp_path / "b.c3d"), "--report", str(report)])
+    assert result.exit_code == 0, result.output
+    (ref,) = json.loads(report.read_text())["summary"]["settings"]["references"]
+    assert 0.05 < ref["weight"] < 1 and "train the body model" in ref["stages"]["fill"]
+    assert "local models" in ref["stages"]["fill"]

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -190,7 +191,8 @@ def body_frames(positions: np.ndarray, model: DenoiserModel) -> tuple[np.ndarray
     # drop a torso marker far from the fit (a displaced or swapped one) and fit again
     local = np.einsum("tfi,tij->tfj", pts - c[:, None, :], R)
     resid = np.linalg.norm(local - model.template[None], axis=2)  # (n, F), NaN where missing
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a frame without torso markers: its median is NaN, as meant
         med = np.nanmedian(np.where(np.isnan(resid), np.nan, resid), axis=1, keepdims=True) if resid.size else resid
         bad = np.nan_to_num(resid, nan=0.0) > np.maximum(FRAME_OUTLIER_MM * _mm(model), 3 * np.nan_to_num(med))
     if bad.any():
