@@ -19,7 +19,7 @@ On the CMU 41-marker layout (clips restricted to 85_02's markers, as in ``bench_
 
   No mode uses the clean test clip (no oracle).
   - ``auto --model`` (``--method auto-next``: the candidate default): the largest model's estimate as a second
-    spatial measurement of the default (:func:`mocapfill.methods.auto_next.prior_stage`), after its detection on the
+    spatial measurement of the default (:func:`mocapfill.methods.auto.prior_stage`), after its detection on the
     random protocol.  (``--protocols dense,segment`` too: 20 % hidden, body segments hidden.)
 - **speed**: the learned fill's time per 1,000 frames (the largest model, one test clip).
 

@@ -48,7 +48,7 @@ from mocapfill.errors import MocapfillError  # noqa: E402
 from mocapfill.evaluation.occlusions import make_occlusions  # noqa: E402
 from mocapfill.io import read  # noqa: E402
 from mocapfill.methods import METHODS  # noqa: E402
-from mocapfill.methods.auto import MIN_SPEED_MM, step_reference  # noqa: E402
+from mocapfill.methods.auto_stack import MIN_SPEED_MM, step_reference  # noqa: E402
 from mocapfill.pipeline import fill_columns, subset  # noqa: E402
 from mocapfill.guards.plausibility import (body_centre, observed_speed, plausibility,  # noqa: E402
                                             project_plausible)

@@ -43,7 +43,7 @@ def fill(data: MarkerData | np.ndarray, method: str = DEFAULT_METHOD, *, max_gap
         method does not take is ignored with a warning, so one command line can drive any method.
         ``reference=[...]``: reference takes of the same marker set (MarkerData or paths; a single one is fine),
         matched by label and weighed by :func:`mocapfill.references.prepare` (``data`` must then be a MarkerData);
-        a method that takes ``reference_frames`` (``auto``, ``auto-next``, ``pca``) trains on them, and ``result.info
+        a method that takes ``reference_frames`` (``auto``, ``pca``) trains on them, and ``result.info
         ["references"]`` says how much each was used.
 
     Returns

@@ -80,3 +80,10 @@ def moving_body(n_frames: int = 300, n_markers: int = 9, *, seed: int = 0, rng: 
     if noise:
         pos = pos + rng.normal(0.0, noise, pos.shape)
     return pos
+
+
+def tumbling_body(n_frames: int = 300, n_markers: int = 9, seed: int = 2) -> np.ndarray:
+    """A rigid marker cloud (mm) tumbling through full turns about two axes while it travels: a linear map in the
+    laboratory frame cannot follow it, one in the body's frame can.  (n_frames, n_markers, 3)."""
+    return moving_body(n_frames, n_markers, seed=seed, spread=120.0, rate=100.0,
+                       rotation=lambda t: rot_x(2 * np.pi * 0.25 * t) @ rot_z(2 * np.pi * 0.4 * t))

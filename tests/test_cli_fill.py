@@ -229,3 +229,19 @@ def test_report_checks_bones_estimated_from_the_observed_frames(runner, gappy, t
     expected = {frozenset((data.labels[a], data.labels[b])): int((missing[:, a] | missing[:, b]).sum())
                 for a, b in bones.pairs if (missing[:, a] | missing[:, b]).any()}
     assert expected and {frozenset(t["markers"]): t["filled_frames"] for t in checked["touching_filled"]} == expected
+
+
+def test_summary_names_the_gaps_to_review(runner, tmp_path):
+    # A marker that moves on its own (no neighbour predicts it) vanishes for 1.5 s: the default bridges it by its
+    # motion alone, its posterior sd grows, and the summary says to check that gap.
+    rng = np.random.default_rng(0)
+    pos = np.cumsum(rng.normal(0, 5, (300, 5, 3)), axis=0) + rng.normal(0, 300, (1, 5, 3))
+    pos[100:250, 2] = np.nan
+    src = tmp_path / "wander.csv"
+    mocapfill.write(mocapfill.MarkerData(pos, [f"M{i}" for i in range(5)], 100.0, "mm", 1), src)
+    report = tmp_path / "r.json"
+    result = runner.invoke(cli, ["fill", str(src), str(tmp_path / "out.csv"), "--report", str(report)])
+    assert result.exit_code == 0, result.output
+    assert "review 1 gap" in result.stderr and "M2 101-250" in result.stderr
+    doc = json.loads(report.read_text())
+    assert doc["summary"]["review_gaps"] == 1 and [g["review"] for g in doc["gaps"]] == [True]

@@ -145,7 +145,7 @@ def test_bad_model_files_and_missing_model(tmp_path, cmu):
 def test_the_model_is_a_prior_of_the_default(tiny, cmu, tmp_path):
     """``fill --model M`` with the candidate default: the network's estimate joins the spatial model (its sd learnt
     from hiding observed samples with a gap frame's missing markers), the observed samples come back bit-identical and the report says so."""
-    from mocapfill.methods.auto_next import DEFAULT_CONFIG, prior_estimate
+    from mocapfill.methods.auto import DEFAULT_CONFIG, prior_estimate
 
     model, path = tiny
     gappy = cmu.positions.copy()
@@ -158,7 +158,7 @@ def test_the_model_is_a_prior_of_the_default(tiny, cmu, tmp_path):
     src = tmp_path / "gappy.c3d"
     mocapfill.write(cmu.with_positions(gappy), src)
     report = tmp_path / "r.json"
-    result = CliRunner().invoke(cli, ["fill", str(src), str(tmp_path / "o.c3d"), "-m", "auto-next", "--model",
+    result = CliRunner().invoke(cli, ["fill", str(src), str(tmp_path / "o.c3d"), "--model",
                                       str(path), "--report", str(report)])
     assert result.exit_code == 0, result.output
     settings = json.loads(report.read_text())["summary"]["settings"]

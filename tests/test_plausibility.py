@@ -15,7 +15,7 @@ import pytest
 
 import mocapfill
 from mocapfill.evaluation.occlusions import make_occlusions
-from mocapfill.methods.auto import MIN_SPEED_MM, fill_auto, mix_by_uncertainty
+from mocapfill.methods.auto_stack import MIN_SPEED_MM, fill_auto_stack, mix_by_uncertainty
 from mocapfill.guards.plausibility import (body_centre, implausible, observed_speed, plausibility,
                                             project_plausible)
 from mocapfill.units import length_factor
@@ -66,7 +66,7 @@ def test_dense_gaps_learn_from_incomplete_frames(sample_data):
     pos, hidden, _ = trial.apply(data.positions)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = fill_auto(pos, units=data.units, rate=data.rate, labels=data.labels)
+        res = fill_auto_stack(pos, units=data.units, rate=data.rate, labels=data.labels)
     err = np.linalg.norm(res.positions[hidden] - data.positions[hidden], axis=1)
     assert np.median(err) < 15.0 and np.sqrt(np.mean(err ** 2)) < 45.0
     assert all("method" in g and "reason" in g for g in res.info["gap_methods"])

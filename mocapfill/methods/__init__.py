@@ -52,15 +52,16 @@ METHODS: dict[str, MethodSpec] = {
         MethodSpec("bolero-sc", "bolero:fill_bolero_sc", "DynaMMo with soft bone-length constraints", True),
         MethodSpec("bilinear", "bilinear:fill_bilinear", "DCT-conditioned bilinear spatiotemporal basis", False),
         MethodSpec("pca", "pca:fill_pca", "distance-weighted PCA (Gloersen & Federolf 2016)", True),
-        MethodSpec("auto", "auto:fill_auto", "the most accurate combination measured (default)", True),
+        MethodSpec("auto", "auto:fill_auto", "one model: local weighted PCA fused with a white-jerk motion model by "
+                   "one smoother (default)", True),
+        MethodSpec("auto-stack", "auto_stack:fill_auto_stack", "the previous default, a stack of corrections around "
+                   "the local PCA (kept one release for comparison)", True),
         MethodSpec("woltring", "suite:fill_woltring", "quintic spline through the frames around each gap (Nexus)",
                    False, may_decline=True),
         MethodSpec("pattern", "suite:fill_pattern", "one donor's shape + a linear bridge of the offset (Nexus)",
                    False, may_decline=True),
         MethodSpec("rigid", "suite:fill_rigid", "3+ donors carried as a rigid body, both ends blended (Nexus)",
                    False, may_decline=True),
-        MethodSpec("auto-next", "auto_next:fill_auto_next", "local weighted PCA fused with a white-jerk motion "
-                   "model by one smoother", True),
         MethodSpec("opensim-ik", "kinematic:fill_opensim_ik", "kinematic fill: OpenSim IK on the observed markers, "
                    "the missing ones read off the fitted model (needs --ik-model; extra mocapfill[opensim])", True,
                    "ik_model"),

@@ -1,6 +1,6 @@
-"""Reference takes and a learned model as the candidate default's inputs (issue 26 for ``auto-next``): the weights
-reach it through the same plumbing as ``auto``, each local model keeps references only where they help, and a
-denoiser's estimate is fused as a second spatial measurement (:func:`mocapfill.methods.auto_next.prior_stage`)."""
+"""Reference takes and a learned model as the default's inputs (issue 26): the weights
+reach it through the pipeline, each local model keeps references only where they help, and a
+denoiser's estimate is fused as a second spatial measurement (:func:`mocapfill.methods.auto.prior_stage`)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 import mocapfill
 from mocapfill.markers import MarkerData
 from mocapfill.methods import get_method
-from mocapfill.methods.auto_next import prior_stage
+from mocapfill.methods.auto import prior_stage
 
 
 @pytest.fixture(scope="module")
@@ -61,12 +61,12 @@ def test_prior_stage_fuses_by_inverse_variance():
     np.testing.assert_array_equal(p2_sd, sd)
 
 
-def test_weighted_references_reach_auto_next(halves, gappy):
+def test_weighted_references_reach_auto(halves, gappy):
     first, second = halves
     data, hidden = gappy
-    assert {"reference_frames", "reference_weights", "model"} <= get_method("auto-next").parameters()
-    plain = mocapfill.fill(data, "auto-next")
-    with_ref = mocapfill.fill(data, "auto-next", reference=second)
+    assert {"reference_frames", "reference_weights", "model"} <= get_method("auto").parameters()
+    plain = mocapfill.fill(data, "auto")
+    with_ref = mocapfill.fill(data, "auto", reference=second)
     (take,) = with_ref.info["reference_takes"]
     assert 0.05 < take["weight"] < 0.5  # below the weightless methods' cut: only weights let it in
     used = with_ref.info["references"]
@@ -82,15 +82,15 @@ def test_each_model_keeps_a_wrong_body_out(halves, gappy):
     data, hidden = gappy
     rng = np.random.default_rng(0)
     other = second.positions * np.array([1.3, 0.8, 1.1]) + rng.normal(0, 30.0, size=(1, second.n_markers, 3))
-    plain = mocapfill.fill(data, "auto-next")
-    forced = mocapfill.fill(data.positions, "auto-next", reference_frames=other,
+    plain = mocapfill.fill(data, "auto")
+    forced = mocapfill.fill(data.positions, "auto", reference_frames=other,
                             reference_weights=np.ones(len(other)), rate=data.rate)
     assert forced.info["references"]["used"] < forced.info["references"]["models"]
     assert rmse(forced, first, hidden) < 1.1 * rmse(plain, first, hidden)
 
 
-def test_fill_reference_reports_how_much_auto_next_used_it(halves, tmp_path):
-    """``fill --reference`` reaches auto-next with its weight; the report says how many local models kept it."""
+def test_fill_reference_reports_how_much_auto_used_it(halves, tmp_path):
+    """``fill --reference`` reaches the default with its weight; the report says how many local models kept it."""
     import json
 
     from click.testing import CliRunner
@@ -104,7 +104,7 @@ def test_fill_reference_reports_how_much_auto_next_used_it(halves, tmp_path):
     mocapfill.write(first.with_positions(gappy), tmp_path / "a.c3d")
     mocapfill.write(second, tmp_path / "b.c3d")
     report = tmp_path / "r.json"
-    result = CliRunner().invoke(cli, ["fill", str(tmp_path / "a.c3d"), str(tmp_path / "o.c3d"), "-m", "auto-next",
+    result = CliRunner().invoke(cli, ["fill", str(tmp_path / "a.c3d"), str(tmp_path / "o.c3d"), "-m", "auto",
                                       "--reference", str(tmp_path / "b.c3d"), "--report", str(report)])
     assert result.exit_code == 0, result.output
     (ref,) = json.loads(report.read_text())["summary"]["settings"]["references"]
