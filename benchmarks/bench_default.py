@@ -55,7 +55,7 @@ def accuracy(trials: int, seed: int, extra: list[str], results: harness.Results)
     """Main table through mocapfill.evaluation; returns {(clip, protocol): {method: rmse array (mm)}}."""
     methods = ["pca", "auto", *extra]
     out = {}
-    rows = []
+    rows, calib = [], []
     print(f"\n## Accuracy: {trials} trials per protocol, seed {seed}, gaps 10-50 % of the clip (errors in mm)")
     print(f"{'clip':14s} {'protocol':8s} {'method':10s} {'median':>8s} {'mean':>8s} {'bone err':>9s} "
           f"{'s/fill':>7s} {'auto wins':>9s}")
@@ -84,6 +84,9 @@ def accuracy(trials: int, seed: int, extra: list[str], results: harness.Results)
                       f"{np.nanmean(rmse[:, j]):8.2f} {np.nanmedian(bone[:, j]):9.2f} {np.nanmedian(secs[:, j]):7.3f} "
                       f"{'' if method == 'auto' else f'{100 * wins:8.0f}%':>9s}")
             out[(clip, protocol)] = table
+            ratio = res.values("error_ratio")[:, methods.index("auto")]
+            calib.append([clip, protocol, round(float(np.nanmin(ratio)), 2), round(float(np.nanmedian(ratio)), 2),
+                          round(float(np.nanmax(ratio)), 2), int(np.sum((ratio >= 0.5) & (ratio <= 2))), len(ratio)])
     results.table("accuracy", f"{trials} trials per clip and protocol (seed {seed}), gaps of 10-50 % of the clip; "
                   "median / mean RMSE over the hidden samples, median bone-length error, mm; share of trials where "
                   "`auto`'s RMSE is lower", ["clip", "protocol", "method", "median", "mean", "bone error",
@@ -115,6 +118,16 @@ def accuracy(trials: int, seed: int, extra: list[str], results: harness.Results)
             pooled.append([clip, protocol, round(float(p), 2), round(float(a), 2), round(100 * (1 - a / p)), None])
     results.table("pooled", "median RMSE (mm), `auto` against the published weighted PCA (`pca`)",
                   ["clips", "protocol", "`pca`", "`auto`", "auto lower by %", "auto wins % of trials"], pooled)
+    # issue 21's calibration floor: evaluate's err/std (RMS error per coordinate / RMS std) within 0.5-2 per trial
+    inside, total = sum(r[5] for r in calib), sum(r[6] for r in calib)
+    print(f"\nCalibration of auto (err/std per trial, 0.5-2 asked): {inside} of {total} trials inside")
+    for r in calib:
+        print(f"  {r[0]:14s} {r[1]:6s} min {r[2]:5.2f} median {r[3]:5.2f} max {r[4]:5.2f}  inside {r[5]}/{r[6]}")
+    results.table("calibration", "`auto`'s err/std per trial (RMS error per coordinate over the hidden samples / RMS "
+                  "of its std there; issue 21 asks 0.5-2 on every trial)",
+                  ["clip", "protocol", "min", "median", "max", "trials inside 0.5-2", "trials"], calib)
+    results.figure("calibration/auto/trials_inside", inside, "trials", "higher")
+    results.figure("calibration/auto/trials_outside", total - inside, "trials", "lower")
     return out
 
 

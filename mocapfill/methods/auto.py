@@ -82,11 +82,12 @@ class ModelConfig:
     #: unchanged, but basket_sprint's largest filled acceleration 0.20 against 0.054 m/frame^2, observed 0.074).
     rigid_nearest: int = 0
     #: Where the local PCA still has no prediction (a marker seen in too few frames to train a local model), the
-    #: global distance-weighted PCA of ``pca`` (Gloersen & Federolf) predicts it with this sd (mm; 0: off).  ``pca``'s
-    #: own std is no guide there (16x its error on CMU 16_08).  16_08 (239 frames, dense 20 %): markers seen in 6 of
-    #: 239 frames were bridged by the motion alone 1.8 m off; ``pca``'s error there was 66 mm median, 135 at the 90th
-    #: percentile.
-    global_sd_mm: float = 100.0
+    #: global distance-weighted PCA of ``pca`` (Gloersen & Federolf) predicts it with this sd (mm; 0: off; its own
+    #: std is no guide there, 16x its error on CMU 16_08).  16_08 dense 20 % (markers seen in 6 of 239 frames were
+    #: bridged by the motion alone 1.8 m off): RMSE 348 / 532 mm without, 42 / 44 with 100, 48 / 47 with 300, pca
+    #: 66 / 58; but 100 made Walking_Hybrid_1_1's fill jerky (largest filled acceleration 66.8 against 36.1
+    #: observed), 300 does not.
+    global_sd_mm: float = 300.0
     #: Observed frames on either side of a gap where the spatial model's error is measured for the smoother.
     edge_frames: int = 3
     #: Correlation time of the spatial prediction's error (the old edge bridge's 30 frames at 120 Hz).
