@@ -13,9 +13,10 @@ The model (equations in ``ARCHITECTURE.md``, "The default's model"), each stage 
    :func:`body_stage`: a missing sample the local PCA could not predict (its neighbourhood vanished with it)
    rides rigidly on its nearest markers seen at that frame, its scatter relative to them as the standard deviation
    (:func:`mocapfill.engines.local_pca.rigid_prediction`).
-   :func:`global_stage`: a missing sample still without a prediction (a marker seen in too few frames to train a
-   local model) takes the global distance-weighted PCA's (:func:`global_prediction`, the ``pca`` method) with sd
-   :attr:`ModelConfig.global_sd_mm`, so it moves with the body rather than being bridged by the motion alone.
+   :func:`global_stage` (off by default, as measured): a missing sample still without a prediction (a marker seen
+   in too few frames to train a local model) takes the global distance-weighted PCA's (:func:`global_prediction`,
+   the ``pca`` method) with sd :attr:`ModelConfig.global_sd_mm`, so it moves with the body rather than being
+   bridged by the motion alone.
 2. :func:`bone_stage` (optional): each frame's predictions move to the most probable positions given their
    standard deviations and the bone lengths' spread (:func:`mocapfill.bones.refinement.refine_bones`).
 3. :func:`temporal_stage`: per marker, a damped white-jerk state-space model with the spatial prediction's
@@ -82,12 +83,13 @@ class ModelConfig:
     #: unchanged, but basket_sprint's largest filled acceleration 0.20 against 0.054 m/frame^2, observed 0.074).
     rigid_nearest: int = 0
     #: Where the local PCA still has no prediction (a marker seen in too few frames to train a local model), the
-    #: global distance-weighted PCA of ``pca`` (Gloersen & Federolf) predicts it with this sd (mm; 0: off; its own
-    #: std is no guide there, 16x its error on CMU 16_08).  16_08 dense 20 % (markers seen in 6 of 239 frames were
-    #: bridged by the motion alone 1.8 m off): RMSE 348 / 532 mm without, 42 / 44 with 100, 48 / 47 with 300, pca
-    #: 66 / 58; but 100 made Walking_Hybrid_1_1's fill jerky (largest filled acceleration 66.8 against 36.1
-    #: observed), 300 does not.
-    global_sd_mm: float = 300.0
+    #: global distance-weighted PCA of ``pca`` (Gloersen & Federolf) predicts it with this sd (mm; 0: off, as
+    #: measured).  CMU 16_08 dense 20 % (markers seen in 6 of 239 frames, bridged by the motion alone 1.8 m off):
+    #: RMSE 348 / 532 mm off, 48 / 47 with 300, pca 66 / 58; but on the real kineticstoolkit duplicate_labels.c3d
+    #: (74 % missing) ``pca``'s own fill is wild there and 300 made the default's largest filled acceleration 1,037
+    #: against 41 observed (off: 23.6) and its time 10.2 against 4.5 CPU s.  A sd that knows when ``pca`` is wild
+    #: would be needed.
+    global_sd_mm: float = 0.0
     #: Observed frames on either side of a gap where the spatial model's error is measured for the smoother.
     edge_frames: int = 3
     #: Correlation time of the spatial prediction's error (the old edge bridge's 30 frames at 120 Hz).
