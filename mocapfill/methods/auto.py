@@ -13,9 +13,9 @@ The model (equations in ``ARCHITECTURE.md``, "The default's model"), each stage 
    :func:`body_stage`: a missing sample the local PCA could not predict (its neighbourhood vanished with it)
    rides rigidly on its nearest markers seen at that frame, its scatter relative to them as the standard deviation
    (:func:`mocapfill.engines.local_pca.rigid_prediction`).
-   :func:`global_stage` (off by default, as measured): a missing sample still without a prediction (a marker seen
-   in too few frames to train a local model) takes the global distance-weighted PCA's (:func:`global_prediction`,
-   the ``pca`` method) with sd :attr:`ModelConfig.global_sd_mm`, so it moves with the body rather than being
+   :func:`global_stage`: a missing sample still without a prediction (a marker seen in too few frames to train a
+   local model) takes the global distance-weighted PCA's (:func:`global_prediction`, the ``pca`` method; only where
+   it stays inside the body) with sd :attr:`ModelConfig.global_sd_mm`, so it moves with the body rather than being
    bridged by the motion alone.
 2. :func:`bone_stage` (optional): each frame's predictions move to the most probable positions given their
    standard deviations and the bone lengths' spread (:func:`mocapfill.bones.refinement.refine_bones`).
@@ -83,13 +83,12 @@ class ModelConfig:
     #: unchanged, but basket_sprint's largest filled acceleration 0.20 against 0.054 m/frame^2, observed 0.074).
     rigid_nearest: int = 0
     #: Where the local PCA still has no prediction (a marker seen in too few frames to train a local model), the
-    #: global distance-weighted PCA of ``pca`` (Gloersen & Federolf) predicts it with this sd (mm; 0: off, as
-    #: measured).  CMU 16_08 dense 20 % (markers seen in 6 of 239 frames, bridged by the motion alone 1.8 m off):
-    #: RMSE 348 / 532 mm off, 48 / 47 with 300, pca 66 / 58; but on the real kineticstoolkit duplicate_labels.c3d
-    #: (74 % missing) ``pca``'s own fill is wild there and 300 made the default's largest filled acceleration 1,037
-    #: against 41 observed (off: 23.6) and its time 10.2 against 4.5 CPU s.  A sd that knows when ``pca`` is wild
-    #: would be needed.
-    global_sd_mm: float = 0.0
+    #: global distance-weighted PCA of ``pca`` (Gloersen & Federolf) predicts it with this sd (mm; 0: off), where that
+    #: prediction stays inside the body (:func:`global_prediction`).  CMU 16_08 dense 20 % (markers seen in 6 of 239
+    #: frames, bridged by the motion alone 1.8 m off): RMSE 348 / 532 mm off, 42 / 44 with 100, 48 / 46 with 300,
+    #: pca 66 / 58; 100 made Walking_Hybrid_1_1's fill jerky (66.8 against 36.1 mm/frame^2 observed), 300 does not.
+    #: Without the inside-the-body mask, duplicate_labels.c3d (74 % missing) got a marker 40 m off (pca's fill).
+    global_sd_mm: float = 300.0
     #: Observed frames on either side of a gap where the spatial model's error is measured for the smoother.
     edge_frames: int = 3
     #: Correlation time of the spatial prediction's error (the old edge bridge's 30 frames at 120 Hz).
@@ -328,11 +327,29 @@ def body_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, edge: np
 def global_prediction(positions: np.ndarray, units: str) -> tuple[np.ndarray, np.ndarray]:
     """Stage 1c's prediction: the global distance-weighted PCA (:func:`mocapfill.methods.pca.fill_pca`) of every
     missing sample.  positions (n_frames, n_markers, 3); returns its fill (n_frames, n_markers, 3) and a (n_frames,
-    n_markers) mask of where it has one."""
+    n_markers) mask of where it has one inside the body: a sample that leaves the body's observed extent or steps
+    faster than its marker was seen to (:func:`mocapfill.guards.plausibility.implausible`), or accelerates more than
+    anything observed in the capture, is no prediction (``pca``'s fill can be metres off where few markers are
+    seen)."""
+    from ..guards.plausibility import implausible, observed_speed
     from .pca import fill_pca
 
     res = fill_pca(positions, units=units)
-    return res.positions, np.isfinite(res.positions).all(axis=2)
+    glob = res.positions
+    has = np.isfinite(glob).all(axis=2)
+    acc = np.full(has.shape, np.inf)
+    acc[1:-1] = np.linalg.norm(glob[2:] - 2 * glob[1:-1] + glob[:-2], axis=2)
+    seen = np.isfinite(positions).all(axis=2)
+    triple = seen[2:] & seen[1:-1] & seen[:-2]
+    obs_acc = np.linalg.norm(positions[2:] - 2 * positions[1:-1] + positions[:-2], axis=2)[triple]
+    limit = float(obs_acc.max()) if obs_acc.size else np.inf
+    wild = ~(np.nan_to_num(acc, nan=np.inf) <= limit)
+    missing = ~seen
+    wild |= implausible(np.where(has[..., None], glob, positions), positions,
+                        observed_speed(positions, missing, floor=0.0))
+    wild[1:] |= wild[:-1]  # a wild second difference spoils its three samples
+    wild[:-1] |= wild[1:]
+    return glob, has & ~wild
 
 
 def global_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, glob: np.ndarray, has: np.ndarray,
