@@ -18,14 +18,14 @@ On the CMU 41-marker layout (clips restricted to 85_02's markers, as in ``bench_
     protocols (on tidy gaps it shows what false detections cost); and how many samples it judged displaced.
 
   No mode uses the clean test clip (no oracle).
-  - ``auto --model`` (``--method auto-next``: the candidate default): the largest model's estimate as a second
+  - ``auto --model``: the largest model's estimate as a second
     spatial measurement of the default (:func:`mocapfill.methods.auto.prior_stage`), after its detection on the
     random protocol.  (``--protocols dense,segment`` too: 20 % hidden, body segments hidden.)
 - **speed**: the learned fill's time per 1,000 frames (the largest model, one test clip).
 
 Run from the repository root (about 30 min on the shared, loaded 2-core machine)::
 
-    python benchmarks/bench_learned.py [--trials 3] [--steps 2000] [--seed 26] [--method auto-next]
+    python benchmarks/bench_learned.py [--trials 3] [--steps 2000] [--seed 26] [--method auto-stack]
         [--sizes small,medium,large] [--protocols random,marker]
 
 Writes ``benchmarks/results/bench_learned.json``; tables on stderr.
@@ -78,7 +78,7 @@ def main() -> None:
     parser.add_argument("--blocks", type=int, default=2)
     parser.add_argument("--seed", type=int, default=26)
     parser.add_argument("--method", default="auto", help="the default measured beside the learned fill (e.g. "
-                        "auto-next, the candidate default)")
+                        "auto-stack, the previous default)")
     parser.add_argument("--sizes", default=",".join(SIZES), help="training sizes to train (the largest given is the "
                         "model of the --denoise and --model columns)")
     parser.add_argument("--protocols", default="random,marker",

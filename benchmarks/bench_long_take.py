@@ -19,7 +19,7 @@ median error at most 1.5x the part's.
 Run from the repository root::
 
     python benchmarks/bench_long_take.py [--frames 72000] [--part 5000] [--modes part,windows,windows-2jobs,default]
-        [--method auto-next]
+        [--method auto-stack]
 """
 
 from __future__ import annotations

@@ -21,9 +21,10 @@ benchmarks/results/bench_references_forced.json``).
 
 Run from the repository root (about 40 min on the shared, heavily loaded 2-core machine)::
 
-    python benchmarks/bench_references.py [--trials 2] [--seed 26] [--sets same,other] [--method auto-next]
+    python benchmarks/bench_references.py [--trials 2] [--seed 26] [--sets same,other] [--method auto-stack]
 
-(``--method auto-next --results benchmarks/results/bench_references_auto_next.json``: the candidate default.)
+(``benchmarks/results/bench_references_auto_next.json`` holds the run of the one-model default, 2026-11-26,
+when it was still named ``auto-next``.)
 
 Writes ``benchmarks/results/bench_references.json``; tables on stderr.
 """
@@ -104,7 +105,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=26)
     parser.add_argument("--sets", default="same,other")
     parser.add_argument("--method", default="auto", help="the fill measured with and without references (e.g. "
-                        "auto-next, the candidate default)")
+                        "auto-stack, the previous default)")
     parser.add_argument("--force-weight", action="store_true",
                         help="weight every reference 1 (the body-fit weighting off): what the per-model "
                              "cross-validation alone keeps out")
