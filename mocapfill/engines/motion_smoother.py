@@ -231,9 +231,9 @@ def smooth(
         # observation: H = e_x
         if has_obs[t].any():
             r = model.r_obs if obs_var is None else obs_var[t]
-            m, P = _update(m, P, None, y_obs[t], np.where(has_obs[t], r, np.inf))
+            m, P = _update(m, P, y_obs[t], np.where(has_obs[t], r, np.inf))
         if has_sp[t].any():
-            m, P = _update(m, P, None, y_sp[t], r_sp[t], bias=s_sp[t])
+            m, P = _update(m, P, y_sp[t], r_sp[t], bias=s_sp[t])
         mf[t], Pf[t] = m, P
     # backward (RTS)
     ms, Ps = mf[-1].copy(), Pf[-1].copy()
@@ -260,29 +260,19 @@ def _noise(Q: np.ndarray, gain: np.ndarray | None, t: int) -> np.ndarray:
     return out
 
 
-def _unit_x(n: int) -> np.ndarray:
-    H = np.zeros((n, N_STATE))
-    H[:, 0] = 1.0
-    return H
+def _update(m: np.ndarray, P: np.ndarray, y: np.ndarray, r: np.ndarray, bias: np.ndarray | None = None
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """One scalar-measurement Kalman update per series (shared by the three axes), H = e_x + bias e_b.
 
-
-def _update(m: np.ndarray, P: np.ndarray, H: np.ndarray | None, y: np.ndarray, r: np.ndarray,
-            bias: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """One scalar-measurement Kalman update per series (shared by the three axes).
-
-    m (S, 4, 3), P (S, 4, 4), H (S, 4), y (S, 3), r (S,) (inf: no measurement, the series is left alone).  H None:
-    H = e_x + bias e_b with bias (S,) (None: 0), computed without the zero terms.
+    m (S, 4, 3), P (S, 4, 4), y (S, 3), r (S,) (inf: no measurement, the series is left alone), bias (S,) the
+    measurement's loading on the correlated error b (None: 0, an observation of x).  P H, H P H^T and H m are
+    computed from the two non-zero entries of H.
     """
     ok = np.isfinite(r)
-    if H is None:  # H = e_x + bias e_b: the same sums as below without their zero terms (identical results)
-        s = (np.zeros(len(m)) if bias is None else bias)[:, None]
-        PH = P[:, :, 0] + P[:, :, 3] * s  # (S, 4)
-        innov_var = (PH[:, 0] + PH[:, 3] * s[:, 0]) + np.where(ok, r, 0.0)
-        Hm = m[:, 0] + m[:, 3] * s
-    else:
-        PH = np.einsum("sij,sj->si", P, H)  # (S, 4)
-        innov_var = np.einsum("si,si->s", H, PH) + np.where(ok, r, 0.0)
-        Hm = np.einsum("si,sic->sc", H, m)
+    s = (np.zeros(len(m)) if bias is None else bias)[:, None]
+    PH = P[:, :, 0] + P[:, :, 3] * s  # (S, 4)
+    innov_var = (PH[:, 0] + PH[:, 3] * s[:, 0]) + np.where(ok, r, 0.0)
+    Hm = m[:, 0] + m[:, 3] * s
     K = np.where(ok[:, None], PH / np.where(ok, innov_var, 1.0)[:, None], 0.0)  # (S, 4)
     resid = y - Hm  # (S, 3)
     resid = np.where(ok[:, None], resid, 0.0)

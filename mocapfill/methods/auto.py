@@ -331,6 +331,7 @@ def global_prediction(positions: np.ndarray, units: str) -> tuple[np.ndarray, np
     faster than its marker was seen to (:func:`mocapfill.guards.plausibility.implausible`), or accelerates more than
     anything observed in the capture, is no prediction (``pca``'s fill can be metres off where few markers are
     seen)."""
+    from ..evaluation.smoothness import accelerations
     from ..guards.plausibility import implausible, observed_speed
     from .pca import fill_pca
 
@@ -338,15 +339,13 @@ def global_prediction(positions: np.ndarray, units: str) -> tuple[np.ndarray, np
     glob = res.positions
     has = np.isfinite(glob).all(axis=2)
     acc = np.full(has.shape, np.inf)
-    acc[1:-1] = np.linalg.norm(glob[2:] - 2 * glob[1:-1] + glob[:-2], axis=2)
-    seen = np.isfinite(positions).all(axis=2)
-    triple = seen[2:] & seen[1:-1] & seen[:-2]
-    obs_acc = np.linalg.norm(positions[2:] - 2 * positions[1:-1] + positions[:-2], axis=2)[triple]
-    limit = float(obs_acc.max()) if obs_acc.size else np.inf
+    acc[1:-1] = accelerations(glob)
+    observed = accelerations(positions)  # NaN wherever one of the three samples is missing
+    observed = observed[np.isfinite(observed)]
+    limit = float(observed.max()) if observed.size else np.inf
     wild = ~(np.nan_to_num(acc, nan=np.inf) <= limit)
-    missing = ~seen
     wild |= implausible(np.where(has[..., None], glob, positions), positions,
-                        observed_speed(positions, missing, floor=0.0))
+                        observed_speed(positions, ~np.isfinite(positions).all(axis=2), floor=0.0))
     wild[1:] |= wild[:-1]  # a wild second difference spoils its three samples
     wild[:-1] |= wild[1:]
     return glob, has & ~wild
