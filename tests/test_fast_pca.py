@@ -49,3 +49,13 @@ def test_cv_curve_matches_row_by_row_reconstruction(case):
                    holdout=holdout)
     np.testing.assert_allclose(got, want, rtol=1e-8)
     assert np.argmin(got[0]) == np.argmin(want[0])
+
+
+def test_cv_curve_of_an_exactly_predicted_marker_is_finite_and_not_negative():
+    # a rigid marker: its coordinates are a linear function of the predictors' (the error is round-off only)
+    rng = np.random.default_rng(7)
+    pred = rng.normal(size=(300, 4, 3)) * 50 + 800.0
+    target = pred[:, :1] * 0.5 + pred[:, 1:2] * 0.5
+    flat = np.concatenate([target, pred], axis=1).reshape(300, -1)
+    curve = cv_curve(flat, np.arange(300), np.array([0]), np.arange(1, 5), np.ones(5))
+    assert np.isfinite(curve).all() and (curve >= 0).all()

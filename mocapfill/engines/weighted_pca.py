@@ -288,7 +288,8 @@ def _fold_errors(model: PCAModel, h1: np.ndarray, h2: np.ndarray, hn: float) -> 
     # sum_{i,j<=k} u_i S_ij u_j grows by 2 u_k sum_{i<k} S_ik u_i + S_kk u_k^2 at step k
     below = np.triu(gram_s, 1).T @ u  # (K, nt): row k = sum_{i<k} S_ik u_i
     step = u * (2.0 * below + np.diag(gram_s)[:, None] * u) - 2.0 * u * a
-    return np.diag(cent)[:nt][None, :] + np.cumsum(step, axis=0)
+    # a marker the predictors fix exactly has error ~0, which the expansion's round-off can take below zero
+    return np.maximum(np.diag(cent)[:nt][None, :] + np.cumsum(step, axis=0), 0.0)
 
 
 def cv_curve(
