@@ -69,7 +69,8 @@ class ModelConfig:
     seed_scales_mm: tuple[float, ...] = (200.0,)
     seed_knn: int = 0
     #: Contiguous blocks of the training frames held out in turn to choose each local model's number of components
-    #: and to measure its error (the spatial sd).
+    #: and to measure its error (the spatial sd).  3 measured worse (bench_default_captures vicon-arm limb 11.6 -> 14.4
+    #: mm, segment 31.9 -> 40.7, 85_02 dense-30 38.4 -> 43.1) for 20 % less time.
     cv_folds: int = 5
     #: Width of the weights of the local frame's alignment (Kabsch) on the neighbours.
     align_mm: float = 200.0
