@@ -266,6 +266,32 @@ def weighted_sums(block: np.ndarray, row_weight: np.ndarray | None) -> tuple[np.
     return wb.sum(axis=0), block.T @ wb, float(row_weight.sum())
 
 
+def _fold_errors(model: PCAModel, h1: np.ndarray, h2: np.ndarray, hn: float) -> np.ndarray:
+    """Summed squared error (K, nt) of a held-out block's targets reconstructed with the first k = 1..K components.
+
+    h1 (q,), h2 (q, q), hn: the block's raw sums (sum x, sum x x^T, rows) in ``model.columns`` order.  With the
+    block centred on the model's mean, c = x - mean, the scores are s = B_p^T D_p c_p (D = weight / scale, B_p the
+    basis' predictor rows) and the reconstruction error of target coordinate t with k components is
+    e_t(k) = -c_t + sum_{j<=k} s_j u_tj, u_tj = B_tj scale_t / weight_t.  Summed over the rows,
+    sum e_t(k)^2 = C_tt - 2 sum_{j<=k} u_tj A_jt + sum_{i,j<=k} u_ti S_ij u_tj with C the block's centred Gram,
+    A = B_p^T D_p C_pt and S = B_p^T D_p C_pp D_p B_p: every truncation from q x q sums, without touching the rows
+    again (the cost no longer grows with the block's length).
+    """
+    nt = model.n_target
+    mean, basis = model.mean, model.basis
+    cent = h2 - np.outer(h1, mean) - np.outer(mean, h1) + hn * np.outer(mean, mean)  # sum c c^T (q, q)
+    d = (model.weight / model.scale)[nt:]
+    bp = basis[nt:] * d[:, None]  # (q_p, K): scores s = bp^T c_p
+    a = bp.T @ cent[nt:, :nt]  # (K, nt): sum over rows of s c_t
+    gram_s = bp.T @ cent[nt:, nt:] @ bp  # (K, K): sum over rows of s s^T
+    u = basis[:nt].T * (model.scale[:nt] / model.weight[:nt])  # (K, nt)
+    # sum_{i,j<=k} u_i S_ij u_j grows by 2 u_k sum_{i<k} S_ik u_i + S_kk u_k^2 at step k
+    below = np.triu(gram_s, 1).T @ u  # (K, nt): row k = sum_{i<k} S_ik u_i
+    step = u * (2.0 * below + np.diag(gram_s)[:, None] * u) - 2.0 * u * a
+    # a marker the predictors fix exactly has error ~0, which the expansion's round-off can take below zero
+    return np.maximum(np.diag(cent)[:nt][None, :] + np.cumsum(step, axis=0), 0.0)
+
+
 def cv_curve(
     flat: np.ndarray,
     train: np.ndarray,
@@ -300,27 +326,14 @@ def cv_curve(
     count = 0
     for rows in blocks:
         held = block_all[rows]
-        h1, h2, hn = weighted_sums(held, None if row_weight is None else row_weight[rows])
+        hw = None if row_weight is None else row_weight[rows]
+        h1, h2, hn = weighted_sums(held, hw)
         gram = (s1 - h1, s2 - h2, n - hn)
         model = fit_model(flat, train, targets, predictors, marker_weight, normalise=normalise, gram=gram,
                           components=len(columns))
-        z = (held - model.mean) / model.scale * model.weight
-        z[:, :nt] = 0.0
-        scores = z @ model.basis  # (b, K)
-        # reconstruction with the first k components, for every k: cumulative sum over components
-        contrib = scores[:, :, None] * model.basis[:nt][None, :, :].transpose(0, 2, 1)  # (b, K, nt)
-        # in place (the same operations in the same order, without four temporaries of this size)
-        recon = np.cumsum(contrib, axis=1, out=contrib)
-        recon /= model.weight[:nt]
-        recon *= model.scale[:nt]
-        recon += model.mean[:nt]
-        recon -= held[:, None, :nt]
-        recon *= recon
-        k_avail = recon.shape[1]
-        err = recon.sum(axis=0)  # (K, nt)
-        sq[:k_avail] += err
-        if k_avail < len(columns):  # rank-deficient fold: later truncations equal the last
-            sq[k_avail:] += err[-1]
+        if hw is not None and not np.all(hw == 1.0):  # the error counts every held row once
+            h1, h2, hn = weighted_sums(held, None)
+        sq += _fold_errors(model, h1, h2, hn)
         count += len(rows)
     per = sq / count  # (q, nt)
     return per.reshape(len(columns), len(targets), 3).mean(axis=2).T

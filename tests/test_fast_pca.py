@@ -1,0 +1,61 @@
+"""The cross-validation curve from the held-out blocks' sums equals the one from reconstructing every row."""
+
+import numpy as np
+import pytest
+
+from mocapfill.engines.weighted_pca import _blocks, cv_curve, fit_model, weighted_sums
+
+
+def curve_by_rows(flat, train, targets, predictors, marker_weight, row_weight=None, holdout=None):
+    """The plain computation: every held-out row reconstructed with k = 1..q components."""
+    cols = np.concatenate([3 * t + np.arange(3) for t in np.concatenate([targets, predictors])])
+    block_all = flat[np.ix_(train, cols)]
+    s1, s2, n = weighted_sums(block_all, row_weight)
+    rows_out = np.arange(len(train)) if holdout is None else np.flatnonzero(holdout)
+    nt = 3 * len(targets)
+    sq, count = np.zeros((len(cols), nt)), 0
+    for b in _blocks(len(rows_out), 5):
+        rows = rows_out[b]
+        held = block_all[rows]
+        h1, h2, hn = weighted_sums(held, None if row_weight is None else row_weight[rows])
+        model = fit_model(flat, train, targets, predictors, marker_weight, gram=(s1 - h1, s2 - h2, n - hn),
+                          components=len(cols))
+        z = (held - model.mean) / model.scale * model.weight
+        z[:, :nt] = 0.0
+        scores = z @ model.basis
+        for k in range(1, len(cols) + 1):
+            recon = scores[:, :k] @ model.basis[:nt, :k].T / model.weight[:nt] * model.scale[:nt] + model.mean[:nt]
+            sq[k - 1] += ((recon - held[:, :nt]) ** 2).sum(axis=0)
+        count += len(rows)
+    return (sq / count).reshape(len(cols), len(targets), 3).mean(axis=2).T
+
+
+@pytest.mark.parametrize("case", range(6))
+def test_cv_curve_matches_row_by_row_reconstruction(case):
+    rng = np.random.default_rng(case)
+    n_markers, n = 6 + case, 150 + 40 * case
+    flat = rng.normal(size=(n, 3)) @ rng.normal(size=(3, 3 * n_markers)) * 40 + rng.normal(size=(n, 3 * n_markers))
+    flat += rng.normal(size=3 * n_markers) * 300  # off-centre, as laboratory coordinates are
+    train = np.sort(rng.choice(n, n - 20, replace=False))
+    weight = rng.uniform(0.05, 1.0, n_markers)
+    row_weight = holdout = None
+    if case % 2:
+        row_weight = rng.uniform(0.2, 1.0, len(train))
+        if case % 3:
+            holdout = rng.uniform(size=len(train)) < 0.7
+            row_weight[holdout] = 1.0
+    want = curve_by_rows(flat, train, np.array([0]), np.arange(1, n_markers), weight, row_weight, holdout)
+    got = cv_curve(flat, train, np.array([0]), np.arange(1, n_markers), weight, row_weight=row_weight,
+                   holdout=holdout)
+    np.testing.assert_allclose(got, want, rtol=1e-8)
+    assert np.argmin(got[0]) == np.argmin(want[0])
+
+
+def test_cv_curve_of_an_exactly_predicted_marker_is_finite_and_not_negative():
+    # a rigid marker: its coordinates are a linear function of the predictors' (the error is round-off only)
+    rng = np.random.default_rng(7)
+    pred = rng.normal(size=(300, 4, 3)) * 50 + 800.0
+    target = pred[:, :1] * 0.5 + pred[:, 1:2] * 0.5
+    flat = np.concatenate([target, pred], axis=1).reshape(300, -1)
+    curve = cv_curve(flat, np.arange(300), np.array([0]), np.arange(1, 5), np.ones(5))
+    assert np.isfinite(curve).all() and (curve >= 0).all()
