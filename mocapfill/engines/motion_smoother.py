@@ -245,8 +245,9 @@ def smooth(
     X0[:, :N_STATE] = np.moveaxis(P, 0, -1)
     X0[:, N_STATE:] = 0.0
     X0[0, N_STATE:] = np.asarray(init, dtype=float).T
-    # predicted from t - 1, then the entries the update reads: [P[:, 0], m[0]] and [P[:, 3], m[3]] (H = e_x + s e_b)
-    Xp = np.empty((T, _NA + 2 * _NC, S))
+    Xp = np.empty((T, _NX, S))  # predicted from t - 1 (the backward pass reuses them)
+    # a prediction, then the entries the update reads: [P[:, 0], m[0]] and [P[:, 3], m[3]] (H = e_x + s e_b)
+    pred = np.empty((_NA + 2 * _NC, S))
     A = _transition_rows(F, model.phi).T.copy()
     y1 = np.ascontiguousarray(np.swapaxes(y1, 1, 2))
     W = np.empty((_NC, S))  # the update's right factor: [P H, H m - y]
@@ -254,8 +255,8 @@ def smooth(
     for t in range(T):
         X = Xf[t, :_NX]
         if t:
-            pred = Xp[t]
             np.matmul(A, Xf[t - 1], out=pred)
+            Xp[t] = pred[:_NX]
             if do1[t]:
                 _update(pred[:_NX], pred[_NA:_NA + _NC], pred[_NA + _NC:], X, W, outer, y1[t], r1[t], s1[t])
             else:
@@ -268,14 +269,15 @@ def smooth(
             Pt = X.reshape(N_STATE, _NC, S)[:, :N_STATE]
             Pt[...] = (Pt + np.swapaxes(Pt, 0, 1)) / 2
             _update(X, X[_HX], X[_HB], X, W, outer, y_sp[t].T, r2[t], s2[t])
-    # backward (RTS) on the (T, 4, 7, S) [P | m] blocks
-    Bf = Xf[:, :_NX].reshape(T, N_STATE, _NC, S)
-    Pf = Bf[:, :, :N_STATE]
-    np.multiply(Pf + np.swapaxes(Pf, 1, 2), 0.5, out=Pf)  # symmetrised against round-off after the updates
-    Bs = np.empty((T, N_STATE, _NC, S))  # smoothed
-    Bs[-1] = Bf[-1]
+    # backward (RTS) on the (T, 4, 7, S) [P | m] blocks; the smoothed ones overwrite the filtered ones
+    B = Xf[:, :_NX].reshape(T, N_STATE, _NC, S)
+    Pf = B[:, :, :N_STATE]
+    for i in range(N_STATE):  # symmetrised against round-off after the updates
+        for j in range(i + 1, N_STATE):
+            np.multiply(Pf[:, i, j] + Pf[:, j, i], 0.5, out=Pf[:, i, j])
+            Pf[:, j, i] = Pf[:, i, j]
     if T > 1:  # the gains of every frame at once: G = Pf F^T Pp^-1  <=>  Pp G^T = F Pf
-        Bp = Xp[1:, :_NX].reshape(T - 1, N_STATE, _NC, S)
+        Bp = Xp[1:].reshape(T - 1, N_STATE, _NC, S)
         FPf = np.zeros((T - 1, N_STATE, N_STATE, S))
         for i, k in zip(*np.nonzero(F)):
             FPf[:, i] += F[i, k] * Pf[:-1, k]
@@ -287,14 +289,14 @@ def smooth(
         Dv, Ev = np.moveaxis(D, 2, 0), np.moveaxis(E, 2, 0)
         for t in range(T - 2, -1, -1):
             if t % 16 == 0:  # see _TINY
-                Bt = Bs[t + 1]
+                Bt = B[t + 1]
                 Bt[np.abs(Bt) < _TINY] = 0.0
-            np.subtract(Bs[t + 1], Bp[t], out=D)
+            np.subtract(B[t + 1], Bp[t], out=D)
             G = G_all[t]
             np.matmul(G, Dv, out=Ev)  # [G (Ps - Pp), G (ms - mp)]
             np.matmul(Ev[:, :, :N_STATE], np.swapaxes(G, 1, 2), out=Ev[:, :, :N_STATE])  # [G (Ps - Pp) G^T, ..]
-            np.add(Bf[t], E, out=Bs[t])
-    return np.moveaxis(Bs[:, 0, N_STATE:], 1, 2).copy(), np.sqrt(np.clip(Bs[:, 0, 0], 0.0, None))
+            B[t] += E
+    return np.moveaxis(B[:, 0, N_STATE:], 1, 2).copy(), np.sqrt(np.clip(B[:, 0, 0], 0.0, None))
 
 
 #: Layout of a series' state in :func:`smooth`: [P | m] (4 x 7) row by row, then q gain and 1.
