@@ -276,23 +276,25 @@ def smooth(
         for j in range(i + 1, N_STATE):
             np.multiply(Pf[:, i, j] + Pf[:, j, i], 0.5, out=Pf[:, i, j])
             Pf[:, j, i] = Pf[:, i, j]
-    if T > 1:  # the gains of every frame at once: G = Pf F^T Pp^-1  <=>  Pp G^T = F Pf
-        Bp = Xp[1:].reshape(T - 1, N_STATE, _NC, S)
-        FPf = np.zeros((T - 1, N_STATE, N_STATE, S))
+    Bp = Xp.reshape(T, N_STATE, _NC, S)
+    D = np.empty((N_STATE, _NC, S))
+    E = np.empty((N_STATE, _NC, S))
+    Dv, Ev = np.moveaxis(D, 2, 0), np.moveaxis(E, 2, 0)
+    for stop in range(T - 1, 0, -_CHUNK):
+        start = max(stop - _CHUNK, 0)
+        # the gains of a chunk of frames at once (frames below stop are still filtered):
+        # G = Pf F^T Pp^-1  <=>  Pp G^T = F Pf
+        FPf = np.zeros((stop - start, N_STATE, N_STATE, S))
         for i, k in zip(*np.nonzero(F)):
-            FPf[:, i] += F[i, k] * Pf[:-1, k]
-        Gt_all = _solve_spd(Bp[:, :, :N_STATE], FPf)  # (T - 1, 4, 4, S): G^T (in FPf's place)
-        # the per-frame products batched over the series: (S, 4, 4) views
-        G_all = np.moveaxis(Gt_all, 3, 1).swapaxes(2, 3)
-        D = np.empty((N_STATE, _NC, S))
-        E = np.empty((N_STATE, _NC, S))
-        Dv, Ev = np.moveaxis(D, 2, 0), np.moveaxis(E, 2, 0)
-        for t in range(T - 2, -1, -1):
+            FPf[:, i] += F[i, k] * Pf[start:stop, k]
+        Gt_all = _solve_spd(Bp[start + 1:stop + 1, :, :N_STATE], FPf)  # G^T (in FPf's place)
+        G_all = np.moveaxis(Gt_all, 3, 1).swapaxes(2, 3)  # the per-frame products batched over the series
+        for t in range(stop - 1, start - 1, -1):
             if t % 16 == 0:  # see _TINY
                 Bt = B[t + 1]
                 Bt[np.abs(Bt) < _TINY] = 0.0
-            np.subtract(B[t + 1], Bp[t], out=D)
-            G = G_all[t]
+            np.subtract(B[t + 1], Bp[t + 1], out=D)
+            G = G_all[t - start]
             np.matmul(G, Dv, out=Ev)  # [G (Ps - Pp), G (ms - mp)]
             np.matmul(Ev[:, :, :N_STATE], np.swapaxes(G, 1, 2), out=Ev[:, :, :N_STATE])  # [G (Ps - Pp) G^T, ..]
             B[t] += E
@@ -310,6 +312,8 @@ _HB = np.array([3, _NC + 3, 2 * _NC + 3, 3 * _NC + 3, _NX - 3, _NX - 2, _NX - 1]
 #: observed frame and would otherwise become subnormal numbers (each costing ~100 cycles per arithmetic operation)
 #: in long observed stretches; at 1e-150 they are far below the round-off of anything they are combined with.
 _TINY = 1e-150
+#: Frames whose smoother gains are computed at once (batched over frames and series, a bounded working set).
+_CHUNK = 512
 
 
 def _transition_rows(F: np.ndarray, phi: float) -> np.ndarray:
