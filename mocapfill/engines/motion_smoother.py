@@ -195,7 +195,7 @@ def smooth(
     calls as possible, on contiguous arrays: the states of all series are the columns of one array, predicted
     (process noise included) by one matrix product; a frame's observation or spatial prediction is one scalar update
     per series (the series that have both, rare, take the spatial one in a second update); what does not depend on
-    the recursion (the measurement schedule, the smoother's gains) is computed for all frames at once.
+    the recursion is computed for many frames at once (the measurement schedule; the smoother's gains, by chunks).
     """
     T, S, _ = obs.shape
     F = transition(model)[0]
