@@ -42,6 +42,8 @@ import numpy as np
 N_STATE = 4
 #: Integral of the squared quadratic B-spline: Var(third difference of x) = JERK_GAIN * q for white jerk.
 JERK_GAIN = 11.0 / 20.0
+#: Process noise of (x, v, a) over one frame per unit jerk density.
+_JERK = np.array([[1 / 20, 1 / 8, 1 / 6], [1 / 8, 1 / 3, 1 / 2], [1 / 6, 1 / 2, 1.0]])
 
 
 class MotionModel(NamedTuple):
@@ -66,9 +68,8 @@ def transition(model: MotionModel) -> tuple[np.ndarray, np.ndarray]:
     rho, phi = model.rho, model.phi
     rho_a = rho if model.rho_acc is None else model.rho_acc
     F = np.array([[1.0, 1.0, 0.5, 0.0], [0.0, rho, 1.0, 0.0], [0.0, 0.0, rho_a, 0.0], [0.0, 0.0, 0.0, phi]])
-    jerk = np.array([[1 / 20, 1 / 8, 1 / 6], [1 / 8, 1 / 3, 1 / 2], [1 / 6, 1 / 2, 1.0]])
     Q = np.zeros((len(model.q), N_STATE, N_STATE))
-    Q[:, :3, :3] = np.asarray(model.q, dtype=float)[:, None, None] * jerk
+    Q[:, :3, :3] = np.asarray(model.q, dtype=float)[:, None, None] * _JERK
     Q[:, 3, 3] = 1.0 - phi ** 2
     return F, Q
 
@@ -189,27 +190,27 @@ def smooth(
     Returns
     -------
     mean (n_frames, n_series, 3), sd (n_frames, n_series): per-coordinate posterior standard deviation.
+
+    The cost is the per-frame overhead of NumPy calls on small arrays, not arithmetic, so each frame does as few
+    calls as possible, on contiguous arrays: the states of all series are the columns of one array, predicted
+    (process noise included) by one matrix product; a frame's observation or spatial prediction is one scalar update
+    per series (the series that have both, rare, take the spatial one in a second update); what does not depend on
+    the recursion is computed for many frames at once (the measurement schedule; the smoother's gains, by chunks).
     """
     T, S, _ = obs.shape
-    F, Q = transition(model)
+    F = transition(model)[0]
     has_obs = np.isfinite(obs).all(axis=2)
     has_sp = np.isfinite(spatial).all(axis=2) & np.isfinite(spatial_sd) & np.isfinite(bias_sd)
-    r_sp = np.where(has_sp, spatial_sd ** 2, np.inf)
-    s_sp = np.where(has_sp, bias_sd, 0.0)
     y_obs = np.nan_to_num(obs)
     y_sp = np.nan_to_num(spatial)
-    if init is None:
-        first = np.where(has_obs[..., None], y_obs, np.where(has_sp[..., None], y_sp, np.nan))
-        init = np.zeros((S, 3))
-        for s in range(S):
-            rows = np.flatnonzero(np.isfinite(first[:, s, 0]))
-            if len(rows):
-                init[s] = first[rows[0], s]
+    if init is None:  # the first measurement of each series (0: none)
+        seen = has_obs | has_sp
+        t0, cols = np.argmax(seen, axis=0), np.arange(S)
+        init = np.where(has_obs[t0, cols, None], y_obs[t0, cols], y_sp[t0, cols])
+        init[~seen[t0, cols]] = 0.0
     vals = np.concatenate([obs[has_obs], spatial[has_sp]]) if (has_obs.any() or has_sp.any()) else np.zeros((1, 3))
-    spread = float(np.nanmax(np.nanstd(vals, axis=0))) if len(vals) > 1 else 1.0
+    spread = float(np.max(np.std(vals, axis=0))) if len(vals) > 1 else 1.0  # (vals are finite)
     big = 1e6 * max(spread, 1.0) ** 2
-    m = np.zeros((S, N_STATE, 3))
-    m[:, 0] = init
     P = np.zeros((S, N_STATE, N_STATE))
     P[:, 0, 0] = big
     # velocity and acceleration start from their stationary spread (not diffuse: a gap at the take's start must not
@@ -220,63 +221,166 @@ def smooth(
     P[:, 2, 2] = var_a
     P[:, 1, 1] = var_a / max(1.0 - model.rho, 1e-9) ** 2
     P[:, 3, 3] = 1.0
-    mf = np.empty((T, S, N_STATE, 3))
-    Pf = np.empty((T, S, N_STATE, N_STATE))
-    mpred = np.empty((T, S, N_STATE, 3))  # predictions from t - 1 (the backward pass reuses them)
-    Ppred = np.empty((T, S, N_STATE, N_STATE))
+
+    # the measurements as (at most) two scalar updates per frame and series: H = e_x + s e_b, variance r (inf: none)
+    r_o = np.full((T, S), model.r_obs, dtype=float) if obs_var is None else np.asarray(obs_var, dtype=float)
+    has_obs &= np.isfinite(r_o)  # (an observed sample without a variance is not used)
+    both = has_obs & has_sp
+    r1 = np.where(has_obs, r_o, np.where(has_sp, spatial_sd ** 2, np.inf))
+    s1 = np.where(has_obs | ~has_sp, 0.0, np.nan_to_num(bias_sd))
+    y1 = np.where(has_obs[..., None], y_obs, y_sp)
+    r2 = np.where(both, spatial_sd ** 2, np.inf)
+    s2 = np.where(both, np.nan_to_num(bias_sd), 0.0)
+    do1 = np.isfinite(r1).any(axis=1).tolist()
+    do2 = both.any(axis=1).tolist()
+
+    # The forward pass holds each series' state in a column: its [P | m] (4 x 7) row by row, then q gain[t] and 1,
+    # through which the prediction adds the process noise (the update leaves both alone).  Component-major: every
+    # operation of a frame is on a few contiguous rows of n_series values.
+    Xf = np.empty((T, _NA, S))  # filtered
+    Xf[:, _NX] = np.asarray(model.q, dtype=float)[None, :] * (
+        1.0 if model.gain is None else np.asarray(model.gain, dtype=float)[:T, None])
+    Xf[:, _NX + 1] = 1.0
+    X0 = Xf[0, :_NX].reshape(N_STATE, _NC, S)
+    X0[:, :N_STATE] = np.moveaxis(P, 0, -1)
+    X0[:, N_STATE:] = 0.0
+    X0[0, N_STATE:] = np.asarray(init, dtype=float).T
+    Xp = np.empty((T, _NX, S))  # predicted from t - 1 (the backward pass reuses them)
+    # a prediction, then the entries the update reads: [P[:, 0], m[0]] and [P[:, 3], m[3]] (H = e_x + s e_b)
+    pred = np.empty((_NA + 2 * _NC, S))
+    A = _transition_rows(F, model.phi).T.copy()
+    y1 = np.ascontiguousarray(np.swapaxes(y1, 1, 2))
+    W = np.empty((_NC, S))  # the update's right factor: [P H, H m - y]
+    outer = np.empty((N_STATE, _NC, S))
     for t in range(T):
+        X = Xf[t, :_NX]
         if t:
-            m = mpred[t] = np.einsum("ij,sjc->sic", F, m)
-            P = Ppred[t] = F @ P @ F.T + _noise(Q, model.gain, t - 1)
-        # observation: H = e_x
-        if has_obs[t].any():
-            r = model.r_obs if obs_var is None else obs_var[t]
-            m, P = _update(m, P, y_obs[t], np.where(has_obs[t], r, np.inf))
-        if has_sp[t].any():
-            m, P = _update(m, P, y_sp[t], r_sp[t], bias=s_sp[t])
-        mf[t], Pf[t] = m, P
-    # backward (RTS)
-    ms, Ps = mf[-1].copy(), Pf[-1].copy()
-    mean = np.empty((T, S, 3))
-    var = np.empty((T, S))
-    mean[-1], var[-1] = ms[:, 0], Ps[:, 0, 0]
-    if T > 1:  # the gains of every frame in one batched solve: G = Pf F^T Pp^-1  <=>  Pp G^T = F Pf
-        Pp_all = (Ppred[1:] + np.swapaxes(Ppred[1:], 2, 3)) / 2
-        G_all = np.swapaxes(np.linalg.solve(Pp_all, F @ Pf[:-1]), 2, 3)
-    for t in range(T - 2, -1, -1):
-        G, Pp = G_all[t], Pp_all[t]
-        ms = mf[t] + G @ (ms - mpred[t + 1])
-        Ps = Pf[t] + G @ (Ps - Pp) @ np.swapaxes(G, 1, 2)
-        mean[t], var[t] = ms[:, 0], Ps[:, 0, 0]
-    return mean, np.sqrt(np.clip(var, 0.0, None))
+            np.matmul(A, Xf[t - 1], out=pred)
+            Xp[t] = pred[:_NX]
+            if do1[t]:
+                _update(pred[:_NX], pred[_NA:_NA + _NC], pred[_NA + _NC:], X, W, outer, y1[t], r1[t], s1[t])
+            else:
+                X[...] = pred[:_NX]
+        elif do1[t]:
+            _update(X, X[_HX], X[_HB], X, W, outer, y1[t], r1[t], s1[t])
+        if t % 16 == 15:  # see _TINY
+            X[np.abs(X) < _TINY] = 0.0
+        if do2[t]:  # the spatial prediction after the observation (both, rare): P symmetrised in between
+            Pt = X.reshape(N_STATE, _NC, S)[:, :N_STATE]
+            Pt[...] = (Pt + np.swapaxes(Pt, 0, 1)) / 2
+            _update(X, X[_HX], X[_HB], X, W, outer, y_sp[t].T, r2[t], s2[t])
+    # backward (RTS) on the (T, 4, 7, S) [P | m] blocks; the smoothed ones overwrite the filtered ones
+    B = Xf[:, :_NX].reshape(T, N_STATE, _NC, S)
+    Pf = B[:, :, :N_STATE]
+    for i in range(N_STATE):  # symmetrised against round-off after the updates
+        for j in range(i + 1, N_STATE):
+            np.multiply(Pf[:, i, j] + Pf[:, j, i], 0.5, out=Pf[:, i, j])
+            Pf[:, j, i] = Pf[:, i, j]
+    Bp = Xp.reshape(T, N_STATE, _NC, S)
+    D = np.empty((N_STATE, _NC, S))
+    E = np.empty((N_STATE, _NC, S))
+    Dv, Ev = np.moveaxis(D, 2, 0), np.moveaxis(E, 2, 0)
+    for stop in range(T - 1, 0, -_CHUNK):
+        start = max(stop - _CHUNK, 0)
+        # the gains of a chunk of frames at once (frames below stop are still filtered):
+        # G = Pf F^T Pp^-1  <=>  Pp G^T = F Pf
+        FPf = np.zeros((stop - start, N_STATE, N_STATE, S))
+        for i, k in zip(*np.nonzero(F)):
+            FPf[:, i] += F[i, k] * Pf[start:stop, k]
+        Gt_all = _solve_spd(Bp[start + 1:stop + 1, :, :N_STATE], FPf)  # G^T (in FPf's place)
+        G_all = np.moveaxis(Gt_all, 3, 1).swapaxes(2, 3)  # the per-frame products batched over the series
+        for t in range(stop - 1, start - 1, -1):
+            if t % 16 == 0:  # see _TINY
+                Bt = B[t + 1]
+                Bt[np.abs(Bt) < _TINY] = 0.0
+            np.subtract(B[t + 1], Bp[t + 1], out=D)
+            G = G_all[t - start]
+            np.matmul(G, Dv, out=Ev)  # [G (Ps - Pp), G (ms - mp)]
+            np.matmul(Ev[:, :, :N_STATE], np.swapaxes(G, 1, 2), out=Ev[:, :, :N_STATE])  # [G (Ps - Pp) G^T, ..]
+            B[t] += E
+    return np.moveaxis(B[:, 0, N_STATE:], 1, 2).copy(), np.sqrt(np.clip(B[:, 0, 0], 0.0, None))
 
 
-def _noise(Q: np.ndarray, gain: np.ndarray | None, t: int) -> np.ndarray:
-    """Process noise (S, 4, 4) from frame t to t + 1: the jerk block scaled by gain[t]."""
-    if gain is None:
-        return Q
-    out = Q.copy()
-    out[:, :3, :3] *= gain[t]
-    return out
+#: Layout of a series' state in :func:`smooth`: [P | m] (4 x 7) row by row, then q gain and 1.
+_NC = N_STATE + 3
+_NX = N_STATE * _NC
+_NA = _NX + 2
+#: Where [P[:, 0], m[0]] and [P[:, 3], m[3]] are in it.
+_HX = np.array([0, _NC, 2 * _NC, 3 * _NC, 4, 5, 6])
+_HB = np.array([3, _NC + 3, 2 * _NC + 3, 3 * _NC + 3, _NX - 3, _NX - 2, _NX - 1])
+#: Entries of the state below this are set to 0: the correlations of b with x, v, a shrink by a factor at every
+#: observed frame and would otherwise become subnormal numbers (each costing ~100 cycles per arithmetic operation)
+#: in long observed stretches; at 1e-150 they are far below the round-off of anything they are combined with.
+_TINY = 1e-150
+#: Frames whose smoother gains are computed at once (batched over frames and series, a bounded working set).
+_CHUNK = 512
 
 
-def _update(m: np.ndarray, P: np.ndarray, y: np.ndarray, r: np.ndarray, bias: np.ndarray | None = None
-            ) -> tuple[np.ndarray, np.ndarray]:
+def _transition_rows(F: np.ndarray, phi: float) -> np.ndarray:
+    """A (30, 44): a row of the forward pass (see :func:`smooth`) times A is the prediction of the next frame,
+    P -> F P F^T + Q, m -> F m, q gain and 1 kept (the caller sets q gain per frame), then the entries the update
+    reads (_HX, _HB) again.
+
+    P is read as (P + P^T) / 2, so the round-off of the update's two halves is averaged (as symmetrising would),
+    and P F^T's two halves come from the same coefficients: the prediction is exactly symmetric."""
+    A = np.zeros((_NA, _NA))
+    for i in range(N_STATE):
+        for j in range(N_STATE):
+            for k in range(N_STATE):
+                for l in range(N_STATE):
+                    A[k * _NC + l, i * _NC + j] = 0.5 * (F[i, k] * F[j, l] + F[i, l] * F[j, k])
+            for c in range(3):
+                A[j * _NC + N_STATE + c, i * _NC + N_STATE + c] = F[i, j]
+    jerk = np.zeros((N_STATE, _NC))
+    jerk[:3, :3] = _JERK
+    A[_NX, :_NX] = jerk.ravel()
+    A[_NX + 1, (N_STATE - 1) * (_NC + 1)] = 1.0 - phi ** 2
+    A[_NX, _NX] = A[_NX + 1, _NX + 1] = 1.0
+    return np.concatenate([A, A[:, _HX], A[:, _HB]], axis=1)
+
+
+def _update(X: np.ndarray, hx: np.ndarray, hb: np.ndarray, out: np.ndarray, W: np.ndarray, outer: np.ndarray,
+            y: np.ndarray, r: np.ndarray, bias: np.ndarray) -> None:
     """One scalar-measurement Kalman update per series (shared by the three axes), H = e_x + bias e_b.
 
-    m (S, 4, 3), P (S, 4, 4), y (S, 3), r (S,) (inf: no measurement, the series is left alone), bias (S,) the
-    measurement's loading on the correlated error b (None: 0, an observation of x).  P H, H P H^T and H m are
-    computed from the two non-zero entries of H.
+    Component-major (see :func:`smooth`): X (28, S) the [P | m] before, hx / hb (7, S) its [P[:, 0], m[0]] /
+    [P[:, 3], m[3]], out (28, S) after (may be X); W (7, S) and outer (4, 7, S) scratch; y (3, S), r (S,) (inf: no
+    measurement, the series is left alone: its gain is 0), bias (S,) the measurement's loading on the correlated
+    error b (0: an observation of x).  P is left unsymmetrised (the next prediction reads (P + P^T) / 2).
     """
-    ok = np.isfinite(r)
-    s = (np.zeros(len(m)) if bias is None else bias)[:, None]
-    PH = P[:, :, 0] + P[:, :, 3] * s  # (S, 4)
-    innov_var = (PH[:, 0] + PH[:, 3] * s[:, 0]) + np.where(ok, r, 0.0)
-    Hm = m[:, 0] + m[:, 3] * s
-    K = np.where(ok[:, None], PH / np.where(ok, innov_var, 1.0)[:, None], 0.0)  # (S, 4)
-    resid = y - Hm  # (S, 3)
-    resid = np.where(ok[:, None], resid, 0.0)
-    m = m + K[:, :, None] * resid[:, None, :]
-    # Joseph-free form is fine for scalar updates with r > 0; symmetrise against round-off
-    P = P - K[:, :, None] * PH[:, None, :]
-    return m, (P + np.swapaxes(P, 1, 2)) / 2
+    np.multiply(hb, bias, out=W)  # [P H, H m - y]
+    W += hx
+    W[N_STATE:] -= y
+    innov_var = (W[0] + W[3] * bias) + r  # inf where r is
+    K = W[:N_STATE] / innov_var  # (4, S); 0 where r is inf
+    np.multiply(K[:, None], W[None], out=outer)
+    np.subtract(X.reshape(outer.shape), outer, out=out.reshape(outer.shape))
+
+
+def _solve_spd(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """X with A X = B for symmetric positive-definite 4 x 4 A (N, 4, 4, S) and B (N, 4, k, S) (the matrices in axes
+    1, 2), in B's place: an LDL^T factorisation written out over the batch (np.linalg.solve loops over the tiny
+    matrices one by one)."""
+    n = A.shape[1]
+    b = B
+    L = [[None] * n for _ in range(n)]
+    d = [None] * n
+    for j in range(n):
+        dj = A[:, j, j].copy()
+        for k in range(j):
+            dj -= L[j][k] * L[j][k] * d[k]
+        d[j] = dj
+        for i in range(j + 1, n):
+            v = A[:, i, j].copy()
+            for k in range(j):
+                v -= L[i][k] * L[j][k] * d[k]
+            L[i][j] = v / dj
+    for i in range(n):  # L z = b
+        for k in range(i):
+            b[:, i] -= L[i][k][:, None] * b[:, k]
+    for i in range(n):  # D w = z
+        b[:, i] /= d[i][:, None]
+    for i in range(n - 1, -1, -1):  # L^T x = w
+        for k in range(i + 1, n):
+            b[:, i] -= L[k][i][:, None] * b[:, k]
+    return b
