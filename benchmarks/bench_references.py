@@ -24,7 +24,8 @@ Run from the repository root (about 40 min on the shared, heavily loaded 2-core 
     python benchmarks/bench_references.py [--trials 2] [--seed 26] [--sets same,other] [--method auto-stack]
 
 (``benchmarks/results/bench_references_auto_next.json`` holds the run of the one-model default, 2026-11-26,
-when it was still named ``auto-next``.)
+when it was still named ``auto-next``; ``bench_references_auto_stack.json`` the run of 2026-11-25 with the previous
+default, now ``auto-stack``.)
 
 Writes ``benchmarks/results/bench_references.json``; tables on stderr.
 """
