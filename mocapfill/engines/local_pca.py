@@ -67,9 +67,11 @@ def kabsch_rotations(shapes: np.ndarray, reference: np.ndarray, weights: np.ndar
     shapes (n, p, 3) and reference (p, 3) are already centred on their weighted centroids; weights (p,).
     Row-vector convention: an aligned point is ``x @ R``.
     """
-    # the best proper rotation of the weighted cross-covariance (n, 3, 3)
-    # matmul instead of einsum: the same sums (to round-off), ten times faster on these shapes
-    return nearest_rotation(np.swapaxes(shapes, 1, 2) @ (weights[:, None] * reference))
+    # the best proper rotation of the weighted cross-covariance (n, 3, 3): one (3 n, p) x (p, 3) product instead of
+    # n stacked ones (the same sums, bit for bit; half the cost)
+    n, p = shapes.shape[:2]
+    cross = (np.swapaxes(shapes, 1, 2).reshape(3 * n, p) @ (weights[:, None] * reference)).reshape(n, 3, 3)
+    return nearest_rotation(cross)
 
 
 def local_frames(
@@ -81,7 +83,7 @@ def local_frames(
     (p,); the reference shape is the (one-pass) Procrustes mean over ``reference_frames`` (positions within
     ``frames``).
     """
-    pts = positions[frames][:, anchors]  # (n, p, 3)
+    pts = positions[np.asarray(frames)[:, None], anchors]  # (n, p, 3), without copying the other markers first
     wsum = weights.sum()
     centre = np.einsum("tjc,j->tc", pts, weights) / wsum
     shapes = pts - centre[:, None, :]
@@ -170,12 +172,47 @@ def knn_correction(model, flat: np.ndarray, est_local: np.ndarray, n_train: int,
     z[:, :nt] = 0.0
     zt, zg = z[:n_train], z[n_train:]
     resid = flat[:n_train, model.columns[:nt]] - est_local[:n_train]
-    d2 = (zg ** 2).sum(axis=1)[:, None] + (zt ** 2).sum(axis=1)[None, :] - 2.0 * zg @ zt.T
     k = int(min(k, n_train))
-    near = np.argpartition(d2, k - 1, axis=1)[:, :k]
     out = np.zeros_like(est_local)
-    out[n_train:] = resid[near].mean(axis=1)
+    if len(zg):
+        out[n_train:] = resid[nearest_rows(zg, zt, k)].mean(axis=1)
     return out
+
+
+#: Query rows whose distances are formed and searched at once in :func:`nearest_rows` (the blocks stay in cache).
+_QUERY_CHUNK = 64
+
+
+def nearest_rows(query: np.ndarray, data: np.ndarray, k: int) -> np.ndarray:
+    """Indices (g, k) of the ``k`` rows of ``data`` (n, q) nearest each row of ``query`` (g, q), in no order.
+
+    The squared distances are (|x|^2 + |y|^2) - 2 x.y, the numbers of that expression over all rows at once, formed
+    for a block of query rows at a time; the selection is exactly that of ``np.argpartition(d2, k - 1,
+    axis=1)[:, :k]`` as a set.  Rounding to float32 keeps the order of the distances (ties can only be added), so
+    the k-th smallest float32 value bounds the k nearest: a row with exactly k distances at or below it has found
+    them; a row with more (a float32 or an exact tie) takes the float64 argpartition.
+    """
+    g, n = len(query), len(data)
+    if k >= n:
+        return np.broadcast_to(np.arange(n), (g, n))
+    qn = (query ** 2).sum(axis=1)
+    dn = (data ** 2).sum(axis=1)
+    cross = (2.0 * query) @ data.T  # one product (blocks of it would each repack ``data``)
+    near = np.empty((g, k), dtype=np.intp)
+    for s in range(0, g, _QUERY_CHUNK):
+        d2 = cross[s:s + _QUERY_CHUNK]
+        np.subtract(qn[s:s + _QUERY_CHUNK, None] + dn, d2, out=d2)
+        d32 = d2.astype(np.float32)
+        inside = d32 <= np.partition(d32, k - 1, axis=1)[:, k - 1:k]
+        exact = inside.view(np.uint8).sum(axis=1, dtype=np.int32) == k
+        out = near[s:s + _QUERY_CHUNK]
+        if exact.all():  # (flatnonzero: a 2-d nonzero costs ten times more)
+            out[:] = (np.flatnonzero(inside) % n).reshape(-1, k)
+            continue
+        out[exact] = (np.flatnonzero(inside[exact]) % n).reshape(-1, k)
+        tied = np.flatnonzero(~exact)
+        out[tied] = np.argpartition(d2[tied], k - 1, axis=1)[:, :k]
+    return near
 
 
 def _anchor_set(predictors: np.ndarray, weight: np.ndarray, min_anchors: int = 3, floor: float = 1e-3) -> np.ndarray:
@@ -272,6 +309,34 @@ def marker_weights(dist: np.ndarray, m: int, scales: tuple[float, ...], align_sc
     return weights, gaussian_weights(dist, align_scale)
 
 
+def distances_to(positions: np.ndarray):
+    """``mean_distances(positions, m)`` (:func:`~.weighted_pca.mean_distances`, the same numbers) as a function of
+    ``m``, positions (n_frames, n_markers, 3) read once.
+
+    The coordinate planes are split once for all targets: a norm over the length-3 last axis costs a loop per
+    sample, three plane differences do not.  Per target: (n_markers,), NaN where never co-observed.
+    """
+    planes = [np.ascontiguousarray(positions[..., c]) for c in range(3)]
+
+    def mean_to(m: int) -> np.ndarray:
+        sq = None
+        for plane in planes:  # |d|^2 = (d0^2 + d1^2) + d2^2, as the norm adds them
+            d = plane - plane[:, m:m + 1]
+            d *= d
+            if sq is None:
+                sq = d
+            else:
+                sq += d
+        np.sqrt(sq, out=sq)
+        counts = np.isfinite(sq).sum(axis=0)
+        np.copyto(sq, 0.0, where=np.isnan(sq))  # nansum
+        total = sq.sum(axis=0)
+        with np.errstate(invalid="ignore"):
+            return np.where(counts > 0, total / np.maximum(counts, 1), np.nan)
+
+    return mean_to
+
+
 def _cols(markers: np.ndarray) -> list[int]:
     """Flattened coordinate columns of ``markers`` (3 per marker), as a list."""
     return (3 * np.asarray(markers, dtype=int)[:, None] + np.arange(3)).ravel().tolist()
@@ -325,17 +390,21 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
     used = np.concatenate([train, group])
     n_train = len(train)
     centre, rot = local_frames(positions, used, anchors, align_weight[anchors], np.arange(n_train))
-    local = np.full((len(used), n_markers, 3), np.nan)
-    local[:, needed] = (positions[used][:, needed] - centre[:, None, :]) @ rot
-    flat = local.reshape(len(used), 3 * n_markers)
+    # The local coordinates of the needed markers only, marker j at column block ``slot[j]`` (0 for the target):
+    # the models see the same numbers as in a full-width array, without allocating and indexing its NaN columns.
+    slot = np.full(n_markers, -1)
+    slot[needed] = np.arange(len(needed))
+    flat = ((positions[used[:, None], needed] - centre[:, None, :]) @ rot).reshape(len(used), 3 * len(needed))
+    full_cols = np.asarray(_cols(needed))  # compact column -> column of the (n, 3 n_markers) layout
     tr = np.arange(n_train)
-    target = np.array([m])
+    target = np.array([0])
     ests, rmss, levs, ks, sens = [], [], [], [], []
-    for w, width in zip(weights, scales):
+    for w_all, width in zip(weights, scales):
         # markers beyond ``reach`` widths weigh < 0.012: leaving them out changed no median, only the cost
         pred = predictors[dist[predictors] <= reach * width]
         if len(pred) < 3:
             pred = predictors[np.argsort(dist[predictors])[:3]]
+        pred, w = slot[pred], w_all[needed]
         own = None if row_weight is None else row_weight[train] >= 1.0 - 1e-12
         if own is not None and own.all():
             own = None
@@ -347,12 +416,18 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
         else:
             k = int(np.argmin(curve[0])) + 1
             rms = float(np.sqrt(curve[0, k - 1]))
-        gram = weighted_sums(flat[np.ix_(rows, _cols(target) + _cols(pred))], row_w)
-        model = fit_model(flat, rows, target, pred, w, normalise=normalise, components=k, gram=gram)
+        cols = _cols(target) + _cols(pred)
+        # all training rows: a slice, not a gather of every row (the same block, C-ordered as the sums expect)
+        block = flat[:n_train].take(cols, axis=1) if rows is tr else flat[np.ix_(rows, cols)]
+        model = fit_model(flat, rows, target, pred, w, normalise=normalise, components=k,
+                          gram=weighted_sums(block, row_w))
         est_local, leverage = predict(model, flat)
         if knn:
-            sel = np.concatenate([rows, np.arange(n_train, len(used))])
-            correction = knn_correction(model, flat[sel], est_local[sel], len(rows), knn)
+            if rows is tr:  # training rows first, then the group's: already in that order
+                correction = knn_correction(model, flat, est_local, n_train, knn)
+            else:
+                sel = np.concatenate([rows, np.arange(n_train, len(used))])
+                correction = knn_correction(model, flat[sel], est_local[sel], len(rows), knn)
             est_local[n_train:] += correction[len(rows):]
         if used_references is not None and own is not None:
             used_references.append(bool((~own[rows]).any()))
@@ -365,7 +440,7 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
         gain = (model.weight[nt:] / model.scale[nt:])[:, None] * (model.basis[nt:] @ model.basis[:nt].T) \
             * (model.scale[:nt] / model.weight[:nt])[None, :]
         full = np.zeros((3 * n_markers, 3))
-        full[model.columns[nt:]] = gain
+        full[full_cols[model.columns[nt:]]] = gain
         sens.append(full)
     rmss_a = np.asarray(rmss)
     if np.isfinite(rmss_a).all() and (rmss_a > 0).all():
@@ -467,16 +542,25 @@ def reconstruct_local(
         # a reference row weighs < 1 by construction here, so the capture's own rows are those of weight 1
         row_weight = np.concatenate([np.ones(n_frames), np.minimum(ref_w, 1.0 - 1e-9)])
         info["references"] = {"frames": int(keep.sum()), "models": 0, "used": 0}
+    own_distances = distances_to(positions) if context is None else None
+    if context is None and ref is not None:  # reference frames join the training rows (never the predicted ones)
+        with_refs_src = np.concatenate([positions, ref])
+        with_refs_miss = np.concatenate([missing, np.isnan(ref).any(axis=2)])
     for m in gap_markers:
         frames = np.flatnonzero(missing[:, m])
         src, miss = positions, missing
         if context is not None:  # predictors from the context, the target's own samples as observed
             src, miss = context.copy(), ctx_missing.copy()
             src[:, m], miss[:, m] = positions[:, m], missing[:, m]
-        dist = mean_distances(src, m)
+            dist = mean_distances(src, m)
+        else:
+            dist = own_distances(m)
         if ref is not None:  # reference frames join the training rows (never the predicted ones)
-            src = np.concatenate([src, ref])
-            miss = np.concatenate([miss, np.isnan(ref).any(axis=2)])
+            if context is None:
+                src, miss = with_refs_src, with_refs_miss
+            else:
+                src = np.concatenate([src, ref])
+                miss = np.concatenate([miss, np.isnan(ref).any(axis=2)])
         weights, align_weight = marker_weights(dist, m, scales, align_scale, missing_weight)
         others = np.ones(n_markers, dtype=bool)
         others[m] = False
@@ -583,10 +667,10 @@ def reconstruct_completed(
     known = np.concatenate([~missing, np.isfinite(reference).all(axis=2)]) if reference is not None else ~missing
     finite = np.isfinite(data).all(axis=2)
     estimate, std, info = empty_estimates(n_frames, n_markers)
-    known_data = np.where(known[..., None], data, np.nan)  # once, not per marker
+    known_distances = distances_to(np.where(known[..., None], data, np.nan))  # once, not per marker
     for m in np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0)):
         group = np.flatnonzero(missing[:, m])
-        dist = mean_distances(known_data, m)
+        dist = known_distances(m)
         weights, align_weight = marker_weights(dist, m, scales, align_scale, missing_weight)
         sure = np.ones(n_markers, dtype=bool)
         if trust is not None:
@@ -639,8 +723,9 @@ def rigid_prediction(positions: np.ndarray, todo: np.ndarray, *, nearest: int = 
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
     estimate, std, edges = empty_estimates(n_frames, n_markers)
+    own_distances = distances_to(positions)
     for m in np.flatnonzero(todo.any(axis=0) & ~missing.all(axis=0)):
-        dist = mean_distances(positions, m)
+        dist = own_distances(m)
         dist[m] = np.nan
         order = np.flatnonzero(np.isfinite(dist))
         order = order[np.argsort(dist[order], kind="stable")]
