@@ -249,3 +249,34 @@ def test_markers_seen_in_a_few_frames_move_with_the_body(shared_data):
         return np.sqrt(np.mean(err[np.isfinite(err)] ** 2))
 
     assert rmse("auto") < rmse("pca")
+
+
+def test_max_predictors_bounds_each_models_predictors_and_changes_nothing_at_or_above_the_set():
+    """The cost bound keeps the nearest predictors per width; with the bound at the number of other markers the
+    reconstruction is the one without a bound, to the bit."""
+    import mocapfill.engines.local_pca as lp
+
+    pos = moving_body(n_frames=300, n_markers=12, seed=3)
+    gapped = pos.copy()
+    gapped[100:160, 0] = np.nan
+    widths = []
+    original = lp.cv_curve
+
+    def spy(flat, train, targets, predictors, *args, **kwargs):
+        widths.append(len(predictors))
+        return original(flat, train, targets, predictors, *args, **kwargs)
+
+    lp.cv_curve = spy
+    try:
+        full, full_sd, _ = lp.reconstruct_local(gapped, scales=(3000.0,), align_scale=200.0, knn=0, edge=None)
+        assert max(widths) == 11
+        same, same_sd, _ = lp.reconstruct_local(gapped, scales=(3000.0,), align_scale=200.0, knn=0, edge=None,
+                                                max_predictors=11)
+        widths.clear()
+        capped, _, _ = lp.reconstruct_local(gapped, scales=(3000.0,), align_scale=200.0, knn=0, edge=None,
+                                            max_predictors=4)
+    finally:
+        lp.cv_curve = original
+    assert max(widths) == 4 and np.isfinite(capped[100:160, 0]).all()
+    assert np.array_equal(full, same, equal_nan=True) and np.array_equal(full_sd, same_sd, equal_nan=True)
+    assert DEFAULT_CONFIG.max_predictors >= 40  # every accuracy benchmark's marker set (<= 41 markers) unchanged

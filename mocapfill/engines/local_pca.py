@@ -369,7 +369,7 @@ def _choose_rows(flat: np.ndarray, tr: np.ndarray, own: np.ndarray, rw: np.ndarr
 def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np.ndarray, train: np.ndarray,
                 weights: list[np.ndarray], align_weight: np.ndarray, dist: np.ndarray, scales: tuple[float, ...], *,
                 reach: float, normalise: bool, folds: int, knn: int, row_weight: np.ndarray | None = None,
-                used_references: list | None = None):
+                used_references: list | None = None, max_predictors: int | None = None):
     """One local model of marker ``m``: fitted on ``train`` frames, evaluated on ``train`` then ``group`` frames.
 
     positions (n_frames, n_markers, 3) finite at ``m`` on ``train`` and at ``predictors`` on every frame used;
@@ -382,7 +382,8 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
     ``row_weight`` (n_frames,) or None: the weight of each frame of ``positions`` as a training row, 1 for the
     capture's own frames and below 1 for reference frames; with it each width keeps the reference rows only where
     they lower the cross-validated error on the capture's own rows (:func:`_choose_rows`), and appends whether it
-    kept them to ``used_references``.
+    kept them to ``used_references``.  ``max_predictors``: each width keeps at most this many of its predictors,
+    the nearest (None: all within ``reach``).
     """
     n_markers = positions.shape[1]
     needed = np.concatenate([[m], predictors])
@@ -404,6 +405,8 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
         pred = predictors[dist[predictors] <= reach * width]
         if len(pred) < 3:
             pred = predictors[np.argsort(dist[predictors])[:3]]
+        if max_predictors is not None and len(pred) > max_predictors:
+            pred = pred[np.argsort(dist[pred], kind="stable")[:max_predictors]]
         pred, w = slot[pred], w_all[needed]
         own = None if row_weight is None else row_weight[train] >= 1.0 - 1e-12
         if own is not None and own.all():
@@ -468,6 +471,7 @@ def reconstruct_local(
     knn: int = 10,
     edge: float | str | None = 30.0,
     reach: float = 3.0,
+    max_predictors: int | None = None,
     max_patterns: int = 3,
     min_train: int = MIN_TRAIN_WANTED,
     edge_frames: int = 0,
@@ -489,6 +493,7 @@ def reconstruct_local(
     scales : widths (data units) of the PCA's distance weights, one reconstruction each.
     align_scale : width (data units) of the alignment weights.
     reach : each width uses the markers within ``reach`` times it (farther ones weigh < 0.012).
+    max_predictors : cost bound: each width uses at most this many of them, the nearest (None: all).
     max_patterns : cost bound: a marker's gap frames are split by which predictors are observed there, the
         ``max_patterns - 1`` largest patterns get their own model and the remaining frames share one model whose
         predictors are observed in all of them.
@@ -575,7 +580,8 @@ def reconstruct_local(
             with_refs: list[bool] = []
             est_all, leverage, rms_mix, ks, rmss, anchors, _ = group_model(
                 src, m, group, predictors, train, weights, align_weight, dist, scales, reach=reach,
-                normalise=normalise, folds=folds, knn=knn, row_weight=row_weight, used_references=with_refs)
+                max_predictors=max_predictors, normalise=normalise, folds=folds, knn=knn, row_weight=row_weight,
+                used_references=with_refs)
             n_train = len(train)
             used = np.concatenate([train, group])
             est = est_all[n_train:]
@@ -623,6 +629,7 @@ def reconstruct_completed(
     folds: int = 5,
     knn: int = 10,
     reach: float = 3.0,
+    max_predictors: int | None = None,
     edge_frames: int = 0,
     reference: np.ndarray | None = None,
     leverage_weight: float = 1.0,
@@ -637,7 +644,7 @@ def reconstruct_completed(
     observed).  For each marker with gaps, ONE model whose predictors are all its near markers (within ``reach``
     times the largest width), trained on every frame where the marker is observed (the neighbours' missing samples
     taken from ``completed``), predicts all its missing samples; the predictors' uncertainty is propagated into the
-    prediction's (``sensitivity`` of :func:`group_model`).  reference (n, n_markers, 3) or None: frames of other takes
+    prediction's (``sensitivity`` of :func:`group_model`; ``max_predictors`` as in :func:`reconstruct_local`).  reference (n, n_markers, 3) or None: frames of other takes
     added to the training frames where the marker and its predictors are finite.  Returns estimate (n_frames,
     n_markers, 3) and std (n_frames, n_markers) at the missing samples (NaN elsewhere and where no model could be
     fitted), and the reconstruction / std at up to ``edge_frames`` observed frames either side of each gap.
@@ -686,8 +693,8 @@ def reconstruct_completed(
         if len(near) < 3 or len(train) < MIN_TRAINING_FRAMES:
             continue
         est_all, leverage, rms_mix, _, _, _, sens = group_model(
-            data, m, group, near, train, weights, align_weight, dist, scales, reach=reach, normalise=normalise,
-            folds=folds, knn=knn, row_weight=row_weight,
+            data, m, group, near, train, weights, align_weight, dist, scales, reach=reach,
+            max_predictors=max_predictors, normalise=normalise, folds=folds, knn=knn, row_weight=row_weight,
             used_references=used_references if row_weight is not None else None)
         n_train = len(train)
         with np.errstate(invalid="ignore"):

@@ -72,6 +72,11 @@ class ModelConfig:
     #: and to measure its error (the spatial sd).  3 measured worse (bench_default_captures vicon-arm limb 11.6 -> 14.4
     #: mm, segment 31.9 -> 40.7, 85_02 dense-30 38.4 -> 43.1) for 20 % less time.
     cv_folds: int = 5
+    #: Cost bound: each width of a local model uses at most this many predictors, the nearest (the eigendecompositions
+    #: grow with their cube).  Marker sets of up to 41 markers (every accuracy benchmark) are unchanged; on four
+    #: captures of 51-105 markers (4 protocols x 3 trials) the mean RMSEs moved within 1 % but markers.csv one-marker
+    #: 1.36 -> 1.21 mm and Knee.trc limb 0.09 -> 0.10 mm; Knee.trc 1.07 -> 0.62 s, markers.csv 2.04 -> 1.51 s.
+    max_predictors: int = 40
     #: Width of the weights of the local frame's alignment (Kabsch) on the neighbours.
     align_mm: float = 200.0
     #: Nearest training poses whose mean residual corrects the linear reconstruction (0: none; bench_default medians
@@ -297,6 +302,7 @@ def spatial_stage(positions: np.ndarray, config: ModelConfig, mm: float, *,
     # weighed references train each model beside the capture's frames where its cross-validation keeps them
     pred, sd, info = reconstruct_local(data, scales=tuple(np.asarray(scales) * mm),
                                        align_scale=config.align_mm * mm, knn=knn, edge=None, folds=config.cv_folds,
+                                       max_predictors=config.max_predictors,
                                        edge_frames=config.edge_frames,
                                        reference_frames=reference_frames if weighed else None,
                                        reference_weights=reference_weights if weighed else None)
@@ -382,7 +388,8 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
 
     pred, pred_sd, edge, edge_sd = reconstruct_completed(
         positions, completed, sd, scales=tuple(np.asarray(config.scales_mm) * mm), align_scale=config.align_mm * mm,
-        knn=config.knn, folds=config.cv_folds, edge_frames=config.edge_frames, reference=reference_frames,
+        knn=config.knn, folds=config.cv_folds, max_predictors=config.max_predictors, edge_frames=config.edge_frames,
+        reference=reference_frames,
         leverage_weight=config.leverage_weight, trust=config.impute_trust_mm * mm if config.impute_trust_mm else None,
         reference_weights=reference_weights, used_references=used_references)
     return body_stage(positions, pred, pred_sd, edge, edge_sd, config, mm)
