@@ -64,14 +64,24 @@ def _bone_sums(ia: np.ndarray, ib: np.ndarray, k: int):
             out[:, g_slots] = np.add.reduceat(terms, g_starts, axis=1)
         return out
 
+    h_row, h_col = h_keys // k, h_keys % k
+
     def hess_sum(o: np.ndarray) -> np.ndarray:
-        out = np.zeros((o.shape[0], k * k, 3, 3))
+        out = np.zeros((o.shape[0], k, 3, k, 3))  # block (a, b) at [:, a, :, b, :]: no transposing copy after
         if len(h_order):
             terms = o[:, h_bone[h_order]] * h_sign[h_order][None, :, None, None]
-            out[:, h_keys] = np.add.reduceat(terms, h_starts, axis=1)
-        return out.reshape(o.shape[0], k, k, 3, 3).transpose(0, 1, 3, 2, 4).reshape(o.shape[0], 3 * k, 3 * k)
+            # (indices apart around a slice: the blocks come first in the indexed view)
+            out[:, h_row, :, h_col, :] = np.add.reduceat(terms, h_starts, axis=1).transpose(1, 0, 2, 3)
+        return out.reshape(o.shape[0], 3 * k, 3 * k)
 
     return grad_sum, hess_sum
+
+
+def _norm3(d: np.ndarray) -> np.ndarray:
+    """np.linalg.norm(d, axis=-1) of (..., 3) vectors, the same numbers (squares added in order), without the
+    per-vector loop of a reduction over a length-3 axis."""
+    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+    return np.sqrt(x * x + y * y + z * z)
 
 
 def refine_bones(
@@ -128,18 +138,21 @@ def refine_bones(
         slot[markers] = np.arange(k)
         ia, ib = slot[bp[:, 0]], slot[bp[:, 1]]  # -1 where the end is fixed
         fixed = out[rows]  # (n, M, 3): fixed ends come from here (observed or already filled)
-        target = out[rows][:, markers]  # (n, k, 3)
+        # (the arrays keep the memory layouts of these expressions: the sums below add in layout order)
+        fixed_a, fixed_b = fixed[:, bp[:, 0]], fixed[:, bp[:, 1]]  # (n, nb, 3), once, not per cost evaluation
+        target = fixed[:, markers]  # (n, k, 3)
         prec = 1.0 / std[rows][:, markers] ** 2  # (n, k) per-coordinate precision
+        prec3 = np.repeat(prec, 3, axis=1)
         bw = 1.0 / bs ** 2  # (nb,)
 
         def ends(y):
-            pa = np.where(ia[None, :, None] >= 0, y[:, np.maximum(ia, 0)], fixed[:, bp[:, 0]])
-            pb = np.where(ib[None, :, None] >= 0, y[:, np.maximum(ib, 0)], fixed[:, bp[:, 1]])
+            pa = np.where(ia[None, :, None] >= 0, y[:, np.maximum(ia, 0)], fixed_a)
+            pb = np.where(ib[None, :, None] >= 0, y[:, np.maximum(ib, 0)], fixed_b)
             return pa - pb  # (n, nb, 3)
 
         def cost(y):
             d = ends(y)
-            r = np.linalg.norm(d, axis=2) - bl
+            r = _norm3(d) - bl
             # a bone whose other end is unknown in this frame (missing and not filled) does not count
             d = np.where(np.isfinite(d), d, 0.0)
             r = np.where(np.isfinite(r), r, 0.0)
@@ -149,23 +162,26 @@ def refine_bones(
         f, d, r = cost(y)
         r0 = np.abs(r)
         lam = np.full(len(rows), 1e-3)
-        eye = np.eye(3 * k)
+        diagonal = np.arange(3 * k)
         grad_sum, hess_sum = _bone_sums(ia, ib, k)
         for _ in range(max_iter):
-            norm = np.maximum(np.linalg.norm(d, axis=2, keepdims=True), 1e-300)
+            norm = np.maximum(_norm3(d), 1e-300)[:, :, None]
             unit = d / norm  # (n, nb, 3): dr/dy_a = unit, dr/dy_b = -unit
             weighted = unit * bw[None, :, None]
-            grad = (np.repeat(prec, 3, axis=1) * (y - target).reshape(len(rows), 3 * k)
+            grad = (prec3 * (y - target).reshape(len(rows), 3 * k)
                     + grad_sum(weighted * r[:, :, None]).reshape(len(rows), 3 * k))
             hess = hess_sum(weighted[:, :, :, None] * unit[:, :, None, :])
-            hess[:, np.arange(3 * k), np.arange(3 * k)] += np.repeat(prec, 3, axis=1)
-            diag = hess[:, np.arange(3 * k), np.arange(3 * k)]
-            damped = hess + (lam[:, None] * diag)[:, :, None] * eye
-            step = np.linalg.solve(damped, -grad[:, :, None])[:, :, 0].reshape(y.shape)
+            hess[:, diagonal, diagonal] += prec3
+            # damped = hess + (lam diag(hess)) I: only the diagonal changes, so in place
+            hess[:, diagonal, diagonal] += lam[:, None] * hess[:, diagonal, diagonal]
+            step = np.linalg.solve(hess, -grad[:, :, None])[:, :, 0].reshape(y.shape)
             y_try = y + step
             f_try, d_try, r_try = cost(y_try)
             ok = f_try <= f
-            y[ok], f[ok], d[ok], r[ok] = y_try[ok], f_try[ok], d_try[ok], r_try[ok]
+            if ok.all():
+                y, f, d, r = y_try, f_try, d_try, r_try
+            else:
+                y[ok], f[ok], d[ok], r[ok] = y_try[ok], f_try[ok], d_try[ok], r_try[ok]
             lam = np.where(ok, lam * 0.3, lam * 10.0)
             if np.abs(step[ok]).max(initial=0.0) < 1e-9 * max(float(bl.min()), 1e-12) and ok.all():
                 break

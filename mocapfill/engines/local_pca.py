@@ -279,20 +279,31 @@ def observed_groups(missing: np.ndarray, m: int, frames: np.ndarray, near: np.nd
     return out
 
 
+def edge_mask(group: np.ndarray, n_frames: int, width: int) -> np.ndarray:
+    """(n_frames,) bool: the ``width`` frames before and after each run of the ascending frames ``group`` (both
+    sides of every run, clipped to the take; a run's own frames only where another run's edge reaches them).
+
+    Counted in one pass over the runs' boundaries, not a loop over the runs."""
+    group = np.asarray(group)
+    count = np.zeros(n_frames + 1, dtype=int)
+    if len(group):
+        new_run = np.flatnonzero(np.diff(group) != 1)
+        starts = group[np.concatenate([[0], new_run + 1])]
+        stops = group[np.concatenate([new_run, [len(group) - 1]])] + 1
+        # +1 where an edge interval opens, -1 where it closes: [start - width, start) and [stop, stop + width)
+        np.add.at(count, np.maximum(starts - width, 0), 1)
+        np.add.at(count, starts, -1)
+        np.add.at(count, stops, 1)
+        np.add.at(count, np.minimum(stops + width, n_frames), -1)
+    return np.cumsum(count[:n_frames]) > 0
+
+
 def _edge_samples(info: dict, m: int, group: np.ndarray, train: np.ndarray, est_train: np.ndarray,
                   std_train: np.ndarray, width: int) -> None:
     """Store the reconstruction at the training frames within ``width`` frames of each run of ``group`` (marker
     ``m``) in ``info["edge_estimate"]`` / ``info["edge_std"]``; est_train (n_train, 3), std_train (n_train,)."""
-    from ..gaps import runs
-
     n_frames = info["edge_std"].shape[0]
-    mark = np.zeros(n_frames, dtype=bool)
-    gap = np.zeros(n_frames, dtype=bool)
-    gap[group] = True
-    for start, length in runs(gap):
-        mark[max(start - width, 0):start] = True
-        mark[start + length:start + length + width] = True
-    keep = mark[train]
+    keep = edge_mask(group, n_frames, width)[train]
     info["edge_estimate"][train[keep], m] = est_train[keep]
     info["edge_std"][train[keep], m] = std_train[keep]
 
@@ -572,10 +583,13 @@ def reconstruct_local(
         other_idx = np.flatnonzero(others)
         near = other_idx[np.isfinite(dist[other_idx]) & (dist[other_idx] <= reach * max(scales))]
         near = near[np.argsort(dist[near], kind="stable")]
+        interpolated = None  # the marker's linear interpolation, once for all its groups that need it
         for group, predictors, train in observed_groups(miss, m, frames, near, max_patterns, min_train, row_weight):
             if len(predictors) < 3 or len(train) < MIN_TRAINING_FRAMES:
                 info["fallback"].append(int(m))
-                estimate[group, m] = linear_fallback(positions[:, m], missing[:, m])[group]
+                if interpolated is None:
+                    interpolated = linear_fallback(positions[:, m], missing[:, m])
+                estimate[group, m] = interpolated[group]
                 continue
             with_refs: list[bool] = []
             est_all, leverage, rms_mix, ks, rmss, anchors, _ = group_model(
