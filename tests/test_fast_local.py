@@ -1,7 +1,8 @@
 """Fast paths of the default's spatial model (issue 21, helper "local"): each equals the plain computation it replaces.
 
-The plain versions below are the straightforward forms (the code before the speed changes); the fast ones must give
-the same numbers bit for bit, except the nearest-pose mean, whose neighbours are the same set added in another order.
+The plain versions below are the straightforward forms (the code before the speed changes).  On this machine the fast
+ones give the same numbers bit for bit, except the nearest-pose mean (the same neighbours, added in another order);
+where a BLAS product is grouped differently the tests allow round-off.
 """
 
 from __future__ import annotations
@@ -101,7 +102,8 @@ def test_kabsch_cross_covariance_is_the_stacked_product():
         reference = rng.normal(size=(p, 3)) * 100
         w = rng.random(p)
         plain = nearest_rotation(np.swapaxes(shapes, 1, 2) @ (w[:, None] * reference))
-        assert np.array_equal(lp.kabsch_rotations(shapes, reference, w), plain)
+        # bit for bit with this machine's OpenBLAS; another BLAS may group the products' sums otherwise
+        np.testing.assert_allclose(lp.kabsch_rotations(shapes, reference, w), plain, rtol=0, atol=1e-13)
 
 
 def test_local_frames_gathers_only_the_anchors():
@@ -213,10 +215,14 @@ def test_reconstruct_local_equals_the_full_width_model(monkeypatch):
     monkeypatch.setattr(lp, "group_model", _plain_group_model)
     est0, std0, info0 = lp.reconstruct_local(pos, **kw)
     assert np.isfinite(est).sum() > np.isfinite(pos).sum()  # it filled something
+    # bit for bit on this machine (the Kabsch products' grouping aside, the same numpy and BLAS operations)
     for a, b in [(est, est0), (std, std0), (info["edge_estimate"], info0["edge_estimate"]),
                  (info["edge_std"], info0["edge_std"]), (info["anchors"], info0["anchors"])]:
-        assert np.array_equal(a, b, equal_nan=True)
-    assert info["groups"] == info0["groups"]
+        assert np.array_equal(np.isnan(a), np.isnan(b))
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
+    assert [g["components"] for g in info["groups"]] == [g["components"] for g in info0["groups"]]
+    np.testing.assert_allclose([g["cv_rms"] for g in info["groups"]], [g["cv_rms"] for g in info0["groups"]],
+                               rtol=1e-12)
 
 
 def test_reconstruct_completed_equals_the_full_width_model(monkeypatch):
