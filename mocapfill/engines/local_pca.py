@@ -44,6 +44,7 @@ from .weighted_pca import (
     linear_fallback,
     fit_model,
     gaussian_weights,
+    distances_to,
     mean_distances,
     pattern_groups,
     predict,
@@ -320,32 +321,18 @@ def marker_weights(dist: np.ndarray, m: int, scales: tuple[float, ...], align_sc
     return weights, gaussian_weights(dist, align_scale)
 
 
-def distances_to(positions: np.ndarray):
-    """``mean_distances(positions, m)`` (:func:`~.weighted_pca.mean_distances`, the same numbers) as a function of
-    ``m``, positions (n_frames, n_markers, 3) read once.
+def reference_rows(reference: np.ndarray, weights: np.ndarray, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """The reference frames (n, n_markers, 3) that weigh anything and every training row's weight.
 
-    The coordinate planes are split once for all targets: a norm over the length-3 last axis costs a loop per
-    sample, three plane differences do not.  Per target: (n_markers,), NaN where never co-observed.
+    weights (n,) are clipped to [0, 1]; frames of weight 0 are dropped.  Returns the kept frames (k, n_markers, 3)
+    and the row weights (n_frames + k,): 1 for the capture's own n_frames rows, below 1 for every reference row (so
+    the capture's own rows are those of weight 1, as :func:`_choose_rows` tells them apart).
     """
-    planes = [np.ascontiguousarray(positions[..., c]) for c in range(3)]
-
-    def mean_to(m: int) -> np.ndarray:
-        sq = None
-        for plane in planes:  # |d|^2 = (d0^2 + d1^2) + d2^2, as the norm adds them
-            d = plane - plane[:, m:m + 1]
-            d *= d
-            if sq is None:
-                sq = d
-            else:
-                sq += d
-        np.sqrt(sq, out=sq)
-        counts = np.isfinite(sq).sum(axis=0)
-        np.copyto(sq, 0.0, where=np.isnan(sq))  # nansum
-        total = sq.sum(axis=0)
-        with np.errstate(invalid="ignore"):
-            return np.where(counts > 0, total / np.maximum(counts, 1), np.nan)
-
-    return mean_to
+    ref_w = np.clip(np.asarray(weights, dtype=np.float64), 0.0, 1.0)
+    if ref_w.shape != (len(reference),):
+        raise MethodError(f"reference_weights must have shape ({len(reference)},), got {ref_w.shape}")
+    keep = ref_w > 0
+    return reference[keep], np.concatenate([np.ones(n_frames), np.minimum(ref_w[keep], 1.0 - 1e-9)])
 
 
 def _cols(markers: np.ndarray) -> list[int]:
@@ -549,15 +536,9 @@ def reconstruct_local(
         ref = np.asarray(reference_frames, dtype=np.float64)
         if ref.ndim != 3 or ref.shape[1:] != positions.shape[1:]:
             raise MethodError(f"reference_frames must have shape (n, {n_markers}, 3), got {ref.shape}")
-        ref_w = (np.ones(len(ref)) if reference_weights is None
-                 else np.clip(np.asarray(reference_weights, dtype=np.float64), 0.0, 1.0))
-        if ref_w.shape != (len(ref),):
-            raise MethodError(f"reference_weights must have shape ({len(ref)},), got {ref_w.shape}")
-        keep = ref_w > 0
-        ref, ref_w = ref[keep], ref_w[keep]
-        # a reference row weighs < 1 by construction here, so the capture's own rows are those of weight 1
-        row_weight = np.concatenate([np.ones(n_frames), np.minimum(ref_w, 1.0 - 1e-9)])
-        info["references"] = {"frames": int(keep.sum()), "models": 0, "used": 0}
+        ref, row_weight = reference_rows(ref, np.ones(len(ref)) if reference_weights is None else reference_weights,
+                                         n_frames)
+        info["references"] = {"frames": len(ref), "models": 0, "used": 0}
     own_distances = distances_to(positions) if context is None else None
     if context is None and ref is not None:  # reference frames join the training rows (never the predicted ones)
         with_refs_src = np.concatenate([positions, ref])
@@ -675,12 +656,7 @@ def reconstruct_completed(
     missing = np.isnan(positions).any(axis=2)
     row_weight = None
     if reference is not None and reference_weights is not None:
-        ref_w = np.clip(np.asarray(reference_weights, dtype=np.float64), 0.0, 1.0)
-        if ref_w.shape != (len(reference),):
-            raise MethodError(f"reference_weights must have shape ({len(reference)},), got {ref_w.shape}")
-        reference = reference[ref_w > 0]
-        # a reference row weighs < 1 here, so the capture's own rows are those of weight 1 (as reconstruct_local)
-        row_weight = np.concatenate([np.ones(n_frames), np.minimum(ref_w[ref_w > 0], 1.0 - 1e-9)])
+        reference, row_weight = reference_rows(reference, reference_weights, n_frames)
     data = completed if reference is None else np.concatenate([completed, reference])
     var = np.nan_to_num(completed_std, nan=np.inf) ** 2
     if reference is not None:

@@ -83,16 +83,41 @@ def weight_width(units: str, scale: float | None) -> float:
     return DEFAULT_SCALE_MM * length_factor("mm", units)
 
 
+def distances_to(positions: np.ndarray):
+    """:func:`mean_distances` as a function of the target, positions (n_frames, n_markers, 3) read once.
+
+    The coordinate planes are split once for all targets: a norm over the length-3 last axis costs a loop per
+    sample, three plane differences do not (the same numbers: |d|^2 = (d0^2 + d1^2) + d2^2, as the norm adds them).
+    Per target m: (n_markers,), NaN where never co-observed.
+    """
+    planes = [np.ascontiguousarray(positions[..., c]) for c in range(3)]
+
+    def mean_to(m: int) -> np.ndarray:
+        sq = None
+        for plane in planes:
+            d = plane - plane[:, m:m + 1]
+            d *= d
+            if sq is None:
+                sq = d
+            else:
+                sq += d
+        np.sqrt(sq, out=sq)
+        counts = np.isfinite(sq).sum(axis=0)
+        np.copyto(sq, 0.0, where=np.isnan(sq))  # nansum
+        total = sq.sum(axis=0)
+        with np.errstate(invalid="ignore"):
+            return np.where(counts > 0, total / np.maximum(counts, 1), np.nan)
+
+    return mean_to
+
+
 def mean_distances(positions: np.ndarray, target: int) -> np.ndarray:
     """Mean distance of every marker to marker ``target`` over the frames where both are observed.
 
-    positions (n_frames, n_markers, 3) with NaN = missing; returns (n_markers,), NaN where never co-observed.
+    positions (n_frames, n_markers, 3) with NaN = missing; returns (n_markers,), NaN where never co-observed.  For
+    many targets of one take, :func:`distances_to` reads the positions once.
     """
-    diff = np.linalg.norm(positions - positions[:, target:target + 1, :], axis=2)  # (n_frames, n_markers)
-    with np.errstate(invalid="ignore"):
-        counts = np.isfinite(diff).sum(axis=0)
-        total = np.nansum(diff, axis=0)
-        return np.where(counts > 0, total / np.maximum(counts, 1), np.nan)
+    return distances_to(positions)(target)
 
 
 def gaussian_weights(distances: np.ndarray, scale: float) -> np.ndarray:
@@ -434,11 +459,12 @@ def reconstruct(
     info: dict[str, Any] = {"strategy": strategy, "components": [], "fallback": []}
     gap_markers = np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0))
 
+    distance_to = distances_to(positions)
     if strategy == "separate":
         tasks = []
         for m in gap_markers:
             frames = np.flatnonzero(missing[:, m])
-            dist = mean_distances(positions, m)
+            dist = distance_to(m)
             weight = gaussian_weights(dist, scale)
             weight[m] = missing_weight
             tasks.append((np.array([m]), frames, weight))
@@ -456,7 +482,7 @@ def reconstruct(
             ws = []
             for m in targets:
                 if m not in cache:
-                    cache[m] = gaussian_weights(mean_distances(positions, m), scale)
+                    cache[m] = gaussian_weights(distance_to(m), scale)
                 ws.append(cache[m])
             weight = np.max(ws, axis=0)
             weight[targets] = missing_weight
