@@ -175,7 +175,7 @@ def test_gap_records_flag_uncertain_gaps_with_the_config_number():
     sd[15, 0] = 80.0
     spatial = missing.copy()
     config = ModelConfig(review_sd_mm=40.0)
-    recs = gap_records(missing, sd, spatial, np.zeros_like(missing), config, 1.0, "mm", ["a", "b"], None)
+    recs = gap_records(missing, sd, spatial, np.zeros_like(missing), config, 1.0, ["a", "b"], None)
     assert [r["review"] for r in recs] == [True, False]
     assert "40 mm" in recs[0]["reason"] and recs[0]["marker"] == "a"
 

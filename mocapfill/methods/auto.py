@@ -281,7 +281,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
                                "used": int(sum(used_refs))} if config.impute_passes
                               else sinfo.get("references", {"frames": 0, "models": 0, "used": 0}))
     spatial = missing & np.isfinite(pred_sd)
-    info["gap_methods"] = gap_records(missing, sd, spatial, outliers, config, mm, units, labels, boneset)
+    info["gap_methods"] = gap_records(missing, sd, spatial, outliers, config, mm, labels, boneset)
     info["review"] = [i for i, r in enumerate(info["gap_methods"]) if r["review"]]
     return finish(positions, fill, std=sd, info=info)
 
@@ -549,7 +549,7 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
 
 
 def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outliers: np.ndarray,
-                config: ModelConfig, mm: float, units: str, labels, boneset) -> list[dict]:
+                config: ModelConfig, mm: float, labels, boneset) -> list[dict]:
     """Stage 5: one JSON-ready record per gap (run of missing frames of one marker).
 
     missing / sd / spatial / outliers (n_frames, n_markers): the input's mask, the posterior sd, where the spatial
@@ -591,5 +591,4 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
         rec.update(method=method, reason=reason, review=bool(review),
                    max_std=None if not np.isfinite(worst) else worst)
         out.append(rec)
-    del units
     return out
