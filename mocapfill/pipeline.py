@@ -24,7 +24,7 @@ import numpy as np
 from .errors import MethodError
 from .markers import MarkerData
 from .status import Status
-from .methods import DEFAULT_METHOD, get_method
+from .methods import DEFAULT_METHOD, METHODS, get_method
 from .methods.base import FillResult
 
 
@@ -91,6 +91,11 @@ class FillSettings:
         for options, step in ((("smooth_window", "smooth_order"), "smooth"),):
             if any(getattr(self, option) is not None for option in options) and not getattr(self, step):
                 raise MethodError(f"{name(options[0])} and {name(options[1])} only apply with {name(step)}")
+        if self.model is not None and not self.denoise and "model" not in get_method(self.method).parameters():
+            # it would be loaded and then ignored: say so rather than fill as if it had been used
+            takers = ", ".join(n for n, spec in METHODS.items() if "model" in spec.parameters())
+            raise MethodError(f"{name('model')} is used by {name('denoise')} and by the methods {takers}, "
+                              f"not {self.method}")
         if self.donors is not None and "donors" not in get_method(self.method).parameters():
             raise MethodError(f"{name('donors')} applies to the methods pattern and rigid, not {self.method}")
         if self.lowpass is not None:

@@ -140,6 +140,11 @@ def test_bad_model_files_and_missing_model(tmp_path, cmu):
         mocapfill.fill(cmu, "learned", model=other)
     result = CliRunner().invoke(cli, ["fill", str(bad), str(tmp_path / "o.c3d"), "--denoise"])
     assert result.exit_code == 2 and "--denoise needs --model" in result.output
+    # a model the method would ignore is an error, not a silent no-op (with --denoise any method may follow it)
+    result = CliRunner().invoke(cli, ["fill", str(bad), str(tmp_path / "o.c3d"), "-m", "pca", "--model", str(bad)])
+    assert result.exit_code == 2 and "--model is used by --denoise and by the methods auto, learned, not pca" in \
+        result.output
+    assert not (tmp_path / "o.c3d").exists()
 
 
 def test_the_model_is_a_prior_of_the_default(tiny, cmu, tmp_path):
