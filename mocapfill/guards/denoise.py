@@ -60,20 +60,19 @@ def find_displaced(positions: np.ndarray, model: Any, *, labels: Sequence[str] |
     work = positions
     for step in range(PASSES):
         est = network_estimate(work, net, labels=labels, units=units, rate=rate)
-        dist = np.where(observed, np.linalg.norm(positions - est, axis=2), np.nan)
+        off = positions - est  # (n_frames, n_markers, 3), NaN where not observed (or not estimated)
+        off[~observed] = np.nan
         if step == PASSES - 1:
             # The estimate with the suspects hidden.  A marker placed differently on this body sits off it by a
             # steady offset: its median offset is taken out, and what remains is judged against the larger of the
             # training error and the marker's typical remaining error on this capture.
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)  # a marker never observed: NaN, ignored by fmax
-                off = positions - est
-                off[~observed] = np.nan
                 dist = np.linalg.norm(off - np.nanmedian(off, axis=0), axis=2)
                 typical = PERCENTILE_TO_RMS * np.nanpercentile(dist, TYPICAL_PERCENTILE, axis=0)
             bound = np.fmax(bound, DISPLACED_FACTOR * np.where(mine, typical, np.nan))
             return np.nan_to_num(dist, nan=-1.0) > bound[None, :]
-        new = np.nan_to_num(dist, nan=-1.0) > bound[None, :]
+        new = np.nan_to_num(np.linalg.norm(off, axis=2), nan=-1.0) > bound[None, :]
         if not (new & ~found).any():
             break  # no (more) suspects
         found |= new
