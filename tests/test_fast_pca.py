@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from mocapfill.engines.weighted_pca import _blocks, cv_curve, fit_model, weighted_sums
+from mocapfill.engines.weighted_pca import _blocks, cv_curve, fit_model, predictor_residual, weighted_sums
 
 
 def curve_by_rows(flat, train, targets, predictors, marker_weight, row_weight=None, holdout=None):
@@ -59,3 +59,38 @@ def test_cv_curve_of_an_exactly_predicted_marker_is_finite_and_not_negative():
     flat = np.concatenate([target, pred], axis=1).reshape(300, -1)
     curve = cv_curve(flat, np.arange(300), np.array([0]), np.arange(1, 5), np.ones(5))
     assert np.isfinite(curve).all() and (curve >= 0).all()
+
+
+@pytest.mark.parametrize("case", range(3))
+def test_held_out_predictor_residuals_match_the_rows(case):
+    # cv_curve(residuals=True): each held-out row's predictors projected off the fold model's first k components
+    rng = np.random.default_rng(10 + case)
+    n_markers, n = 5 + case, 160
+    flat = rng.normal(size=(n, 4)) @ rng.normal(size=(4, 3 * n_markers)) * 30 + rng.normal(size=(n, 3 * n_markers))
+    flat += 500.0
+    train = np.arange(n)
+    weight = rng.uniform(0.05, 1.0, n_markers)
+    targets, predictors = np.array([0]), np.arange(1, n_markers)
+    curve, residual = cv_curve(flat, train, targets, predictors, weight, residuals=True)
+    np.testing.assert_allclose(curve, cv_curve(flat, train, targets, predictors, weight), rtol=1e-12)
+    cols = np.concatenate([3 * t + np.arange(3) for t in np.concatenate([targets, predictors])])
+    s1, s2, cnt = weighted_sums(flat[:, cols], None)
+    want = np.zeros(len(cols))
+    for b in _blocks(n, 5):
+        h1, h2, hn = weighted_sums(flat[b][:, cols], None)
+        model = fit_model(flat, train, targets, predictors, weight, gram=(s1 - h1, s2 - h2, cnt - hn),
+                          components=len(cols))
+        for k in range(1, len(cols) + 1):
+            want[k - 1] += predictor_residual(model._replace(basis=model.basis[:, :k],
+                                                             singular=model.singular[:k]), flat[b]).sum()
+    np.testing.assert_allclose(residual, want / n, rtol=1e-7, atol=1e-9 * want.max())
+
+
+def test_predictor_residual_is_zero_on_the_model_and_grows_off_it():
+    rng = np.random.default_rng(3)
+    flat = rng.normal(size=(200, 2)) @ rng.normal(size=(2, 12)) * 20 + 100.0  # rank 2 (+ the mean)
+    # the target barely weighs (as a missing marker does), so the predictors' rows of the basis are ~orthonormal
+    model = fit_model(flat, np.arange(200), np.array([0]), np.arange(1, 4), np.array([0.02, 1, 1, 1]), components=2)
+    on = predictor_residual(model, flat)
+    off = predictor_residual(model, flat[:5] + rng.normal(size=(5, 12)) * 20)
+    assert on.max() < 1e-3 and (off > 1.0).all()

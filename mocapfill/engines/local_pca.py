@@ -48,6 +48,7 @@ from .weighted_pca import (
     mean_distances,
     pattern_groups,
     predict,
+    predictor_residual,
 )
 
 
@@ -341,33 +342,38 @@ def _cols(markers: np.ndarray) -> list[int]:
 
 
 def _choose_rows(flat: np.ndarray, tr: np.ndarray, own: np.ndarray, rw: np.ndarray | None, target: np.ndarray,
-                 pred: np.ndarray, w: np.ndarray, normalise: bool, folds: int
-                 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+                 pred: np.ndarray, w: np.ndarray, normalise: bool, folds: int, residuals: bool = False
+                 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """Training rows, their weights and the cross-validation curve of one model, with or without reference rows.
 
     flat (n, 3 n_markers) local coordinates; tr (n_train,) training rows; own (n_train,) bool, the capture's own
     rows (the others are reference frames, weights ``rw`` (n_train,)).  Without reference rows: every row, the
     plain curve.  With them: where the capture's own rows allow two held-out blocks, the model with references is
     scored on those blocks (references always in training) against the model on the capture's rows alone, and the
-    better is kept; otherwise the references stay and every row is held out in turn.
+    better is kept; otherwise the references stay and every row is held out in turn.  The fourth value: the kept
+    model's held-out predictor residual per number of components (``residuals``; else None).
     """
+    def curve_of(rows, **kw):
+        out = cv_curve(flat, rows, target, pred, w, normalise=normalise, folds=folds, residuals=residuals, **kw)
+        return (None, None) if out is None else out if residuals else (out, None)
+
     if rw is None or own.all():
-        return tr, None, cv_curve(flat, tr, target, pred, w, normalise=normalise, folds=folds)
+        return (tr, None, *curve_of(tr))
     enough = own.sum() >= 2 * MIN_TRAINING_FRAMES
-    curve = cv_curve(flat, tr, target, pred, w, normalise=normalise, folds=folds, row_weight=rw,
-                     holdout=own if enough else None)
+    curve, resid = curve_of(tr, row_weight=rw, holdout=own if enough else None)
     if not enough or curve is None:
-        return tr, rw, curve
-    alone = cv_curve(flat, tr[own], target, pred, w, normalise=normalise, folds=folds)
+        return tr, rw, curve, resid
+    alone, alone_resid = curve_of(tr[own])
     if alone is not None and alone[0].min() <= curve[0].min():
-        return tr[own], None, alone
-    return tr, rw, curve
+        return tr[own], None, alone, alone_resid
+    return tr, rw, curve, resid
 
 
 def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np.ndarray, train: np.ndarray,
                 weights: list[np.ndarray], align_weight: np.ndarray, dist: np.ndarray, scales: tuple[float, ...], *,
                 reach: float, normalise: bool, folds: int, knn: int, row_weight: np.ndarray | None = None,
-                used_references: list | None = None, max_predictors: int | None = None):
+                used_references: list | None = None, max_predictors: int | None = None,
+                extrapolation: list | None = None):
     """One local model of marker ``m``: fitted on ``train`` frames, evaluated on ``train`` then ``group`` frames.
 
     positions (n_frames, n_markers, 3) finite at ``m`` on ``train`` and at ``predictors`` on every frame used;
@@ -381,7 +387,9 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
     capture's own frames and below 1 for reference frames; with it each width keeps the reference rows only where
     they lower the cross-validated error on the capture's own rows (:func:`_choose_rows`), and appends whether it
     kept them to ``used_references``.  ``max_predictors``: each width keeps at most this many of its predictors,
-    the nearest (None: all within ``reach``).
+    the nearest (None: all within ``reach``).  ``extrapolation`` (a list) receives the (n_train + n_group,) factor by
+    which each row's pose lies off the poses the model learnt from: per width max(1, the row's predictor residual /
+    the held-out rows' mean one, :func:`~.weighted_pca.predictor_residual`), averaged with the widths' weights.
     """
     n_markers = positions.shape[1]
     needed = np.concatenate([[m], predictors])
@@ -397,7 +405,7 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
     full_cols = np.asarray(_cols(needed))  # compact column -> column of the (n, 3 n_markers) layout
     tr = np.arange(n_train)
     target = np.array([0])
-    ests, rmss, levs, ks, sens = [], [], [], [], []
+    ests, rmss, levs, ks, sens, offs = [], [], [], [], [], []
     for w_all, width in zip(weights, scales):
         # markers beyond ``reach`` widths weigh < 0.012: leaving them out changed no median, only the cost
         pred = predictors[dist[predictors] <= reach * width]
@@ -409,9 +417,9 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
         own = None if row_weight is None else row_weight[train] >= 1.0 - 1e-12
         if own is not None and own.all():
             own = None
-        rows, row_w, curve = _choose_rows(flat, tr, np.ones(n_train, bool) if own is None else own,
-                                          None if own is None else row_weight[train], target, pred, w, normalise,
-                                          folds)
+        rows, row_w, curve, held = _choose_rows(flat, tr, np.ones(n_train, bool) if own is None else own,
+                                                None if own is None else row_weight[train], target, pred, w,
+                                                normalise, folds, residuals=extrapolation is not None)
         if curve is None:
             k, rms = None, np.nan
         else:
@@ -423,6 +431,10 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
         model = fit_model(flat, rows, target, pred, w, normalise=normalise, components=k,
                           gram=weighted_sums(block, row_w))
         est_local, leverage = predict(model, flat)
+        if extrapolation is not None:
+            scale = held[k - 1] if k is not None and held is not None else 0.0
+            offs.append(np.maximum(predictor_residual(model, flat) / scale, 1.0) if scale > 0
+                        else np.ones(len(flat)))
         if knn:
             if rows is tr:  # training rows first, then the group's: already in that order
                 correction = knn_correction(model, flat, est_local, n_train, knn)
@@ -451,6 +463,8 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
     mix = mix / mix.sum()
     est_local = np.einsum("s,std->td", mix, np.stack(ests))
     leverage = np.einsum("s,st->t", mix, np.stack(levs))
+    if extrapolation is not None:
+        extrapolation.append(np.einsum("s,st->t", mix, np.stack(offs)))
     rms_mix = float(np.dot(mix, rmss_a)) if np.isfinite(rmss_a).all() else np.nan
     # back to the laboratory frame: x = local R^T + centre
     est_all = (rot @ est_local[:, :, None])[:, :, 0] + centre
@@ -476,6 +490,7 @@ def reconstruct_local(
     context: np.ndarray | None = None,
     reference_frames: np.ndarray | None = None,
     reference_weights: np.ndarray | None = None,
+    extrapolation: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """Estimate every missing sample with the weighted PCA in each missing marker's local frame.
 
@@ -518,13 +533,17 @@ def reconstruct_local(
     estimate (n_frames, n_markers, 3) (NaN where nothing could be estimated), std (n_frames, n_markers) per-
     coordinate RMS (0 observed, NaN unknown), info with ``fallback`` markers, ``groups`` (one record per marker
     and pattern: marker, frames, components per scale, cross-validated RMS) and ``anchors`` (n_frames, n_markers)
-    int: how many observed neighbours defined the local frame of each estimated sample (0 elsewhere).
+    int: how many observed neighbours defined the local frame of each estimated sample (0 elsewhere); with
+    ``extrapolation``, ``info["extrapolation"]`` (n_frames, n_markers): how far each estimated sample's pose lies off
+    the poses its model learnt from (:func:`group_model`; >= 1, NaN elsewhere).
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
     estimate = positions.copy()
     std = np.where(missing, np.nan, 0.0)
     info: dict[str, Any] = {"fallback": [], "groups": [], "anchors": np.zeros((n_frames, n_markers), dtype=int)}
+    if extrapolation:
+        info["extrapolation"] = np.full((n_frames, n_markers), np.nan)
     if edge_frames:
         info["edge_estimate"] = np.full((n_frames, n_markers, 3), np.nan)
         info["edge_std"] = np.full((n_frames, n_markers), np.nan)
@@ -573,11 +592,14 @@ def reconstruct_local(
                 estimate[group, m] = interpolated[group]
                 continue
             with_refs: list[bool] = []
+            off: list | None = [] if extrapolation else None
             est_all, leverage, rms_mix, ks, rmss, anchors, _ = group_model(
                 src, m, group, predictors, train, weights, align_weight, dist, scales, reach=reach,
                 max_predictors=max_predictors, normalise=normalise, folds=folds, knn=knn, row_weight=row_weight,
-                used_references=with_refs)
+                used_references=with_refs, extrapolation=off)
             n_train = len(train)
+            if off:
+                info["extrapolation"][group, m] = off[0][n_train:]
             used = np.concatenate([train, group])
             est = est_all[n_train:]
             factor = np.ones(len(group))
@@ -631,6 +653,7 @@ def reconstruct_completed(
     trust: float | None = None,
     reference_weights: np.ndarray | None = None,
     used_references: list | None = None,
+    extrapolation: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The local model refitted on a completed take (one EM-style imputation step).
 
@@ -650,7 +673,8 @@ def reconstruct_completed(
     ``reference_weights`` (n,) in [0, 1] or None (every reference frame counts as the capture's own): each reference
     frame's weight as a training row, and each model keeps the references only where they lower its cross-validated
     error on the capture's own frames (as in :func:`reconstruct_local`); whether each model kept them is appended to
-    ``used_references`` (a list) when given.
+    ``used_references`` (a list) when given.  ``extrapolation`` (n_frames, n_markers) or None: when given, receives
+    at each estimated sample how far its pose lies off the poses its model learnt from (:func:`group_model`).
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
@@ -682,11 +706,14 @@ def reconstruct_completed(
         train = np.flatnonzero(known[:, m] & finite[:, near].all(axis=1)) if len(near) else np.zeros(0, int)
         if len(near) < 3 or len(train) < MIN_TRAINING_FRAMES:
             continue
+        off: list | None = [] if extrapolation is not None else None
         est_all, leverage, rms_mix, _, _, _, sens = group_model(
             data, m, group, near, train, weights, align_weight, dist, scales, reach=reach,
             max_predictors=max_predictors, normalise=normalise, folds=folds, knn=knn, row_weight=row_weight,
-            used_references=used_references if row_weight is not None else None)
+            used_references=used_references if row_weight is not None else None, extrapolation=off)
         n_train = len(train)
+        if off:
+            extrapolation[group, m] = off[0][n_train:]
         with np.errstate(invalid="ignore"):
             spread = var[group][:, near] @ sens[near]  # propagated predictor variance (n_group,)
         estimate[group, m] = est_all[n_train:]
