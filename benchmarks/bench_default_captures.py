@@ -66,12 +66,15 @@ from mocapfill.evaluation import make_occlusions, score  # noqa: E402
 from mocapfill.io import read  # noqa: E402
 from mocapfill.markers import MarkerData  # noqa: E402
 from mocapfill.methods import METHODS, get_method  # noqa: E402
+from mocapfill.methods.auto import DEFAULT_CONFIG  # noqa: E402
 from mocapfill.units import length_factor  # noqa: E402
 
 SHARED = harness.SHARED_DATA
 SCRIPT = Path(__file__).name
 RESULTS = REPO / "benchmarks" / "results" / f"{Path(__file__).stem}.json"
 CACHE = REPO / "benchmarks" / ".cache" / Path(__file__).stem
+#: The default's own review threshold (posterior sd per coordinate), the bar a gap's actual error is held to here.
+REVIEW_MM = DEFAULT_CONFIG.review_sd_mm
 
 
 @dataclass(frozen=True)
@@ -220,8 +223,25 @@ def run_draw(task: tuple) -> list[dict]:
                 "errors_f32": base64.b64encode(np.where(np.isfinite(err), err, np.inf).astype("<f4").tobytes())
                 .decode("ascii"),
             })
+            if result.info.get("gap_methods"):
+                record["gaps"] = gap_scores(result, truth, hidden, to_mm)
         _write_json(cache_path(Path(cache), capture, protocol, draw, method, seed), record)
         out.append(record)
+    return out
+
+
+def gap_scores(result, truth: np.ndarray, hidden: np.ndarray, to_mm: float) -> list[list]:
+    """Per gap the method reported (``info["gap_methods"]``) whose frames were all hidden by the protocol: [RMS
+    error per coordinate (mm), flagged for review, largest posterior sd (mm)]; the gaps a person would be told to
+    check against those that needed it."""
+    out = []
+    for rec in result.info["gap_methods"]:
+        m, sl = rec["marker_index"], slice(rec["start"], rec["start"] + rec["length"])
+        if not hidden[sl, m].all() or not np.isfinite(result.positions[sl, m]).all():
+            continue
+        err = np.sqrt(np.mean((result.positions[sl, m] - truth[sl, m]) ** 2)) * to_mm
+        sd = rec.get("max_std")
+        out.append([round(float(err), 3), bool(rec.get("review")), None if sd is None else round(sd * to_mm, 3)])
     return out
 
 
@@ -411,6 +431,7 @@ def report(cache: Path, captures: list[str], protocols: list[str], draws: int, s
             print(f"| {p} | " + " | ".join(cells) + " |")
         compact[c] = {"title": f"{c}: pooled median / RMSE (mm) over {draws} draws", "columns": ["protocol", *head],
                       "rows": crow}
+    review_rows = review_table(found, captures, protocols, default)
     results = checks(pooled, captures, protocols, present, default) if default in present else []
     print("\n## Checks (issue 21)")
     check_rows = []
@@ -445,9 +466,42 @@ def report(cache: Path, captures: list[str], protocols: list[str], draws: int, s
         results.table(f"compact_{c}", t["title"], t["columns"], t["rows"])
     results.table("checks", f"issue 21's checks for {default}", ["check", "result", "failing cases", "cases"],
                   check_rows)
+    if review_rows:
+        results.table("review", f"the gaps {default} says to review (`gap_methods[].review`: largest posterior sd "
+                      f"per coordinate above {REVIEW_MM:g} mm) against the gaps that needed it (RMS error per "
+                      f"coordinate above {REVIEW_MM:g} mm), every gap the protocols made, all draws",
+                      ["capture", "gaps", "needed review", "of those flagged", "flagged", "flagged, not needed"],
+                      review_rows)
+        total = review_rows[-1]
+        figures[f"{default} review: needing gaps flagged"] = {
+            "value": round(100 * total[3] / max(total[2], 1), 1), "unit": "%", "better": "higher"}
+        figures[f"{default} review: flagged gaps not needing it"] = {
+            "value": round(100 * total[5] / max(total[4], 1), 1), "unit": "%", "better": "lower"}
     for name, f in figures.items():
         results.figure(name, f["value"], f["unit"], f["better"])
     results.write()
+
+
+def review_table(found: dict, captures: list[str], protocols: list[str], default: str) -> list[list]:
+    """Per capture (and all): gaps scored, gaps needing review (RMS error per coordinate above ``REVIEW_MM``), how
+    many of those the default flagged, how many it flagged, and flagged ones that did not need it."""
+    rows, tot = [], np.zeros(5, dtype=int)
+    for c in captures:
+        gaps = [g for p in protocols for r in found.get((c, p, default), []) for g in r.get("gaps", [])]
+        if not gaps:
+            continue
+        need = np.array([g[0] > REVIEW_MM for g in gaps])
+        flag = np.array([g[1] for g in gaps])
+        row = np.array([len(gaps), need.sum(), (need & flag).sum(), flag.sum(), (flag & ~need).sum()])
+        tot += row
+        rows.append([c, *(int(x) for x in row)])
+    if rows:
+        rows.append(["all", *(int(x) for x in tot)])
+        print(f"\n## Gaps to review ({default}): flagged against needed (RMS error per coordinate > {REVIEW_MM:g} mm)")
+        print("| capture | gaps | needed review | of those flagged | flagged | flagged, not needed |\n|---|---|---|---|---|---|")
+        for r in rows:
+            print("| " + " | ".join(str(x) for x in r) + " |")
+    return rows
 
 
 

@@ -9,7 +9,7 @@ from mocapfill.engines.motion_smoother import (JERK_GAIN, MotionModel, accelerat
                                                jerk_gain, smooth, transition)
 from mocapfill.errors import MethodError
 from synthetic import tumbling_body
-from synthetic import moving_body, rot_z
+from synthetic import moving_body, rot_x, rot_z
 from mocapfill.methods import get_method
 from mocapfill.engines.local_pca import rigid_prediction
 from mocapfill.methods.auto import (DEFAULT_CONFIG, ModelConfig, body_stage, fill_auto, gap_records,
@@ -280,3 +280,32 @@ def test_max_predictors_bounds_each_models_predictors_and_changes_nothing_at_or_
     assert max(widths) == 4 and np.isfinite(capped[100:160, 0]).all()
     assert np.array_equal(full, same, equal_nan=True) and np.array_equal(full_sd, same_sd, equal_nan=True)
     assert DEFAULT_CONFIG.max_predictors >= 40  # every accuracy benchmark's marker set (<= 41 markers) unchanged
+
+
+def bent_knee(n_frames: int = 240, gap: slice = slice(90, 150)) -> np.ndarray:
+    """A thigh and a shank (markers 0-3) joined at a knee that bends a little outside ``gap`` and far (1.3 rad)
+    inside it: while marker 0 is missing its neighbours take poses it was never seen in.  (n_frames, 8, 3) mm."""
+    def bend(t):
+        k = np.clip((t * 100.0 - gap.start) / (gap.stop - gap.start), 0.0, 1.0)
+        return rot_x(0.15 * np.sin(2 * np.pi * 1.1 * t) + 1.3 * np.sin(np.pi * k))
+
+    body = [[40, 10, -150], [-30, 40, -250], [20, -50, -350], [0, 0, -100],
+            [0, 0, 400], [60, 0, 300], [-50, 20, 250], [10, -60, 350]]
+    return moving_body(n_frames, 8, body=body, hinge=([0, 1, 2, 3], bend, [0, 0, 0]), noise=0.3, seed=4)
+
+
+def test_the_reported_sd_grows_where_the_neighbours_take_unseen_poses_and_the_fill_stays():
+    pos = bent_knee()
+    gapped = pos.copy()
+    gapped[90:150, 0] = np.nan
+    *_, info = spatial_stage(gapped, DEFAULT_CONFIG, 1.0)
+    off = info["extrapolation"][:, 0]
+    assert np.isnan(off[:90]).all() and (off[90:150] >= 1.0).all()
+    assert off[115:125].min() > 50.0 and off[[90, 149]].max() < 10.0  # the knee bent most mid-gap
+    plain = fill_auto(gapped, config=ModelConfig(extrapolation_sd=False))
+    told = fill_auto(gapped)
+    assert np.array_equal(told.positions, plain.positions)  # the mean keeps the cross-validated sd
+    err = np.sqrt(np.mean((told.positions[90:150, 0] - pos[90:150, 0]) ** 2, axis=1))  # per coordinate
+    assert err.max() > 10.0 * plain.std[90:150, 0].max()  # the sd it reported before: far too sure
+    assert told.std[115:125, 0].min() > 10.0 * plain.std[115:125, 0].max()
+    assert err.max() < 3.0 * told.std[90:150, 0].max()
