@@ -178,6 +178,11 @@ def test_gap_records_flag_uncertain_gaps_with_the_config_number():
     recs = gap_records(missing, sd, spatial, np.zeros_like(missing), config, 1.0, ["a", "b"], None)
     assert [r["review"] for r in recs] == [True, False]
     assert "40 mm" in recs[0]["reason"] and recs[0]["marker"] == "a"
+    off = np.where(missing, 1.0, np.nan)
+    off[15, 0] = 16.0  # the neighbours' pose off the training poses there: named in the flagged gap's reason
+    recs = gap_records(missing, sd, spatial, np.zeros_like(missing), config, 1.0, ["a", "b"], None, off)
+    assert recs[0]["extrapolation"] == 16.0 and "4.0x" in recs[0]["reason"]
+    assert recs[1]["extrapolation"] == 1.0 and "never learnt" not in recs[1]["reason"]
 
 
 def test_fill_keeps_observed_samples_and_gives_std():
@@ -298,7 +303,7 @@ def test_the_reported_sd_grows_where_the_neighbours_take_unseen_poses_and_the_fi
     pos = bent_knee()
     gapped = pos.copy()
     gapped[90:150, 0] = np.nan
-    *_, info = spatial_stage(gapped, DEFAULT_CONFIG, 1.0)
+    *_, info = spatial_stage(gapped, ModelConfig(impute_passes=0), 1.0)
     off = info["extrapolation"][:, 0]
     assert np.isnan(off[:90]).all() and (off[90:150] >= 1.0).all()
     assert off[115:125].min() > 50.0 and off[[90, 149]].max() < 10.0  # the knee bent most mid-gap

@@ -83,7 +83,8 @@ def test_held_out_predictor_residuals_match_the_rows(case):
         for k in range(1, len(cols) + 1):
             want[k - 1] += predictor_residual(model._replace(basis=model.basis[:, :k],
                                                              singular=model.singular[:k]), flat[b]).sum()
-    np.testing.assert_allclose(residual, want / n, rtol=1e-7, atol=1e-9 * want.max())
+    got = np.array([residual(k) for k in range(1, len(cols) + 1)])
+    np.testing.assert_allclose(got, want / n, rtol=1e-7, atol=1e-9 * want.max())
 
 
 def test_predictor_residual_is_zero_on_the_model_and_grows_off_it():

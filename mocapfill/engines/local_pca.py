@@ -351,7 +351,7 @@ def _choose_rows(flat: np.ndarray, tr: np.ndarray, own: np.ndarray, rw: np.ndarr
     plain curve.  With them: where the capture's own rows allow two held-out blocks, the model with references is
     scored on those blocks (references always in training) against the model on the capture's rows alone, and the
     better is kept; otherwise the references stay and every row is held out in turn.  The fourth value: the kept
-    model's held-out predictor residual per number of components (``residuals``; else None).
+    model's held-out predictor residual as a function of the number of components (``residuals``; else None).
     """
     def curve_of(rows, **kw):
         out = cv_curve(flat, rows, target, pred, w, normalise=normalise, folds=folds, residuals=residuals, **kw)
@@ -387,7 +387,7 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
     capture's own frames and below 1 for reference frames; with it each width keeps the reference rows only where
     they lower the cross-validated error on the capture's own rows (:func:`_choose_rows`), and appends whether it
     kept them to ``used_references``.  ``max_predictors``: each width keeps at most this many of its predictors,
-    the nearest (None: all within ``reach``).  ``extrapolation`` (a list) receives the (n_train + n_group,) factor by
+    the nearest (None: all within ``reach``).  ``extrapolation`` (a list) receives the (n_group,) factor by
     which each row's pose lies off the poses the model learnt from: per width max(1, the row's predictor residual /
     the held-out rows' mean one, :func:`~.weighted_pca.predictor_residual`), averaged with the widths' weights.
     """
@@ -431,10 +431,10 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
         model = fit_model(flat, rows, target, pred, w, normalise=normalise, components=k,
                           gram=weighted_sums(block, row_w))
         est_local, leverage = predict(model, flat)
-        if extrapolation is not None:
-            scale = held[k - 1] if k is not None and held is not None else 0.0
-            offs.append(np.maximum(predictor_residual(model, flat) / scale, 1.0) if scale > 0
-                        else np.ones(len(flat)))
+        if extrapolation is not None:  # the predicted rows only (a training row's pose is one the model learnt)
+            scale = held(k) if k is not None and held is not None else 0.0
+            offs.append(np.maximum(predictor_residual(model, flat[n_train:]) / scale, 1.0) if scale > 0
+                        else np.ones(len(flat) - n_train))
         if knn:
             if rows is tr:  # training rows first, then the group's: already in that order
                 correction = knn_correction(model, flat, est_local, n_train, knn)
@@ -599,7 +599,7 @@ def reconstruct_local(
                 used_references=with_refs, extrapolation=off)
             n_train = len(train)
             if off:
-                info["extrapolation"][group, m] = off[0][n_train:]
+                info["extrapolation"][group, m] = off[0]
             used = np.concatenate([train, group])
             est = est_all[n_train:]
             factor = np.ones(len(group))
@@ -713,7 +713,7 @@ def reconstruct_completed(
             used_references=used_references if row_weight is not None else None, extrapolation=off)
         n_train = len(train)
         if off:
-            extrapolation[group, m] = off[0][n_train:]
+            extrapolation[group, m] = off[0]
         with np.errstate(invalid="ignore"):
             spread = var[group][:, near] @ sens[near]  # propagated predictor variance (n_group,)
         estimate[group, m] = est_all[n_train:]

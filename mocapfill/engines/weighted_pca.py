@@ -41,7 +41,7 @@ and with gaps in 37 of its markers in about 0.5 s (``benchmarks/bench_default.py
 from __future__ import annotations
 
 import warnings
-from typing import Any, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
@@ -318,25 +318,23 @@ def _fold_errors(model: PCAModel, h1: np.ndarray, h2: np.ndarray, hn: float) -> 
     return np.maximum(np.diag(cent)[:nt][None, :] + np.cumsum(step, axis=0), 0.0)
 
 
-def _fold_residuals(model: PCAModel, h1: np.ndarray, h2: np.ndarray, hn: float) -> np.ndarray:
-    """Summed squared residual (K,) of a held-out block's predictors off the first k = 1..K components.
+def _fold_residual(model: PCAModel, h1: np.ndarray, h2: np.ndarray, hn: float, k: int) -> float:
+    """Summed squared residual of a held-out block's predictors off the model's first ``k`` components.
 
     h1, h2, hn as in :func:`_fold_errors`.  In the model's weighted, normalised predictor space z_p = D_p c_p (as
     :func:`predictor_residual` forms it), the scores are s = B_p^T z_p and the residual r = z_p - B_p s; summed over
-    the rows, |r|^2 = tr(Z) - 2 tr(S_k) + tr(G_k S_k) with Z = D_p C_pp D_p, S = B_p^T Z B_p, G = B_p^T B_p (the
-    basis' predictor rows alone are not orthonormal) and the subscript k the leading k x k block.
+    the rows, |r|^2 = tr(Z) - 2 tr(S) + tr(G S) with Z = D_p C_pp D_p, S = B_p^T Z B_p and G = B_p^T B_p (the
+    basis' predictor rows alone are not orthonormal), B_p the first k columns: O(q^2 k), not a pass over the rows.
     """
     nt = model.n_target
-    mean, basis = model.mean[nt:], model.basis[nt:]
+    mean, basis = model.mean[nt:], model.basis[nt:, :k]
     g1, g2 = h1[nt:], h2[nt:, nt:]
     cent = g2 - np.outer(g1, mean) - np.outer(mean, g1) + hn * np.outer(mean, mean)  # sum c_p c_p^T
     d = (model.weight / model.scale)[nt:]
     bp = basis * d[:, None]
-    s_mat = bp.T @ cent @ bp  # (K, K)
-    g_mat = basis.T @ basis  # (K, K)
-    # tr(G_k S_k) grows by 2 sum_{i<k} G_ik S_ik + G_kk S_kk at step k
-    trace_gs = np.cumsum(2.0 * np.triu(g_mat * s_mat, 1).sum(axis=0) + np.diag(g_mat) * np.diag(s_mat))
-    return np.maximum(float(np.dot(d * d, np.diag(cent))) - 2.0 * np.cumsum(np.diag(s_mat)) + trace_gs, 0.0)
+    s_mat = bp.T @ cent @ bp  # (k, k)
+    total = float(np.dot(d * d, np.diag(cent))) - 2.0 * float(np.trace(s_mat)) + float(np.sum((basis.T @ basis) * s_mat))
+    return max(total, 0.0)
 
 
 def predictor_residual(model: PCAModel, rows: np.ndarray) -> np.ndarray:
@@ -363,7 +361,7 @@ def cv_curve(
     row_weight: np.ndarray | None = None,
     holdout: np.ndarray | None = None,
     residuals: bool = False,
-) -> np.ndarray | tuple[np.ndarray, np.ndarray] | None:
+) -> np.ndarray | tuple[np.ndarray, Callable[[int], float]] | None:
     """Leave-one-block-out mean squared error per coordinate of the targets for every number of components.
 
     Same splitting as :func:`cross_validated_rms`; one eigendecomposition per fold serves every truncation because
@@ -372,9 +370,9 @@ def cv_curve(
 
     ``row_weight`` (n_train,): the weight of each training row in the sums (reference frames beside the capture's
     own, see :mod:`mocapfill.references`; default 1).  ``holdout`` (n_train,) bool: the rows that are held out in
-    blocks (the capture's own); the others always stay in training.  Default: every row.  ``residuals``: also the
-    held-out rows' mean squared predictor residual (q,) for every number of components (:func:`_fold_residuals`:
-    the scale of :func:`predictor_residual` on poses a model did not learn from), returned as ``(curve, residual)``.
+    blocks (the capture's own); the others always stay in training.  Default: every row.  ``residuals``: also a
+    function k -> the held-out rows' mean squared predictor residual with k components (:func:`_fold_residual`: the
+    scale of :func:`predictor_residual` on poses a model did not learn from), returned as ``(curve, residual)``.
     """
     columns = np.concatenate([_columns(targets), _columns(predictors)])
     block_all = flat[np.ix_(train, columns)]
@@ -385,7 +383,7 @@ def cv_curve(
         return None
     nt = 3 * len(targets)
     sq = np.zeros((len(columns), nt))
-    spe = np.zeros(len(columns))
+    kept = []  # (fold model, held-out sums) for the residual, once the number of components is chosen
     count = 0
     for rows in blocks:
         held = block_all[rows]
@@ -398,11 +396,13 @@ def cv_curve(
             h1, h2, hn = weighted_sums(held, None)
         sq += _fold_errors(model, h1, h2, hn)
         if residuals:
-            spe += _fold_residuals(model, h1, h2, hn)
+            kept.append((model, h1, h2, hn))
         count += len(rows)
     per = sq / count  # (q, nt)
     curve = per.reshape(len(columns), len(targets), 3).mean(axis=2).T
-    return (curve, spe / count) if residuals else curve
+    if not residuals:
+        return curve
+    return curve, lambda k: sum(_fold_residual(*fold, k) for fold in kept) / count
 
 
 def pattern_groups(missing: np.ndarray, frames: np.ndarray, near: np.ndarray, max_patterns: int

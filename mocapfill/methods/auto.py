@@ -33,7 +33,10 @@ The model (equations in ``ARCHITECTURE.md``, "The default's model"), each stage 
    marker's gaps is no predictor), and step 3 runs again on its predictions.  (The first pass then only
    seeds it: one weight width, no nearest-pose correction.)
 
-5. :func:`gap_records`: one record per gap, what filled it and whether a person should review it (its largest
+5. :func:`reported_sd`: where a prediction's neighbours take a pose its model never learnt (their residual off the
+   model's components beyond the held-out frames'), its variance grows by that factor for the reported posterior
+   sd (the smoother's variances, computed again); the fill itself keeps the cross-validated sd.
+6. :func:`gap_records`: one record per gap, what filled it and whether a person should review it (its largest
    posterior standard deviation above :attr:`ModelConfig.review_sd_mm`), the reason text formatted from the config.
 """
 
@@ -313,8 +316,9 @@ def spatial_stage(positions: np.ndarray, config: ModelConfig, mm: float, *,
     positions (n_frames, n_markers, 3); mm data units per millimetre; reference_frames (n, n_markers, 3) or None.
     Returns pred (n_frames, n_markers, 3) (NaN where no model), sd (n_frames, n_markers) per coordinate (NaN where
     no model), the reconstruction at observed frames next to gaps (n_frames, n_markers, 3) and its sd, and info
-    (with ``config.extrapolation_sd``, ``info["extrapolation"]`` (n_frames, n_markers): how far each prediction's
-    pose lies off its model's training poses, NaN where none; :func:`reported_sd`).
+    (with ``config.extrapolation_sd`` and no refit to follow (``impute_passes`` 0), ``info["extrapolation"]``
+    (n_frames, n_markers): how far each prediction's pose lies off its model's training poses, NaN where none;
+    :func:`reported_sd`).
     """
     n = len(positions)
     weighed = reference_frames is not None and reference_weights is not None
@@ -328,7 +332,7 @@ def spatial_stage(positions: np.ndarray, config: ModelConfig, mm: float, *,
                                        edge_frames=config.edge_frames,
                                        reference_frames=reference_frames if weighed else None,
                                        reference_weights=reference_weights if weighed else None,
-                                       extrapolation=config.extrapolation_sd)
+                                       extrapolation=config.extrapolation_sd and not config.impute_passes)
     if "extrapolation" in info:
         info["extrapolation"] = info["extrapolation"][:n]
     missing = np.isnan(positions).any(axis=2)
