@@ -245,7 +245,7 @@ def fill_auto(
 def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine: bool,
                reference_frames: np.ndarray | None, config: ModelConfig,
                reference_weights: np.ndarray | None = None, prior: Any = None) -> FillResult:
-    """The model on one (already validated) array: stages 1-5 of the module docstring (``prior``: a learned
+    """The model on one (already validated) array: stages 1-6 of the module docstring (``prior``: a learned
     denoiser whose estimate :func:`prior_stage` fuses with every spatial prediction)."""
     mm = length_factor("mm", units)
     rate = float(rate) if rate and np.isfinite(rate) and rate > 0 else config.default_rate
