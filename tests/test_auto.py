@@ -220,24 +220,6 @@ def test_fragments_are_short_observed_runs_between_gaps():
     assert list(np.flatnonzero(frag)) == [2, 5, 6]  # not the run at the start, nor the 3-frame run
 
 
-@pytest.mark.parametrize("name", ["newwalk.c3d", "MACsample.c3d", "ADemo1_rewrite_c3d_pc_float.c3d",
-                                  "qtm_JaneDoe_Dynamic_2.tsv", "kinematics_racing_full.c3d"])
-def test_no_filled_acceleration_above_the_observed_on_committed_captures(test_data, name):
-    import warnings
-
-    import mocapfill
-    from mocapfill.io import read
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        data = read(test_data / name)
-        res = mocapfill.fill(data, method="auto")
-    from mocapfill.evaluation.smoothness import smoothness
-
-    s = smoothness(res.positions, data.missing, points=np.array([k == "marker" for k in data.kinds]))
-    assert s.n_filled == 0 or s.max_filled <= s.max_observed
-
-
 @pytest.mark.accuracy
 def test_markers_seen_in_a_few_frames_move_with_the_body(shared_data):
     """CMU 16_08 (239 frames, dense 20 %): markers hidden in all but 6 frames were bridged by the motion alone up to

@@ -21,6 +21,8 @@ CASES = [
     pytest.param("tests/data/ADemo1_rewrite_c3d_pc_float.c3d", id="ADemo1"),
     pytest.param("tests/data/kinematics_racing_full.c3d", id="racing_full"),
     pytest.param("tests/data/qtm_JaneDoe_Dynamic_2.tsv", id="qtm_JaneDoe"),
+    pytest.param("tests/data/newwalk.c3d", id="newwalk"),
+    pytest.param("tests/data/MACsample.c3d", id="MACsample"),
 ]
 
 
