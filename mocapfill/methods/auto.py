@@ -154,8 +154,9 @@ class ModelConfig:
     #: over the held-out rows' mean one, at least 1: the scale of a multivariate t's conditional variance), and the
     #: smoother's posterior sd is computed with it.  The fill's mean keeps the cross-validated sd: letting the
     #: factor reweight the fusion cost accuracy where the dynamics alone are worse still (bench_default 85_02
-    #: one-marker 11.5 -> 13.3 mm).  Measured (fills unchanged): err/std inside 0.5-2 on 71 of 80 trials (64
-    #: without); gaps with an RMS error above ``review_sd_mm`` per coordinate flagged for review: 99 of 187 (18).
+    #: one-marker 11.5 -> 13.3 mm).  Measured (fills unchanged): bench_default's err/std inside 0.5-2 on 70 of 80
+    #: trials (64 without); bench_default_captures' gaps with an RMS error above ``review_sd_mm`` per coordinate
+    #: flagged for review: 90 of 153 on four captures (33 without), 40 of 48 on the committed walk (9).
     extrapolation_sd: bool = True
     #: Frame rate assumed when the capture has none.
     default_rate: float = 100.0
@@ -259,16 +260,16 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     prior_est = None
     if prior is not None:
         prior_est = prior_estimate(positions, prior, labels=labels, units=units, rate=rate, config=config)
-        report_sd = prior_stage(positions, pred, report_sd, edge, edge_sd, *prior_est)[1]
-        pred, pred_sd, edge, edge_sd = prior_stage(positions, pred, pred_sd, edge, edge_sd, *prior_est)
+        pred, pred_sd, edge, edge_sd, report_sd = joined(positions, pred, pred_sd, edge, edge_sd, report_sd,
+                                                         prior_est, None, config, mm)
         info["prior"] = {"markers": int(np.isfinite(prior_est[1]).sum()),
                          "median_sd": float(np.nanmedian(prior_est[1])) if np.isfinite(prior_est[1]).any()
                          else None}
     glob = None
     if config.global_sd_mm and (missing & ~np.isfinite(pred_sd)).any():
         glob = global_prediction(positions, units)
-        report_sd = global_stage(positions, pred, report_sd, *glob, config, mm)[1]
-        pred, pred_sd = global_stage(positions, pred, pred_sd, *glob, config, mm)
+        pred, pred_sd, edge, edge_sd, report_sd = joined(positions, pred, pred_sd, edge, edge_sd, report_sd, None,
+                                                         glob, config, mm)
     boneset = None
     if refine and bones is not False:
         from ..bones.boneset import resolve_bones
@@ -281,24 +282,20 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate,
                                         report_sd=None if config.impute_passes else report_sd)
     for k in range(config.impute_passes):
+        last = k == config.impute_passes - 1
         if used_refs is not None:
             used_refs.clear()  # the last pass's models make the prediction: they are the ones reported
-        off = np.full(missing.shape, np.nan) if config.extrapolation_sd else None
+        off = np.full(missing.shape, np.nan) if config.extrapolation_sd and last else None
         pred, pred_sd, edge, edge_sd = impute_stage(positions, fill, sd, config, mm,
                                                        reference_frames=reference_frames,
                                                        reference_weights=reference_weights, used_references=used_refs,
                                                        extrapolation=off)
-        report_sd = reported_sd(pred_sd, off)
-        if prior_est is not None:
-            report_sd = prior_stage(positions, pred, report_sd, edge, edge_sd, *prior_est)[1]
-            pred, pred_sd, edge, edge_sd = prior_stage(positions, pred, pred_sd, edge, edge_sd, *prior_est)
-        if glob is not None:
-            report_sd = global_stage(positions, pred, report_sd, *glob, config, mm)[1]
-            pred, pred_sd = global_stage(positions, pred, pred_sd, *glob, config, mm)
+        pred, pred_sd, edge, edge_sd, report_sd = joined(positions, pred, pred_sd, edge, edge_sd,
+                                                         reported_sd(pred_sd, off), prior_est, glob, config, mm)
         if boneset is not None and len(boneset):
             pred = bone_stage(positions, pred, pred_sd, boneset, config, mm)
         fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate,
-                                            report_sd=report_sd if k == config.impute_passes - 1 else None)
+                                            report_sd=report_sd if last else None)
     if used_refs is not None:
         info["references"] = ({"frames": int((reference_weights > 0).sum()), "models": len(used_refs),
                                "used": int(sum(used_refs))} if config.impute_passes
@@ -307,6 +304,21 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     info["gap_methods"] = gap_records(missing, sd, spatial, outliers, config, mm, labels, boneset, off)
     info["review"] = [i for i, r in enumerate(info["gap_methods"]) if r["review"]]
     return finish(positions, fill, std=sd, info=info)
+
+
+def joined(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, edge: np.ndarray, edge_sd: np.ndarray,
+           report_sd: np.ndarray, prior_est: tuple | None, glob: tuple | None, config: ModelConfig, mm: float):
+    """The learned denoiser's estimate (``prior_est``, :func:`prior_stage`) and the global PCA's (``glob``,
+    :func:`global_stage`) joined to the spatial predictions, each where given, in both the sd the fill uses
+    (``pred_sd``) and the one it reports (``report_sd``, :func:`reported_sd`).  Arrays as :func:`spatial_stage`
+    returns them; returns pred, pred_sd, edge, edge_sd, report_sd."""
+    if prior_est is not None:
+        report_sd = prior_stage(positions, pred, report_sd, edge, edge_sd, *prior_est)[1]
+        pred, pred_sd, edge, edge_sd = prior_stage(positions, pred, pred_sd, edge, edge_sd, *prior_est)
+    if glob is not None:
+        report_sd = global_stage(positions, pred, report_sd, *glob, config, mm)[1]
+        pred, pred_sd = global_stage(positions, pred, pred_sd, *glob, config, mm)
+    return pred, pred_sd, edge, edge_sd, report_sd
 
 
 def spatial_stage(positions: np.ndarray, config: ModelConfig, mm: float, *,
