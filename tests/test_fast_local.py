@@ -260,64 +260,6 @@ def test_norm3_is_the_norm_bit_for_bit():
     assert np.array_equal(_norm3(d), np.linalg.norm(d, axis=2))
 
 
-def _plain_refine(estimate, positions, std, pairs, lengths, spread, *, spread_floor, max_iter=10):
-    """refine_bones as first written (dense damping, masked updates, np.linalg.norm)."""
-    out = np.array(estimate, dtype=np.float64)
-    missing = np.isnan(positions).any(axis=2)
-    movable = missing & np.isfinite(std) & (std > 0) & np.isfinite(out).all(axis=2)
-    spread = np.where(np.isfinite(spread), np.maximum(spread, spread_floor), spread_floor)
-    frames = np.flatnonzero((movable[:, pairs[:, 0]] | movable[:, pairs[:, 1]]).any(axis=1))
-    rows_all = movable[frames]
-    uniq, inverse = np.unique(rows_all, axis=0, return_inverse=True)
-    for p in range(len(uniq)):
-        rows, markers = frames[np.asarray(inverse).ravel() == p], np.flatnonzero(uniq[p])
-        touch = np.isin(pairs, markers).any(axis=1)
-        if not touch.any():
-            continue
-        bp, bl, bs = pairs[touch], lengths[touch], spread[touch]
-        k = len(markers)
-        slot = -np.ones(out.shape[1], dtype=int)
-        slot[markers] = np.arange(k)
-        ia, ib = slot[bp[:, 0]], slot[bp[:, 1]]
-        fixed = out[rows]
-        target = out[rows][:, markers]
-        prec = 1.0 / std[rows][:, markers] ** 2
-        bw = 1.0 / bs ** 2
-
-        def cost(y):
-            pa = np.where(ia[None, :, None] >= 0, y[:, np.maximum(ia, 0)], fixed[:, bp[:, 0]])
-            pb = np.where(ib[None, :, None] >= 0, y[:, np.maximum(ib, 0)], fixed[:, bp[:, 1]])
-            d = pa - pb
-            r = np.linalg.norm(d, axis=2) - bl
-            d = np.where(np.isfinite(d), d, 0.0)
-            r = np.where(np.isfinite(r), r, 0.0)
-            return (prec[..., None] * (y - target) ** 2).sum(axis=(1, 2)) + (bw * r ** 2).sum(axis=1), d, r
-
-        y = target.copy()
-        f, d, r = cost(y)
-        lam = np.full(len(rows), 1e-3)
-        eye = np.eye(3 * k)
-        grad_sum, hess_sum = _bone_sums(ia, ib, k)
-        for _ in range(max_iter):
-            unit = d / np.maximum(np.linalg.norm(d, axis=2, keepdims=True), 1e-300)
-            weighted = unit * bw[None, :, None]
-            grad = (np.repeat(prec, 3, axis=1) * (y - target).reshape(len(rows), 3 * k)
-                    + grad_sum(weighted * r[:, :, None]).reshape(len(rows), 3 * k))
-            hess = hess_sum(weighted[:, :, :, None] * unit[:, :, None, :])
-            hess[:, np.arange(3 * k), np.arange(3 * k)] += np.repeat(prec, 3, axis=1)
-            diag = hess[:, np.arange(3 * k), np.arange(3 * k)]
-            damped = hess + (lam[:, None] * diag)[:, :, None] * eye
-            step = np.linalg.solve(damped, -grad[:, :, None])[:, :, 0].reshape(y.shape)
-            f_try, d_try, r_try = cost(y + step)
-            ok = f_try <= f
-            y[ok], f[ok], d[ok], r[ok] = (y + step)[ok], f_try[ok], d_try[ok], r_try[ok]
-            lam = np.where(ok, lam * 0.3, lam * 10.0)
-            if np.abs(step[ok]).max(initial=0.0) < 1e-9 * max(float(bl.min()), 1e-12) and ok.all():
-                break
-        out[np.ix_(rows, markers)] = y
-    return out
-
-
 def test_hess_sum_equals_the_dense_block_sum():
     ia = np.array([0, 1, -1, 2, 0, 3, 0])
     ib = np.array([1, -1, 2, 3, 2, -1, 1])
@@ -333,20 +275,74 @@ def test_hess_sum_equals_the_dense_block_sum():
     np.testing.assert_allclose(_bone_sums(ia, ib, k)[1](o), dense, atol=1e-12)
 
 
-def test_refine_bones_equals_the_plain_gauss_newton():
-    rng = np.random.default_rng(11)
-    truth = moving_body(120, 12, seed=11, rotation=lambda t: rot_z(0.9 * t))
+def _objective(y, estimate, std, pairs, lengths, spread, frame, markers):
+    """refine_bones' objective for one frame, ``y`` the moved markers' positions (3 k,)."""
+    pos = estimate[frame].copy()
+    pos[markers] = y.reshape(-1, 3)
+    prior = ((pos[markers] - estimate[frame, markers]) ** 2).sum(axis=1) / std[frame, markers] ** 2
+    r = np.linalg.norm(pos[pairs[:, 0]] - pos[pairs[:, 1]], axis=1) - lengths
+    touch = np.isin(pairs, markers).any(axis=1)
+    return prior.sum() + (r[touch] ** 2 / spread[touch] ** 2).sum()
+
+
+def _loose_limbs(seed=11, noise=60.0, sd=(50.0, 300.0), share=0.4):
+    """60 frames of 12 markers, ``share`` of the samples missing, their estimates ``noise`` mm off (sd in ``sd``): markers
+    with weak estimates hang on bones their estimates break."""
+    rng = np.random.default_rng(seed)
+    truth = moving_body(60, 12, seed=seed, rotation=lambda t: rot_z(0.9 * t))
     pairs = np.array([(i, j) for i in range(12) for j in range(i + 1, 12) if (i + j) % 3 != 0])
     lengths = np.linalg.norm(truth[0, pairs[:, 0]] - truth[0, pairs[:, 1]], axis=1)
-    spread = rng.random(len(pairs)) * 3
-    spread[2] = np.nan
+    spread = rng.uniform(1.0, 3.0, len(pairs))
     positions = truth.copy()
-    missing = rng.random((120, 12)) < 0.4  # often several markers at once (sums over >= 8 terms)
-    missing[:, 7] |= np.arange(120) > 100  # a long gap
+    missing = rng.random((60, 12)) < share
     positions[missing] = np.nan
-    estimate = truth + np.where(missing[..., None], rng.normal(size=truth.shape) * 15, 0.0)
-    std = np.where(missing, rng.uniform(2, 20, missing.shape), 0.0)
-    std[3, np.flatnonzero(missing[3])[:1]] = np.nan  # not moved
+    estimate = truth + np.where(missing[..., None], rng.normal(size=truth.shape) * noise, 0.0)
+    std = np.where(missing, rng.uniform(*sd, missing.shape), 0.0)
+    return estimate, positions, std, pairs, lengths, spread
+
+
+def test_refine_bones_reaches_the_minimum_a_general_optimiser_finds():
+    from scipy.optimize import minimize
+
+    estimate, positions, std, pairs, lengths, spread = _loose_limbs()
     out, info = refine_bones(estimate, positions, std, pairs, lengths, spread, spread_floor=1.0)
-    assert info["frames"] > 50
-    assert np.array_equal(out, _plain_refine(estimate, positions, std, pairs, lengths, spread, spread_floor=1.0))
+    assert info["frames"] > 40
+    missing = np.isnan(positions).any(axis=2)
+    for frame in range(0, 60, 7):
+        markers = np.flatnonzero(missing[frame])
+        if not len(markers):
+            continue
+        args = (estimate, std, pairs, lengths, spread, frame, markers)
+        ours = _objective(out[frame, markers].ravel(), *args)
+        best = minimize(_objective, out[frame, markers].ravel(), args=args, method="BFGS", options={"gtol": 1e-10})
+        # from our answer a general optimiser finds nothing lower to speak of (the objective is twice a negative log
+        # likelihood: 0.1 is a tenth of a standard deviation's worth), and ours is far below the start
+        assert ours <= best.fun + 0.1
+        assert ours < 0.5 * _objective(estimate[frame, markers].ravel(), *args)
+    assert info["unconverged"] == 0
+
+
+def test_refine_bones_is_not_stopped_halfway_by_an_iteration_count():
+    # estimates 30 cm off with sds of 30-100 cm on tight bones: the Gauss-Newton steps this solver replaced left the
+    # objective 13x its minimum after their 10 iterations (a loose marker slid along its bones' tangents and was
+    # damped back); with the curvature across stretched bones the default bound ends within a few per cent of it
+    estimate, positions, std, pairs, lengths, spread = _loose_limbs(seed=5, noise=300.0, sd=(300.0, 1000.0), share=0.6)
+    missing = np.isnan(positions).any(axis=2)
+
+    def total(out):
+        return sum(_objective(out[t, np.flatnonzero(missing[t])].ravel(), estimate, std, pairs, lengths, spread, t,
+                              np.flatnonzero(missing[t])) for t in range(len(out)) if missing[t].any())
+
+    out, _ = refine_bones(estimate, positions, std, pairs, lengths, spread, spread_floor=1.0)
+    full, info = refine_bones(estimate, positions, std, pairs, lengths, spread, spread_floor=1.0, max_iter=1000)
+    assert total(full) <= total(out) <= 1.05 * total(full)
+    assert info["unconverged"] == 0
+
+
+def test_bone_components_split_the_moved_markers_by_the_bones_between_them():
+    from mocapfill.bones.refinement import _components
+
+    markers = np.array([2, 3, 5, 7, 8, 9, 11, 12])
+    pairs = np.array([(2, 3), (3, 0), (1, 5), (7, 8), (9, 0), (8, 11), (4, 6)])  # 12 is on no bone
+    comps = sorted(c.tolist() for c in _components(markers, pairs))
+    assert comps == [[2, 3], [5], [7, 8, 11], [9]]
