@@ -19,8 +19,8 @@ first part is Gauss-Newton's, the second the curvature of the length across the 
 the bone is stretched (r > 0) and dropped where it is compressed (it would be negative there), so every system stays
 positive definite.  Without it a loose marker hanging on a bone is moved along the bone's tangent as if its length did
 not change, overshoots and is damped back: on messy captures (a third of the markers missing) most frames were still
-moving after 10 iterations, at a cost thousands of times the optimum's (kineticstoolkit's basket sprint: 2.6e9
-against 4.7e5), and each frame stopped at a different place, so the fill jerked from frame to frame.  A frame stops
+moving after 10 iterations, at a cost thousands of times the optimum's (kineticstoolkit's basket sprint: 1.9e9
+against 4.7e5 now), and each frame stopped at a different place, so the fill jerked from frame to frame.  A frame stops
 when an accepted step's model promised the objective (twice a negative log-likelihood) less than ``tolerance``.
 Moved markers joined by no bone between moved markers do not interact: the objective is a sum over the connected
 components of those bones, and each component is solved alone, batched over every frame where it occurs
