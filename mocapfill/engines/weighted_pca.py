@@ -292,6 +292,11 @@ def weighted_sums(block: np.ndarray, row_weight: np.ndarray | None) -> tuple[np.
     return wb.sum(axis=0), block.T @ wb, float(row_weight.sum())
 
 
+def _centred(h1: np.ndarray, h2: np.ndarray, hn: float, mean: np.ndarray) -> np.ndarray:
+    """sum over a block's rows of (x - mean)(x - mean)^T from its raw sums h1 = sum x, h2 = sum x x^T, hn rows."""
+    return h2 - np.outer(h1, mean) - np.outer(mean, h1) + hn * np.outer(mean, mean)
+
+
 def _fold_errors(model: PCAModel, h1: np.ndarray, h2: np.ndarray, hn: float) -> np.ndarray:
     """Summed squared error (K, nt) of a held-out block's targets reconstructed with the first k = 1..K components.
 
@@ -305,7 +310,7 @@ def _fold_errors(model: PCAModel, h1: np.ndarray, h2: np.ndarray, hn: float) -> 
     """
     nt = model.n_target
     mean, basis = model.mean, model.basis
-    cent = h2 - np.outer(h1, mean) - np.outer(mean, h1) + hn * np.outer(mean, mean)  # sum c c^T (q, q)
+    cent = _centred(h1, h2, hn, mean)  # sum c c^T (q, q)
     d = (model.weight / model.scale)[nt:]
     bp = basis[nt:] * d[:, None]  # (q_p, K): scores s = bp^T c_p
     a = bp.T @ cent[nt:, :nt]  # (K, nt): sum over rows of s c_t
@@ -328,8 +333,7 @@ def _fold_residual(model: PCAModel, h1: np.ndarray, h2: np.ndarray, hn: float, k
     """
     nt = model.n_target
     mean, basis = model.mean[nt:], model.basis[nt:, :k]
-    g1, g2 = h1[nt:], h2[nt:, nt:]
-    cent = g2 - np.outer(g1, mean) - np.outer(mean, g1) + hn * np.outer(mean, mean)  # sum c_p c_p^T
+    cent = _centred(h1[nt:], h2[nt:, nt:], hn, mean)  # sum c_p c_p^T
     d = (model.weight / model.scale)[nt:]
     bp = basis * d[:, None]
     s_mat = bp.T @ cent @ bp  # (k, k)
