@@ -324,13 +324,13 @@ def widen_result(result: FillResult, columns: np.ndarray, positions: np.ndarray,
     info = dict(result.info)
     if isinstance(info.get("left_missing"), list):  # the stretches left on request, in the full capture's columns
         info["left_missing"] = [dict(r, marker=int(columns[r["marker"]])) for r in info["left_missing"]]
-    records = info.get("gap_methods")
-    if isinstance(records, list):  # name each gap's marker: indices would point into the fill's columns
-        sub_labels = [labels[k] for k in columns]
-        info["gap_methods"] = [dict(r, marker=sub_labels[r["marker"]]) if isinstance(r, dict)
-                               and isinstance(r.get("marker"), (int, np.integer))
-                               and 0 <= r["marker"] < len(sub_labels) else r for r in records]
-    for key in ("gap_methods", "declined"):  # per-gap records' marker_index: a column of the whole capture
+    sub_labels = [labels[k] for k in columns]
+    for key in ("gap_methods", "displaced"):  # name each record's marker: indices would point into the fill's columns
+        if isinstance(info.get(key), list):
+            info[key] = [dict(r, marker=sub_labels[r["marker"]]) if isinstance(r, dict)
+                         and isinstance(r.get("marker"), (int, np.integer))
+                         and 0 <= r["marker"] < len(sub_labels) else r for r in info[key]]
+    for key in ("gap_methods", "declined", "displaced"):  # per-gap records' marker_index: a column of the whole capture
         if isinstance(info.get(key), list):
             info[key] = [dict(r, marker_index=int(columns[r["marker_index"]])) if isinstance(r, dict)
                          and isinstance(r.get("marker_index"), (int, np.integer))
@@ -579,6 +579,7 @@ def sample_status(outcome: FillOutcome) -> np.ndarray:
         ``MISSING`` (left for another reason), ``REJECTED_OUTLIER`` / ``REJECTED_HELD`` / ``REJECTED_FRAGMENT``
         (observed, dropped by a guard, filled again; a dropped sample left missing gets the reason it was left),
         ``REPAIRED`` (moved by the denoiser), ``SMOOTHED`` (observed, changed by ``--smooth`` / ``--lowpass``),
+        ``SUSPECT`` (observed, returned as it was, in a run the default's model judged displaced),
         ``MODEL_POINT`` / ``UNLABELLED`` (every sample of such a point that was not chosen for filling).
     """
     data = outcome.data
@@ -600,6 +601,8 @@ def sample_status(outcome: FillOutcome) -> np.ndarray:
         from .methods.base import declined_mask
 
         status[declined_mask(outcome.result.info, status.shape) & now_missing] = Status.MISSING_DECLINED
+        kept = status == Status.OBSERVED
+        status[declined_mask(outcome.result.info, status.shape, "displaced") & kept] = Status.SUSPECT
     if outcome.left is not None:
         left = np.asarray(outcome.left)
         status[left != 0] = left[left != 0]

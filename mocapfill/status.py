@@ -27,6 +27,7 @@ class Status(IntEnum):
     MODEL_POINT = 11  #: a model point (computed by the capture software), kept untouched
     UNLABELLED = 12  #: an unlabelled trajectory, kept untouched
     SMOOTHED = 13  #: observed, changed by ``--smooth`` or ``--lowpass``
+    SUSPECT = 14  #: observed and returned as it was, but ``auto`` judged its run between two gaps displaced: review
 
 
 #: The text each code is written as in a status CSV.
@@ -45,4 +46,5 @@ NAMES = {
     Status.MODEL_POINT: "model point",
     Status.UNLABELLED: "unlabelled",
     Status.SMOOTHED: "smoothed",
+    Status.SUSPECT: "observed (judged displaced)",
 }

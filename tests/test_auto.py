@@ -12,7 +12,7 @@ from synthetic import tumbling_body
 from synthetic import moving_body, rot_x, rot_z
 from mocapfill.methods import get_method
 from mocapfill.engines.local_pca import rigid_prediction
-from mocapfill.methods.auto import (DEFAULT_CONFIG, ModelConfig, body_stage, fill_auto, gap_records,
+from mocapfill.methods.auto import (DEFAULT_CONFIG, ModelConfig, body_stage, displaced_runs, fill_auto, gap_records,
                                          global_prediction, global_stage,
                                          motion_model, spatial_stage, temporal_stage)
 
@@ -218,6 +218,62 @@ def test_fragments_are_short_observed_runs_between_gaps():
     missing = np.array([[0, 1, 0, 1, 1, 0, 0, 1, 0, 0, 0, 1, 0]], bool).T
     frag = fragments(missing, 2)[:, 0]
     assert list(np.flatnonzero(frag)) == [2, 5, 6]  # not the run at the start, nor the 3-frame run
+
+
+def test_displaced_runs_weigh_a_run_between_gaps_against_the_spatial_sd():
+    """A run between two gaps 300 mm off the spatial model (sd 5 mm) is judged displaced, the same run where it
+    belongs is not, nor is a run at the take's start (not between two gaps), and the bound grows with the sd: 60 mm
+    off is displaced at sd 5 mm and not at sd 20 mm."""
+    rng = np.random.default_rng(0)
+    truth = np.cumsum(rng.normal(size=(60, 2, 3)), axis=0)
+    pos = truth.copy()
+    pos[10:20, 0] = np.nan
+    pos[25:40, 0] = np.nan  # frames 20-24: a run between two gaps
+    pos[5:8, 1] = np.nan  # marker 1: frames 0-4 a run at the take's start
+    edge = truth + rng.normal(scale=5.0, size=truth.shape)
+    edge_sd = np.full((60, 2), 5.0)
+
+    def judged(offset, sd=5.0, at=(slice(20, 25), 0)):
+        shifted = pos.copy()
+        shifted[at] += offset
+        return displaced_runs(shifted, edge, np.full((60, 2), sd), DEFAULT_CONFIG, 1.0)
+
+    assert not displaced_runs(pos, edge, edge_sd, DEFAULT_CONFIG, 1.0).any()
+    assert list(np.flatnonzero(judged([300.0, 0, 0])[:, 0])) == [20, 21, 22, 23, 24]
+    assert not judged([300.0, 0, 0], at=(slice(0, 5), 1)).any()
+    assert judged([60.0, 0, 0]).any() and not judged([60.0, 0, 0], sd=20.0).any()
+    off = ModelConfig(displaced_prior=0.0)
+    assert not displaced_runs(pos + np.where(np.arange(60)[:, None, None] == 22, 300.0, 0.0), edge, edge_sd, off,
+                              1.0).any()
+
+
+def test_the_fill_does_not_bend_to_a_displaced_run_and_says_so():
+    """A 5-frame run between two gaps displaced by 40 cm (a swap outlier rejection cannot see: no step beside it):
+    the fill of the gaps around it stays with the body instead of reaching for it, the run comes back as observed,
+    and the gaps beside it are flagged for review with the run's frames."""
+    truth = moving_body(400, 9, seed=4, spread=150.0, rate=100.0, rotation=lambda t: rot_z(1.5 * t))
+    gapped = truth.copy()
+    gapped[150:170, 0] = np.nan
+    gapped[175:200, 0] = np.nan
+    gapped[170:175, 0] += [400.0, -150.0, 100.0]
+    res = fill_auto(gapped, rate=100.0, labels=[f"m{i}" for i in range(9)])
+    assert np.array_equal(res.positions[170:175, 0], gapped[170:175, 0])
+    hidden = np.isnan(gapped).any(axis=2)
+    err = np.linalg.norm(res.positions[hidden] - truth[hidden], axis=1)
+    assert err.max() < 5.0
+    assert [(r["marker"], r["start"], r["length"]) for r in res.info["displaced"]] == [("m0", 170, 5)]
+    beside = [r for r in res.info["gap_methods"] if r["marker"] == "m0"]
+    assert all(r["review"] and "170-174" in r["reason"] for r in beside)
+    plain = fill_auto(gapped, rate=100.0, config=ModelConfig(displaced_prior=0.0))
+    assert np.linalg.norm(plain.positions[hidden] - truth[hidden], axis=1).max() > 100.0
+    from mocapfill.markers import MarkerData
+    from mocapfill.pipeline import FillSettings, fill_capture
+    from mocapfill.status import Status
+
+    outcome = fill_capture(MarkerData(gapped, [f"m{i}" for i in range(9)], 100.0, "mm"),
+                           FillSettings(method="auto").check())
+    assert (outcome.status[170:175, 0] == Status.SUSPECT).all()
+    assert (outcome.status[~hidden & (np.arange(400)[:, None] < 170)] == Status.OBSERVED).all()
 
 
 @pytest.mark.accuracy

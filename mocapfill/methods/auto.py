@@ -24,7 +24,9 @@ The model (equations in ``ARCHITECTURE.md``, "The default's model"), each stage 
    predictions are its measurements; one Rauch-Tung-Striebel smoother gives the fill (posterior mean) and its
    standard deviation (posterior sd).  The jerk density is learnt from the capture's observed third differences,
    scaled at each frame by how fast the body moves then.  Samples of observed fragments of 1-2 frames between
-   gaps count as noisy measurements (the output keeps them).  Where the spatial model has nothing, the dynamics
+   gaps count as noisy measurements (the output keeps them), and so does an observed run between two gaps that
+   lies farther off the spatial model than its sd explains (:func:`displaced_runs`: a swapped or ghost marker
+   outlier rejection cannot see; it is reported).  Where the spatial model has nothing, the dynamics
    bridge the gap and the standard deviation grows.  (Optionally, ``reweight_passes``: predictions far off the
    smoothed path are down-weighted and the smoother runs again; off by default, as measured.)
 4. :func:`impute_stage` (EM-style): the spatial model is fitted again on the take completed by step 3 (every frame
@@ -51,7 +53,7 @@ import numpy as np
 from ..engines.local_pca import reconstruct_local
 from ..engines.motion_smoother import MotionModel, acceleration_memory, jerk_density, jerk_gain, smooth
 from ..errors import MethodError
-from ..gaps import find_gaps, fragments
+from ..gaps import find_gaps, fragments, runs
 from ..guards.windows import DEFAULT_WINDOW, fill_in_windows
 from ..runtime.blas import single_blas_thread
 from ..units import length_factor
@@ -129,6 +131,13 @@ class ModelConfig:
     #: pass through them).
     fragment_sd_mm: float = 20.0
     fragment_frames: int = 2
+    #: Prior probability that an observed run between two gaps is displaced as a whole (a swapped or ghost marker the
+    #: tracker labelled; outlier rejection cannot see one: it has no step to either side).  With the next, the odds
+    #: :func:`displaced_runs` weighs against the spatial model's sd there (0: off).
+    displaced_prior: float = 0.05
+    #: Standard deviation per axis of such a displacement (mm): Holden's corruption displaces by up to 50 cm per axis
+    #: (uniform, sd 289 mm).  A run judged displaced is measured with this sd: the fill no longer bends to it.
+    displacement_mm: float = 300.0
     #: Smallest jerk density (mm^2 / frame^5): a marker that never moved must not pin its fill.
     jerk_floor_mm2: float = 1e-6
     #: A spatial prediction more than this many standard deviations off the smoothed path is down-weighted.
@@ -280,8 +289,9 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     info["bones"] = 0 if boneset is None else int(len(boneset))
     model = motion_model(positions, missing, config, mm, rate)
     # the refit below reads the seed's posterior sd: only the last pass's sd is the reported one
+    displaced = displaced_runs(positions, edge, edge_sd, config, mm)
     fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate,
-                                        report_sd=None if config.impute_passes else report_sd)
+                                        report_sd=None if config.impute_passes else report_sd, displaced=displaced)
     for k in range(config.impute_passes):
         last = k == config.impute_passes - 1
         if used_refs is not None:
@@ -295,14 +305,16 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
                                                          reported_sd(pred_sd, off), prior_est, glob, config, mm)
         if boneset is not None and len(boneset):
             pred = bone_stage(positions, pred, pred_sd, boneset, config, mm)
+        displaced = displaced_runs(positions, edge, edge_sd, config, mm)
         fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate,
-                                            report_sd=report_sd if last else None)
+                                            report_sd=report_sd if last else None, displaced=displaced)
     if used_refs is not None:
         info["references"] = ({"frames": int((reference_weights > 0).sum()), "models": len(used_refs),
                                "used": int(sum(used_refs))} if config.impute_passes
                               else sinfo.get("references", {"frames": 0, "models": 0, "used": 0}))
     spatial = missing & np.isfinite(pred_sd)
-    info["gap_methods"] = gap_records(missing, sd, spatial, outliers, config, mm, labels, boneset, off)
+    info["gap_methods"] = gap_records(missing, sd, spatial, outliers, config, mm, labels, boneset, off, displaced)
+    info["displaced"] = displaced_records(positions, displaced, edge, mm, labels)
     info["review"] = [i for i, r in enumerate(info["gap_methods"]) if r["review"]]
     return finish(positions, fill, std=sd, info=info)
 
@@ -559,9 +571,50 @@ def reported_sd(pred_sd: np.ndarray, off: np.ndarray | None) -> np.ndarray:
     return pred_sd * np.sqrt(np.where(np.isfinite(off), np.maximum(off, 1.0), 1.0))
 
 
+def displaced_runs(positions: np.ndarray, edge: np.ndarray, edge_sd: np.ndarray, config: ModelConfig, mm: float
+                   ) -> np.ndarray:
+    """Stage 3a: observed runs between two gaps that the spatial model says were displaced as a whole.
+
+    positions / edge (n_frames, n_markers, 3): the input and the spatial model's reconstruction at the observed
+    frames next to gaps, edge_sd (n_frames, n_markers) its sd per coordinate (NaN: none there).  For each observed
+    run with a gap on both sides, r = the mean over its reconstructed frames of (observed - reconstructed) and
+    s^2 = the mean of edge_sd^2 + the camera's variance.  Two hypotheses (a run's errors are correlated in time, so
+    the mean is not credited with averaging): the run is right, r ~ N(0, s^2 I_3), or it was displaced by an offset
+    of sd ``displacement_mm`` per axis, r ~ N(0, (s^2 + v) I_3), with prior probability ``displaced_prior``.  Where the
+    second is the more probable,
+    |r|^2 > 2 s^2 (s^2 + v) / v [ln((1 - p) / p) + 3/2 ln((s^2 + v) / s^2)],
+    the run's samples are marked (about 5 s where s is 10 mm, 6 s at 2 mm).  A run at the take's start or end is left
+    alone (one gap beside it; counting those changed no trial of ``bench_corruption``'s tennis serve by more than
+    0.1 %).  Returns (n_frames, n_markers) bool.
+    """
+    missing = np.isnan(positions).any(axis=2)
+    out = np.zeros(missing.shape, dtype=bool)
+    p = config.displaced_prior
+    if not 0.0 < p < 1.0:
+        return out
+    v = (config.displacement_mm * mm) ** 2
+    r_obs = (config.obs_sd_mm * mm) ** 2
+    n_frames = missing.shape[0]
+    for m in np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0)):
+        for start, length in runs(~missing[:, m]):
+            if start == 0 or start + length >= n_frames:
+                continue  # not between two gaps
+            sl = slice(start, start + length)
+            seen = np.isfinite(edge_sd[sl, m]) & np.isfinite(edge[sl, m]).all(axis=1)
+            if not seen.any():
+                continue
+            r = (positions[sl, m][seen] - edge[sl, m][seen]).mean(axis=0)
+            s2 = float(np.mean(edge_sd[sl, m][seen] ** 2)) + r_obs
+            bound = 2.0 * s2 * (s2 + v) / v * (np.log((1.0 - p) / p) + 1.5 * np.log((s2 + v) / s2))
+            if float(r @ r) > bound:
+                out[sl, m] = True
+    return out
+
+
 def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, edge: np.ndarray,
                    edge_sd: np.ndarray, model: MotionModel, config: ModelConfig, mm: float, rate: float,
-                   report_sd: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   report_sd: np.ndarray | None = None, displaced: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stage 3: the smoother's posterior mean and sd for every marker with gaps.
 
     positions / pred / edge (n_frames, n_markers, 3); pred_sd / edge_sd (n_frames, n_markers) (NaN: no spatial
@@ -569,7 +622,9 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
     observed; NaN for markers never observed), sd (n_frames, n_markers) (0 observed) and the (n_frames, n_markers)
     mask of spatial predictions down-weighted as outliers.  ``report_sd`` (n_frames, n_markers) or None: the
     spatial sd the returned posterior sd is computed with (:func:`reported_sd`; the mean keeps ``pred_sd``): the
-    smoother runs again, for its variances, on the markers where it differs.
+    smoother runs again, for its variances, on the markers where it differs.  ``displaced`` (n_frames, n_markers)
+    bool or None: observed samples judged displaced (:func:`displaced_runs`), measured with the sd
+    ``displacement_mm`` instead of the camera's.
     """
     missing = np.isnan(positions).any(axis=2)
     todo = np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0))
@@ -587,6 +642,8 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
     sub = model._replace(q=model.q[todo])
     obs_var = np.where(fragments(missing[:, todo], config.fragment_frames), (config.fragment_sd_mm * mm) ** 2,
                        model.r_obs)
+    if displaced is not None:  # measured with the displacement's spread: the fill does not bend to them
+        obs_var = np.where(displaced[:, todo], (config.displacement_mm * mm) ** 2, obs_var)
     inflate = np.ones_like(sp_sd)
     for attempt in range(config.reweight_passes + 1):
         mean, sd = smooth(obs, sp, white * np.sqrt(inflate), bias * np.sqrt(inflate), sub, obs_var=obs_var)
@@ -611,15 +668,35 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
     return fill, sd_out, outliers
 
 
+def displaced_records(positions: np.ndarray, displaced: np.ndarray, edge: np.ndarray, mm: float, labels
+                      ) -> list[dict]:
+    """One JSON-ready record per observed run judged displaced (:func:`displaced_runs`): ``marker``,
+    ``marker_index``, ``start``, ``length`` and ``offset_mm``, the mean distance between the run's samples and the
+    spatial model's reconstruction there.  positions / edge (n_frames, n_markers, 3), displaced (n_frames, n_markers).
+    """
+    out = []
+    for m in np.flatnonzero(displaced.any(axis=0)):
+        for start, length in runs(displaced[:, m]):
+            sl = slice(start, start + length)
+            with np.errstate(invalid="ignore"):
+                dist = np.linalg.norm(positions[sl, m] - edge[sl, m], axis=1)
+            offset = float(np.nanmean(dist)) / mm if np.isfinite(dist).any() else None
+            out.append({"marker": labels[m] if labels is not None else int(m), "marker_index": int(m),
+                        "start": int(start), "length": int(length), "offset_mm": offset})
+    return out
+
+
 def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outliers: np.ndarray,
-                config: ModelConfig, mm: float, labels, boneset, off: np.ndarray | None = None) -> list[dict]:
+                config: ModelConfig, mm: float, labels, boneset, off: np.ndarray | None = None,
+                displaced: np.ndarray | None = None) -> list[dict]:
     """Stage 5: one JSON-ready record per gap (run of missing frames of one marker).
 
     missing / sd / spatial / outliers (n_frames, n_markers): the input's mask, the posterior sd, where the spatial
     model predicted, where its prediction was down-weighted; off (n_frames, n_markers) or None: how far each
-    prediction's pose lay off its model's training poses (:func:`reported_sd`).  ``review`` is True when the gap's
-    largest sd exceeds ``config.review_sd_mm`` (or nothing could be filled); every number in ``reason`` comes from
-    ``config``.
+    prediction's pose lay off its model's training poses (:func:`reported_sd`); displaced (n_frames, n_markers) or
+    None: observed samples judged displaced (:func:`displaced_runs`).  ``review`` is True when the gap's largest sd
+    exceeds ``config.review_sd_mm`` (or nothing could be filled) or a run judged displaced touches it; every number
+    in ``reason`` comes from ``config``.
     """
     limit = config.review_sd_mm * mm
     out = []
@@ -651,6 +728,19 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
                 reason += (f"; {n_out} prediction(s) more than {config.outlier:g} sd off the smoothed path "
                            f"down-weighted")
         review = not np.isfinite(worst) or worst > limit
+        if displaced is not None:
+            beside = [(a, b) for a, b in ((gap.start - 1, -1), (gap.stop, 1)) if 0 <= a < len(missing)
+                      and displaced[a, m]]
+            for a, step in beside:
+                b = a
+                while 0 <= b + step < len(missing) and displaced[b + step, m]:
+                    b += step
+                lo, hi = min(a, b), max(a, b)
+                reason += (f"; the observed frames {lo}-{hi} beside it lie farther off the spatial model than its "
+                           f"sd explains (odds with a {config.displaced_prior:.0%} prior of a displaced run, "
+                           f"{config.displacement_mm:g} mm per axis): judged displaced (a swap or ghost marker), "
+                           f"kept in the output but not followed by the fill; review them")
+            review = review or bool(beside)
         far = float(np.nanmax(off[sl, m])) if off is not None and np.isfinite(off[sl, m]).any() else None
         reason += (f"; largest posterior sd {worst / mm:.1f} mm" + (f" > {config.review_sd_mm:g} mm: review this gap"
                                                                   if review else ""))

@@ -90,12 +90,13 @@ def finish(
     )
 
 
-def declined_mask(info: dict[str, Any] | None, shape: tuple[int, int]) -> np.ndarray:
+def declined_mask(info: dict[str, Any] | None, shape: tuple[int, int], key: str = "declined") -> np.ndarray:
     """(n_frames, n_markers) bool: the samples of the gaps a method declined (``info["declined"]``: one record per
     gap with ``marker_index``, ``start`` (0-based frame) and ``length``, as the suites' fills write it); their status
-    is ``Status.MISSING_DECLINED``.  ``shape`` is (n_frames, n_markers); all False when nothing was declined."""
+    is ``Status.MISSING_DECLINED``.  ``shape`` is (n_frames, n_markers); all False when nothing was declined.
+    ``key``: another list of such records (``"displaced"``: the observed runs ``auto`` judged displaced)."""
     mask = np.zeros(shape, dtype=bool)
-    for rec in (info or {}).get("declined", []) or []:
+    for rec in (info or {}).get(key, []) or []:
         try:
             m, start, length = int(rec["marker_index"]), int(rec["start"]), int(rec["length"])
         except (KeyError, TypeError, ValueError):
