@@ -166,7 +166,8 @@ class ModelConfig:
     #: one-marker 11.5 -> 13.3 mm).  Measured (fills unchanged): bench_default's err/std inside 0.5-2 on 70 of 80
     #: trials (64 without); bench_default_captures' gaps with an RMS error above ``review_sd_mm`` per coordinate
     #: flagged for review: 90 of 153 on four captures (33 without), 40 of 48 on the committed walk (9); with the
-    #: converged bone refinement (2026-11-27, fourth session) 87 of 151 and 39 of 47.
+    #: converged bone refinement (2026-11-27, fourth session) 87 of 151 and 39 of 47; with displaced runs (fifth
+    #: session) 89 of 151.
     extrapolation_sd: bool = True
     #: Frame rate assumed when the capture has none.
     default_rate: float = 100.0
