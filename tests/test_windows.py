@@ -132,3 +132,25 @@ def test_windows_in_worker_processes_give_the_same_fill(long_take):
     serial = fill_in_windows(pos, fill_linear, window=1000, overlap=200)
     parallel = fill_in_windows(pos, fill_linear, window=1000, overlap=200, jobs=2)
     np.testing.assert_array_equal(parallel.positions, serial.positions)
+
+
+def test_observed_run_records_are_kept_once_in_the_takes_frames():
+    """A fill that lists observed runs (``auto``'s ``info["displaced"]``) in each window's frames: the merged list
+    has each run once (from the window whose share holds it, not the overlap's other window), in the take's frames."""
+    truth = np.cumsum(np.random.default_rng(0).normal(size=(3000, 3, 3)), axis=0)
+    pos = truth.copy()
+    pos[1000:1010, 0] = np.nan
+
+    def fill(window):
+        res = fill_linear(window)
+        seen = ~np.isnan(window).any(axis=2)
+        # every window reports each observed run of marker 1 between frames 5 and 8 of a 100-frame grid
+        runs = [{"marker": 1, "marker_index": 1, "start": s, "length": 3}
+                for s in range(0, len(window) - 3, 100) if seen[s:s + 3, 1].all()]
+        res.info["displaced"] = runs
+        return res
+
+    out = fill_in_windows(pos, fill, window=1200, overlap=300)
+    starts = [r["start"] for r in out.info["displaced"]]
+    assert starts == sorted(set(starts)) and len(starts) > 20
+    assert all(0 <= s < 3000 for s in starts)

@@ -23,7 +23,8 @@ How (:func:`fill_in_windows`):
    (:func:`mocapfill.methods.base.finish`).
 4. **Info.**  Per-gap lists (``info`` values that are lists of dicts with ``start`` and ``marker_index``, such as
    ``auto``'s ``gap_methods``) keep, for each gap of the take, the entry of the window that holds it with the most
-   weight, its ``start`` in the take's frames; values every window agrees on are kept; the others are listed per
+   weight, its ``start`` in the take's frames; lists of observed runs (:data:`RUN_LISTS`) keep each run from the
+   window whose share of the take holds its start; values every window agrees on are kept; the others are listed per
    window under ``info["windows"]``, with each window's ``start`` and ``stop``.
 
 Memory: the take, two accumulators of its size, and one window's fill.  Time: the fill's time on ``window``
@@ -46,6 +47,9 @@ from ..runtime.executor import Executor, InProcess, make_executor
 #: 120 Hz: longer than most gaps, so that one window holds each gap whole).
 DEFAULT_WINDOW = 5000
 DEFAULT_OVERLAP = 400
+#: ``info`` keys whose values list observed runs, not gaps (``auto``'s runs judged displaced): each record is kept from
+#: the window whose share of the take holds its start, its ``start`` shifted to the take's frames.
+RUN_LISTS = ("displaced",)
 #: Weight factor of a window on a gap it sees cut by its own edge.
 CUT_WEIGHT = 1e-12
 
@@ -230,7 +234,9 @@ def _merge_info(infos: list[dict], bounds: list[tuple[int, int]], missing: np.nd
     per_window = [{"start": int(a), "stop": int(b)} for a, b in bounds]
     for key in keys:
         values = [info.get(key) for info in infos]
-        if any(_is_gap_list(v) for v in values if v):
+        if key in RUN_LISTS:
+            merged[key] = _merge_run_lists(values, bounds)
+        elif any(_is_gap_list(v) for v in values if v):
             merged[key] = _merge_gap_lists(values, bounds, missing, owner)
         elif all(_same(v, values[0]) for v in values[1:]):
             merged[key] = values[0]
@@ -239,6 +245,19 @@ def _merge_info(infos: list[dict], bounds: list[tuple[int, int]], missing: np.nd
                 row[key] = value
     merged["windows"] = per_window
     return merged
+
+
+def _merge_run_lists(values: list, bounds: list[tuple[int, int]]) -> list[dict]:
+    """Records of observed runs (``start``, ``length``, ``marker_index``; :data:`RUN_LISTS`) in the take's frames:
+    each from the window whose share of the take (up to the middle of its overlaps) holds the run's start."""
+    out = []
+    for k, ((a, b), entries) in enumerate(zip(bounds, values)):
+        lo = a if k == 0 else (a + bounds[k - 1][1]) // 2
+        hi = b if k == len(bounds) - 1 else (bounds[k + 1][0] + b) // 2
+        for e in entries or []:
+            if isinstance(e, dict) and lo <= a + int(e.get("start", -1)) < hi:
+                out.append(dict(e, start=a + int(e["start"])))
+    return sorted(out, key=lambda e: (e.get("marker_index", 0), e["start"]))
 
 
 def _same(a: Any, b: Any) -> bool:

@@ -728,26 +728,24 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
             if n_out:
                 reason += (f"; {n_out} prediction(s) more than {config.outlier:g} sd off the smoothed path "
                            f"down-weighted")
-        review = not np.isfinite(worst) or worst > limit
-        if displaced is not None:
-            beside = [(a, b) for a, b in ((gap.start - 1, -1), (gap.stop, 1)) if 0 <= a < len(missing)
-                      and displaced[a, m]]
-            for a, step in beside:
-                b = a
-                while 0 <= b + step < len(missing) and displaced[b + step, m]:
-                    b += step
-                lo, hi = min(a, b), max(a, b)
-                reason += (f"; the observed frames {lo}-{hi} beside it lie farther off the spatial model than its "
-                           f"sd explains (odds with a {config.displaced_prior:.0%} prior of a displaced run, "
-                           f"{config.displacement_mm:g} mm per axis): judged displaced (a swap or ghost marker), "
-                           f"kept in the output but not followed by the fill; review them")
-            review = review or bool(beside)
+        uncertain = not np.isfinite(worst) or worst > limit
         far = float(np.nanmax(off[sl, m])) if off is not None and np.isfinite(off[sl, m]).any() else None
         reason += (f"; largest posterior sd {worst / mm:.1f} mm" + (f" > {config.review_sd_mm:g} mm: review this gap"
-                                                                  if review else ""))
-        if review and far is not None and far > 1.0:
+                                                                  if uncertain else ""))
+        if uncertain and far is not None and far > 1.0:
             reason += (f" (the neighbours took poses the spatial model never learnt: its sd raised up to "
                        f"{np.sqrt(far):.1f}x)")
+        # (lengths, not frame numbers: a long take's windows shift the records' starts, not their texts)
+        beside = [] if displaced is None else [
+            (side, int(np.argmin(np.append(displaced[a::step, m] if step > 0 else displaced[a::-1, m], False))))
+            for side, a, step in (("before", gap.start - 1, -1), ("after", gap.stop, 1))
+            if 0 <= a < len(missing) and displaced[a, m]]
+        for side, length in beside:
+            reason += (f"; the observed run of {length} frame(s) just {side} it lies farther off the spatial model "
+                       f"than its sd explains (odds with a {config.displaced_prior:.0%} prior of a displaced run, "
+                       f"{config.displacement_mm:g} mm per axis): judged displaced (a swap or ghost marker), kept in "
+                       f"the output but not followed by the fill: review it")
+        review = uncertain or bool(beside)
         rec.update(method=method, reason=reason, review=bool(review),
                    max_std=None if not np.isfinite(worst) else worst, extrapolation=far)
         out.append(rec)
