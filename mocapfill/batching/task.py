@@ -87,14 +87,14 @@ def _process_facts() -> tuple[str, float | None]:
 
 
 def _thread_usage() -> tuple[float, float, int] | None:
-    """(user + kernel seconds, kernel seconds, minor page faults) of the calling thread so far, None if unknown."""
+    """(user seconds, kernel seconds, minor page faults) of the calling thread so far, None if unknown."""
     try:
         import resource
 
         usage = resource.getrusage(resource.RUSAGE_THREAD)
     except (ImportError, AttributeError, OSError):  # pragma: no cover - not on Linux
         return None
-    return usage.ru_utime + usage.ru_stime, usage.ru_stime, usage.ru_minflt
+    return usage.ru_utime, usage.ru_stime, usage.ru_minflt
 
 
 def run_task(task: FileTask) -> BatchRow:
@@ -112,7 +112,9 @@ def run_task(task: FileTask) -> BatchRow:
         _fill_file(task, row)
     after = _thread_usage()
     if before is not None and after is not None:
-        row.cpu_seconds, row.kernel_seconds = after[0] - before[0], after[1] - before[1]
+        # user and kernel apart, then summed: (u1 + s1) - (u0 + s0) could round below s1 - s0 when no user time passed
+        row.kernel_seconds = after[1] - before[1]
+        row.cpu_seconds = (after[0] - before[0]) + row.kernel_seconds
         row.page_faults = after[2] - before[2]
     row.worker, row.peak_rss_mb = _process_facts()
     return row
