@@ -598,11 +598,11 @@ def sample_status(outcome: FillOutcome) -> np.ndarray:
         if mask is not None:
             status[np.asarray(mask, dtype=bool) & ~now_missing] = code
     if isinstance(outcome.result.info, dict):  # the gaps a method declined (the suites' fills)
-        from .methods.base import declined_mask
+        from .methods.base import declined_mask, records_mask
 
         status[declined_mask(outcome.result.info, status.shape) & now_missing] = Status.MISSING_DECLINED
         kept = status == Status.OBSERVED
-        status[declined_mask(outcome.result.info, status.shape, "displaced") & kept] = Status.SUSPECT
+        status[records_mask(outcome.result.info.get("displaced"), status.shape) & kept] = Status.SUSPECT
     if outcome.left is not None:
         left = np.asarray(outcome.left)
         status[left != 0] = left[left != 0]

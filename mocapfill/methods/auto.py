@@ -595,11 +595,9 @@ def displaced_runs(positions: np.ndarray, edge: np.ndarray, edge_sd: np.ndarray,
         return out
     v = (config.displacement_mm * mm) ** 2
     r_obs = (config.obs_sd_mm * mm) ** 2
-    n_frames = missing.shape[0]
-    for m in np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0)):
-        for start, length in runs(~missing[:, m]):
-            if start == 0 or start + length >= n_frames:
-                continue  # not between two gaps
+    between = fragments(missing, missing.shape[0])  # every observed run with a gap on both sides
+    for m in np.flatnonzero(between.any(axis=0)):
+        for start, length in runs(between[:, m]):
             sl = slice(start, start + length)
             seen = np.isfinite(edge_sd[sl, m]) & np.isfinite(edge[sl, m]).all(axis=1)
             if not seen.any():
@@ -737,7 +735,7 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
                        f"{np.sqrt(far):.1f}x)")
         # (lengths, not frame numbers: a long take's windows shift the records' starts, not their texts)
         beside = [] if displaced is None else [
-            (side, int(np.argmin(np.append(displaced[a::step, m] if step > 0 else displaced[a::-1, m], False))))
+            (side, int(np.argmin(np.append(displaced[a::step, m], False))))  # the run's length from its edge
             for side, a, step in (("before", gap.start - 1, -1), ("after", gap.stop, 1))
             if 0 <= a < len(missing) and displaced[a, m]]
         for side, length in beside:

@@ -90,19 +90,26 @@ def finish(
     )
 
 
-def declined_mask(info: dict[str, Any] | None, shape: tuple[int, int], key: str = "declined") -> np.ndarray:
-    """(n_frames, n_markers) bool: the samples of the gaps a method declined (``info["declined"]``: one record per
-    gap with ``marker_index``, ``start`` (0-based frame) and ``length``, as the suites' fills write it); their status
-    is ``Status.MISSING_DECLINED``.  ``shape`` is (n_frames, n_markers); all False when nothing was declined.
-    ``key``: another list of such records (``"displaced"``: the observed runs ``auto`` judged displaced)."""
+def records_mask(records: Any, shape: tuple[int, int]) -> np.ndarray:
+    """(n_frames, n_markers) bool: the samples covered by a list of per-run records (dicts with ``marker_index``,
+    ``start`` (0-based frame) and ``length``; malformed ones skipped), as ``info`` lists them: the gaps a method
+    declined (:func:`declined_mask`), the observed runs ``auto`` judged displaced (``info["displaced"]``, status
+    ``SUSPECT``).  ``shape`` is (n_frames, n_markers); all False for None or an empty list."""
     mask = np.zeros(shape, dtype=bool)
-    for rec in (info or {}).get(key, []) or []:
+    for rec in records or []:
         try:
             m, start, length = int(rec["marker_index"]), int(rec["start"]), int(rec["length"])
         except (KeyError, TypeError, ValueError):
             continue
         mask[start:start + length, m] = True
     return mask
+
+
+def declined_mask(info: dict[str, Any] | None, shape: tuple[int, int]) -> np.ndarray:
+    """(n_frames, n_markers) bool: the samples of the gaps a method declined (``info["declined"]``: one record per
+    gap with ``marker_index``, ``start`` (0-based frame) and ``length``, as the suites' fills write it); their status
+    is ``Status.MISSING_DECLINED``.  ``shape`` is (n_frames, n_markers); all False when nothing was declined."""
+    return records_mask((info or {}).get("declined"), shape)
 
 
 def check_positions(positions: np.ndarray) -> np.ndarray:
