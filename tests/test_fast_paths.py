@@ -55,3 +55,20 @@ def test_nearest_rotation_equals_svd_kabsch():
     A = np.concatenate([A, rng.normal(size=(100, 3, 3))])
     np.testing.assert_allclose(nearest_rotation(A), _svd_rotation(A), atol=1e-12)
     np.testing.assert_allclose(nearest_rotation(A[:5]), _svd_rotation(A[:5]), atol=1e-12)
+
+
+def test_nearest_rotation_of_planar_shapes_equals_svd_kabsch():
+    """Three anchors (a planar shape: the cross-covariance has rank 2) take the completed Newton iteration, not the
+    SVD, and give the SVD's proper rotation, rotated shapes and reflected ones alike."""
+    from mocapfill.engines.body_frame import nearest_rotation
+
+    rng = np.random.default_rng(3)
+    shape = rng.normal(size=(3, 3)) * 100
+    shape -= shape.mean(axis=0)
+    rot = np.linalg.qr(rng.normal(size=(300, 3, 3)))[0]
+    rot[:150] *= np.sign(np.linalg.det(rot[:150]))[:, None, None]  # proper rotations, then reflections
+    moved = shape[None] @ rot + rng.normal(size=(300, 3, 3))
+    moved -= moved.mean(axis=1, keepdims=True)
+    A = np.swapaxes(moved, 1, 2) @ shape
+    assert np.all(np.abs(np.linalg.det(A)) <= 1e-6 * np.linalg.norm(A, axis=(1, 2)) ** 3)
+    np.testing.assert_allclose(nearest_rotation(A), _svd_rotation(A), atol=1e-10)

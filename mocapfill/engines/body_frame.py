@@ -198,8 +198,12 @@ def nearest_rotation(A: np.ndarray) -> np.ndarray:
     """The proper rotation R maximising trace(R^T A[t]) per frame (Kabsch via SVD), A (T, 3, 3) -> R (T, 3, 3).
 
     Where det A > 0 that is the orthogonal polar factor of A, found by a scaled Newton iteration with closed-form
-    3 x 3 inverses (a tenth of the cost of T batched SVDs; equal to the SVD's answer to round-off); frames with
-    det A <= 0, poorly conditioned or not converged take the SVD.
+    3 x 3 inverses (a tenth of the cost of T batched SVDs; equal to the SVD's answer to round-off).  Where A is
+    near singular (three anchors: a planar shape), the iteration runs on A + k cof(A) instead: with A = U S V^T,
+    cof(A) = det(U V^T) U diag(s2 s3, s1 s3, s1 s2) V^T has A's singular vectors, so the sum keeps them and, for
+    k = |A| / |cof A|, has the singular values s1 + O(s3), s2 + O(s3) and s3 + det(U V^T) k s1 s2: its polar factor
+    is U diag(1, 1, det(U V^T)) V^T, Kabsch's proper rotation.  Frames with det A < 0 (a reflection: the third
+    singular value is not small), collinear (cof A = 0) or not converged take the SVD.
     """
     A = np.asarray(A, dtype=np.float64)
     R = np.full(A.shape, np.nan)
@@ -207,7 +211,14 @@ def nearest_rotation(A: np.ndarray) -> np.ndarray:
     det = (X[_ROW0] * (X[_P1[:3]] * X[_P2[:3]] - X[_P3[:3]] * X[_P4[:3]])).sum(axis=0)
     norm = np.sqrt((X ** 2).sum(axis=0))
     with np.errstate(all="ignore"):
-        # det / |A|^3 = s1 s2 s3 / (s1^2 + s2^2 + s3^2)^1.5: small when A is near singular (then the SVD decides)
+        # det / |A|^3 = s1 s2 s3 / (s1^2 + s2^2 + s3^2)^1.5: small when A is near singular
+        flat = np.flatnonzero(np.isfinite(det) & (np.abs(det) <= 1e-6 * norm ** 3))
+        if len(flat):
+            cof = X[_P1][:, flat] * X[_P2][:, flat] - X[_P3][:, flat] * X[_P4][:, flat]
+            X[:, flat] += cof * (norm[flat] / np.sqrt((cof ** 2).sum(axis=0)))
+            det[flat] = (X[_ROW0][:, flat] * (X[_P1[:3]][:, flat] * X[_P2[:3]][:, flat]
+                                              - X[_P3[:3]][:, flat] * X[_P4[:3]][:, flat])).sum(axis=0)
+            norm[flat] = np.sqrt((X[:, flat] ** 2).sum(axis=0))
         newton = np.flatnonzero(np.isfinite(det) & (det > 1e-6 * norm ** 3))
         if len(newton) >= 32:  # fewer: the SVD's fixed cost is lower
             X = X[:, newton] / norm[newton]
