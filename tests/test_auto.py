@@ -352,3 +352,37 @@ def test_the_reported_sd_grows_where_the_neighbours_take_unseen_poses_and_the_fi
     assert err.max() > 10.0 * plain.std[90:150, 0].max()  # the sd it reported before: far too sure
     assert told.std[115:125, 0].min() > 10.0 * plain.std[115:125, 0].max()
     assert err.max() < 3.0 * told.std[90:150, 0].max()
+
+
+def test_a_bone_measured_while_its_ends_stood_still_lets_go_once_one_moves():
+    """bone_spreads: two markers still in every frame that measured them (a hand resting by a robot link) look rigid;
+    where the estimates put one 250 mm away the bone's spread grows by that many of its spreads.  A bone seen turning
+    while it kept its length keeps its spread in a new pose, and so does a bone whose estimate is uncertain enough
+    to explain the difference."""
+    from mocapfill.bones.boneset import BoneSet
+    from mocapfill.methods.auto import bone_spreads
+
+    n = 200
+    rng = np.random.default_rng(4)
+    t = np.arange(n) / 100.0
+    pos = np.zeros((n, 4, 3))
+    pos[:, 0] = [0.0, 0.0, 1000.0] + rng.normal(scale=0.3, size=(n, 3))  # still
+    pos[:, 1] = [400.0, 0.0, 1000.0] + rng.normal(scale=0.3, size=(n, 3))  # still, then moves (hidden)
+    angle = 0.8 * np.sin(2 * np.pi * 0.5 * t)  # a segment turning about marker 2
+    pos[:, 2] = [0.0, 500.0, 1000.0]
+    pos[:, 3] = pos[:, 2] + 300.0 * np.stack([np.cos(angle), np.sin(angle), 0 * angle], axis=1)
+    est = pos.copy()
+    est[150:, 1] += [0.0, 250.0, 0.0]  # where marker 1 is missing, the estimate has it 250 mm away
+    est[150:, 3] = pos[150:, 2] + 300.0 * np.array([np.cos(1.5), np.sin(1.5), 0.0])  # a pose never measured
+    positions = pos.copy()
+    positions[150:, 1] = np.nan
+    positions[150:, 3] = np.nan
+    bones = BoneSet(np.array([[0, 1], [2, 3]]), np.array([400.0, 300.0]), np.array([0.5, 0.5]),
+                    np.array([150, 150]), "mm")
+    sd = np.where(np.isnan(positions).any(axis=2), 1.0, 0.0)
+    out = bone_spreads(positions, est, sd, bones, DEFAULT_CONFIG, 1.0)
+    assert np.array_equal(out[:150], np.tile(bones.spread, (150, 1)))  # measured frames: unchanged
+    assert out[150:, 0].min() > 50 * bones.spread[0]  # the still pair lets go
+    assert np.allclose(out[150:, 1], bones.spread[1], rtol=0.5)  # the turning segment holds
+    unsure = bone_spreads(positions, est, np.where(sd > 0, 1000.0, 0.0), bones, DEFAULT_CONFIG, 1.0)
+    assert unsure[150:, 0].max() < 1.5 * bones.spread[0]  # an estimate 1 m unsure is not held against the bone

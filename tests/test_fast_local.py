@@ -346,3 +346,17 @@ def test_bone_components_split_the_moved_markers_by_the_bones_between_them():
     pairs = np.array([(2, 3), (3, 0), (1, 5), (7, 8), (9, 0), (8, 11), (4, 6)])  # 12 is on no bone
     comps = sorted(c.tolist() for c in _components(markers, pairs))
     assert comps == [[2, 3], [5], [7, 8, 11], [9]]
+
+
+def test_refine_bones_takes_spreads_per_frame():
+    """Spreads per frame and bone (n_frames, B) that repeat the per-bone ones give the same answer bit for bit; a
+    spread raised in some frames frees the markers there and only there."""
+    estimate, positions, std, pairs, lengths, spread = _loose_limbs()
+    out, _ = refine_bones(estimate, positions, std, pairs, lengths, spread, spread_floor=1.0)
+    tiled = np.tile(spread, (len(positions), 1))
+    same, _ = refine_bones(estimate, positions, std, pairs, lengths, tiled, spread_floor=1.0)
+    assert np.array_equal(out, same)
+    tiled[:30] = 1e6  # no bone holds in the first 30 frames
+    free, _ = refine_bones(estimate, positions, std, pairs, lengths, tiled, spread_floor=1.0)
+    assert np.allclose(free[:30], estimate[:30], atol=1e-3)
+    assert np.array_equal(free[30:], out[30:])

@@ -151,8 +151,9 @@ def refine_bones(
         The input, NaN = missing; observed samples are fixed bone ends.
     std : ndarray (n_frames, n_markers)
         Per-coordinate standard deviation of each filled sample (NaN / non-positive samples are not moved).
-    pairs : ndarray int (B, 2); lengths, spread : ndarray (B,)
-        Bones, their lengths and spreads (data units); a NaN spread counts as ``spread_floor``.
+    pairs : ndarray int (B, 2); lengths : ndarray (B,); spread : ndarray (B,) or (n_frames, B)
+        Bones, their lengths and spreads (data units), the spreads per bone or per frame and bone; a NaN spread
+        counts as ``spread_floor``.
     spread_floor : float
         Smallest spread used (data units), so that a bone never becomes an exact constraint.
     max_iter : int
@@ -188,7 +189,8 @@ def refine_bones(
     for key, parts in problems.items():
         rows, markers = np.sort(np.concatenate(parts)), np.array(key)
         touch = np.isin(pairs, markers).any(axis=1)
-        bp, bl, bs = pairs[touch], lengths[touch], spread[touch]
+        bp, bl = pairs[touch], lengths[touch]
+        bs = spread[touch] if spread.ndim == 1 else spread[rows][:, touch]  # (nb,) or per frame (n, nb)
         k = len(markers)
         slot = -np.ones(out.shape[1], dtype=int)
         slot[markers] = np.arange(k)
@@ -199,7 +201,8 @@ def refine_bones(
         target = fixed[:, markers]  # (n, k, 3)
         prec = 1.0 / std[rows][:, markers] ** 2  # (n, k) per-coordinate precision
         prec3 = np.repeat(prec, 3, axis=1)
-        bw = 1.0 / bs ** 2  # (nb,)
+        bw = 1.0 / bs ** 2  # (nb,) or per frame (n, nb)
+        bw2 = bw if bw.ndim == 2 else np.broadcast_to(bw, (len(rows), len(bw)))
 
         def cost(y, at):
             """Cost (len(at),), bone vectors and length residuals of the frames ``at`` (rows of this problem)."""
@@ -210,7 +213,7 @@ def refine_bones(
             # a bone whose other end is unknown in this frame (missing and not filled) does not count
             d = np.where(np.isfinite(d), d, 0.0)
             r = np.where(np.isfinite(r), r, 0.0)
-            return (prec[at][..., None] * (y - target[at]) ** 2).sum(axis=(1, 2)) + (bw * r ** 2).sum(axis=1), d, r
+            return (prec[at][..., None] * (y - target[at]) ** 2).sum(axis=(1, 2)) + (bw2[at] * r ** 2).sum(axis=1), d, r
 
         y = target.copy()
         f, d, r = cost(y, slice(None))
@@ -224,13 +227,13 @@ def refine_bones(
             ya, da, ra, n = y[active], d[active], r[active], len(active)
             norm = np.maximum(_norm3(da), 1e-300)[:, :, None]
             unit = da / norm  # (n, nb, 3): dr/dy_a = unit, dr/dy_b = -unit
-            weighted = unit * bw[None, :, None]
+            weighted = unit * bw2[active][:, :, None]
             grad = (prec3[active] * (ya - target[active]).reshape(n, 3 * k)
                     + grad_sum(weighted * ra[:, :, None]).reshape(n, 3 * k))
             outer = unit[:, :, :, None] * unit[:, :, None, :]
             # the length's curvature across a stretched bone (module docstring); none for a compressed one
             across = np.maximum(ra, 0.0)[:, :, None, None] / norm[:, :, :, None]
-            hess = hess_sum((outer + across * (np.eye(3) - outer)) * bw[None, :, None, None])
+            hess = hess_sum((outer + across * (np.eye(3) - outer)) * bw2[active][:, :, None, None])
             hess[:, diagonal, diagonal] += prec3[active]
             damp = lam[active, None] * hess[:, diagonal, diagonal]  # Marquardt: lam diag(H)
             hess[:, diagonal, diagonal] += damp

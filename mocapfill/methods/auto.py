@@ -156,6 +156,17 @@ class ModelConfig:
     bone_trust: float = 0.5
     #: Smallest bone spread in the refinement (a bone is never an exact constraint).
     spread_floor_mm: float = 1.0
+    #: A bone knows where it extrapolates: its spread grows by how far the estimates put its vector off the vectors
+    #: that measured it, unless it was seen turning while it kept its length (:func:`bone_spreads`).  Why: bones are
+    #: estimated from the frames with both ends observed, and two markers that stood still there look rigid
+    #: (vicon-arm dense 20 % draw 0: a hand marker and a robot link 414 mm apart with a spread of 0.6 mm over those
+    #: frames moved 250 mm apart in the hidden ones).  Off, as measured (2026-11-27, sixth session): on,
+    #: bench_default_captures vicon-arm pooled dense 5/10/20/30 % 3.8/3.2/13.8/16.4 -> 2.8/2.4/9.9/11.3 mm, segment
+    #: 31.7 -> 27.6, 7 of 28 cases better and 3 worse (vicon-arm one-marker 3.3 -> 4.0, biogesta dense-20 30.3 ->
+    #: 31.1); bench_messy's dense RMSEs 9.2/8.7/14.4/21.9 -> 8.9/8.6/13.2/21.1, segment 31.1 unchanged; calibration
+    #: 70 -> 71 of 80; but bench_default's 85_02 one-marker median 11.49 -> 11.66 mm, above its floor of 11.58 (one
+    #: trial, RKNE, 11.34 -> 11.68, the median's).
+    bone_extrapolation: bool = False
     #: A gap whose fill has a posterior standard deviation above this (per coordinate) is flagged for review.
     review_sd_mm: float = 25.0
     #: The reported sd knows where the spatial model extrapolates: a prediction's variance is multiplied by how far
@@ -533,14 +544,46 @@ def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset,
                ) -> np.ndarray:
     """Stage 2: predictions (n_frames, n_markers, 3) moved to the most probable positions given the bones.
 
-    sd (n_frames, n_markers) the predictions' standard deviations (NaN: not moved); boneset a BoneSet.
+    sd (n_frames, n_markers) the predictions' standard deviations (NaN: not moved); boneset a BoneSet.  With
+    ``config.bone_extrapolation`` each bone's spread is per frame (:func:`bone_spreads`).
     """
     from ..bones.refinement import refine_bones
 
     est = np.where(np.isnan(positions), pred, positions)
+    spread = bone_spreads(positions, est, sd, boneset, config, mm) if config.bone_extrapolation else boneset.spread
     refined, _ = refine_bones(est, positions, sd * config.bone_trust, boneset.pairs, boneset.lengths,
-                              boneset.spread, spread_floor=config.spread_floor_mm * mm)
+                              spread, spread_floor=config.spread_floor_mm * mm)
     return np.where(np.isfinite(pred), refined, np.nan)
+
+
+def bone_spreads(positions: np.ndarray, est: np.ndarray, sd: np.ndarray, boneset, config: ModelConfig, mm: float
+                 ) -> np.ndarray:
+    """Per frame and bone spread (n_frames, n_bones): the bone's spread s times the square root of how far, at that
+    frame, the bone's vector d = x_a - x_b (from the estimates ``est`` (n_frames, n_markers, 3), whose sd per
+    coordinate is ``sd`` (n_frames, n_markers), 0 observed) lies off the vectors that measured it (the frames with
+    both ends observed, mean mu and covariance S): z^2 = (d - mu)^T (S + (s^2 + sd_a^2 + sd_b^2) I)^-1 (d - mu) / 3,
+    discounted by how much the bone turned there while keeping its length: the factor is max(1, z^2 s^2 / (s^2 + m))
+    with m the variance per axis of the measured vectors beyond their length's.  A bone measured only while its ends
+    stood still (m ~ 0: two still markers look rigid) says nothing once the estimates say an end moved; one seen
+    turning while it kept its length keeps its spread; an uncertain estimate off the bone is not held against it."""
+    missing = np.isnan(positions).any(axis=2)
+    out = np.tile(np.asarray(boneset.spread, dtype=float), (len(positions), 1))
+    floor2 = (config.spread_floor_mm * mm) ** 2
+    var = np.where(missing, np.nan_to_num(sd, nan=np.inf) ** 2, 0.0)
+    for k, ((a, b), s) in enumerate(zip(boneset.pairs, boneset.spread)):
+        co = ~missing[:, a] & ~missing[:, b]
+        need = np.flatnonzero(missing[:, a] | missing[:, b])
+        if co.sum() < 2 or not np.isfinite(s) or not len(need):
+            continue
+        s2 = max(s * s, floor2)
+        vec = positions[co, a] - positions[co, b]
+        lam, q = np.linalg.eigh(np.cov(vec.T))
+        moved = max(float(lam.sum()) - float(np.var(np.linalg.norm(vec, axis=1))), 0.0) / 3.0
+        proj = ((est[need, a] - est[need, b] - vec.mean(axis=0)) @ q) ** 2  # (n, 3) along S's axes
+        with np.errstate(invalid="ignore"):
+            z2 = (proj / (np.maximum(lam, 0.0) + s2 + (var[need, a] + var[need, b])[:, None])).sum(axis=1) / 3.0
+        out[need, k] = s * np.sqrt(np.maximum(np.nan_to_num(z2 * s2 / (s2 + moved), nan=1.0), 1.0))
+    return out
 
 
 def motion_model(positions: np.ndarray, missing: np.ndarray, config: ModelConfig, mm: float, rate: float
