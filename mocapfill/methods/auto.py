@@ -54,6 +54,7 @@ from ..engines.local_pca import reconstruct_local
 from ..engines.motion_smoother import MotionModel, acceleration_memory, jerk_density, jerk_gain, smooth
 from ..errors import MethodError
 from ..gaps import find_gaps, fragments, runs
+from ..guards.copies import bones_on_distinct, distinct_markers, widened
 from ..guards.windows import DEFAULT_WINDOW, fill_in_windows
 from ..runtime.blas import single_blas_thread
 from ..units import length_factor
@@ -233,6 +234,9 @@ def fill_auto(
     jobs : worker processes for the windows of a take longer than :data:`~mocapfill.guards.windows.DEFAULT_WINDOW`
         frames (None: 1; the output does not depend on it).
 
+    Markers that are exact copies of another (:mod:`mocapfill.guards.copies`) are filled once and copied back
+    (``info["copies"]`` lists them).
+
     Returns
     -------
     FillResult with ``std`` the posterior standard deviation per coordinate, ``info["gap_methods"]`` one record per
@@ -256,6 +260,15 @@ def fill_auto(
         from .learned import resolve_model
 
         model = resolve_model(model)
+    keep, source = distinct_markers(positions)
+    if len(keep) < positions.shape[1]:  # exact copies of a marker: filled once (guards/copies.py)
+        sub = None if labels is None else [labels[m] for m in keep]
+        if bones is not None and bones is not False:
+            bones = bones_on_distinct(bones, source)
+        part = fill_auto(positions[:, keep], units=units, labels=sub, rate=rate, bones=bones, refine=refine,
+                         reference_frames=None if reference_frames is None else reference_frames[:, keep],
+                         reference_weights=reference_weights, model=model, config=config, jobs=jobs)
+        return widened(positions, part, keep, source, labels)
     core = partial(model_fill, units=units, labels=labels, rate=rate, bones=bones, refine=refine,
                    reference_frames=reference_frames, reference_weights=reference_weights, prior=model,
                    config=config)

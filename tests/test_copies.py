@@ -1,0 +1,65 @@
+"""Markers that are exact copies of another (guards/copies.py): the default fills them once."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocapfill.bones.boneset import BoneSet
+from mocapfill.guards.copies import bones_on_distinct, distinct_markers
+from mocapfill.methods.auto import fill_auto
+from synthetic import moving_body, rot_z
+
+
+def _with_copies():
+    truth = moving_body(240, 8, seed=3, rotation=lambda t: rot_z(0.7 * t))
+    pos = truth.copy()
+    pos[60:90, 2] = np.nan
+    pos[150:170, 5] = np.nan
+    pos[100:104, 6] = np.nan
+    # markers 8 and 9 repeat 2 (gaps included), 10 repeats 5
+    return truth, np.concatenate([pos, pos[:, [2, 2, 5]]], axis=1)
+
+
+def test_distinct_markers_finds_bit_identical_trajectories():
+    _, pos = _with_copies()
+    keep, source = distinct_markers(pos)
+    assert keep.tolist() == list(range(8))
+    assert source.tolist() == list(range(8)) + [2, 2, 5]
+    shifted = pos.copy()
+    shifted[0, 9, 0] += 1e-9  # one sample apart: no copy
+    assert distinct_markers(shifted)[1].tolist() == list(range(8)) + [2, 8, 5]
+
+
+def test_copies_are_filled_once_and_reported_under_their_own_labels():
+    _, pos = _with_copies()
+    labels = [f"M{i}" for i in range(8)] + ["M2_copy", "M2_again", "M5_copy"]
+    both = fill_auto(pos, labels=labels, rate=100.0)
+    alone = fill_auto(pos[:, :8], labels=labels[:8], rate=100.0)
+    source = [*range(8), 2, 2, 5]
+    assert np.array_equal(both.positions, alone.positions[:, source], equal_nan=True)
+    assert np.array_equal(both.std, alone.std[:, source], equal_nan=True)
+    gaps = both.info["gap_methods"]
+    assert [(g["marker"], g["start"]) for g in gaps] == [("M2", 60), ("M5", 150), ("M6", 100), ("M2_copy", 60),
+                                                         ("M2_again", 60), ("M5_copy", 150)]
+    assert [g["marker_index"] for g in gaps] == [2, 5, 6, 8, 9, 10]
+    assert both.info["review"] == [i for i, g in enumerate(gaps) if g["review"]]
+    assert both.info["copies"] == [{"marker": "M2_copy", "marker_index": 8, "copy_of": "M2"},
+                                   {"marker": "M2_again", "marker_index": 9, "copy_of": "M2"},
+                                   {"marker": "M5_copy", "marker_index": 10, "copy_of": "M5"}]
+    assert "copies" not in alone.info
+
+
+def test_bones_move_onto_the_distinct_markers():
+    bones = BoneSet(np.array([[0, 1], [0, 8], [2, 8], [1, 10], [1, 5]]), np.array([1.0, 2.0, 3.0, 4.0, 5.0]),
+                    np.ones(5), np.full(5, 10), "mm")
+    moved = bones_on_distinct(bones, np.array([*range(8), 2, 2, 5]))
+    assert moved.pairs.tolist() == [[0, 1], [0, 2], [1, 5]]  # 2-8 joins two copies; 1-10 repeats 1-5
+    assert moved.lengths.tolist() == [1.0, 2.0, 4.0]
+
+
+def test_markers_missing_throughout_are_no_copies():
+    _, pos = _with_copies()
+    pos[:, 3] = np.nan
+    pos[:, 4] = np.nan
+    keep, source = distinct_markers(pos)
+    assert 3 in keep and 4 in keep
