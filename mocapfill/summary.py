@@ -97,7 +97,8 @@ def summarize(data: MarkerData) -> dict[str, Any]:
     Adds ``path``, ``format``, ``rate``, ``duration_seconds``, ``units``, ``first_frame``, ``notes`` and, for a C3D,
     ``c3d`` (processor, storage, analog channels, model outputs).  The gap statistics cover the points of kind
     "marker" only; ``model_points`` and ``unlabelled`` list the others (kept untouched by a fill), and ``held`` is
-    what :func:`mocapfill.guards.held.held_summary` finds on the markers.
+    what :func:`mocapfill.guards.held.held_summary` finds on the markers; ``copies`` the markers bit-identical to an
+    earlier one (``marker``, ``copy_of``; :mod:`mocapfill.guards.copies`: the default fills them once).
     """
     out: dict[str, Any] = {
         "path": data.path,
@@ -121,6 +122,11 @@ def summarize(data: MarkerData) -> dict[str, Any]:
         quantum = abs(float(extra.file.scale))
     out["held"] = held_summary(find_held(data.positions[:, columns], units=data.units, quantum=quantum), labels,
                                data.first_frame)
+    from .guards.copies import distinct_markers
+
+    keep, source = distinct_markers(data.positions[:, columns])
+    out["copies"] = [{"marker": labels[m], "copy_of": labels[int(keep[source[m]])]}
+                     for m in range(len(columns)) if keep[source[m]] != m]
     extra = data.extra
     if hasattr(extra, "marker_points") and hasattr(extra, "model_outputs"):
         out["c3d"] = {"processor": extra.processor, "storage": extra.storage,

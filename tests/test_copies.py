@@ -63,3 +63,23 @@ def test_markers_missing_throughout_are_no_copies():
     pos[:, 4] = np.nan
     keep, source = distinct_markers(pos)
     assert 3 in keep and 4 in keep
+
+
+def test_info_names_the_copies(tmp_path):
+    from click.testing import CliRunner
+
+    from mocapfill.cli import cli
+    from mocapfill.io import write
+    from mocapfill.markers import MarkerData
+    from mocapfill.summary import summarize
+
+    _, pos = _with_copies()
+    labels = [f"M{i}" for i in range(8)] + ["M2_copy", "M2_again", "M5_copy"]
+    data = MarkerData(pos, labels, 100.0, "mm")
+    assert summarize(data)["copies"] == [{"marker": "M2_copy", "copy_of": "M2"}, {"marker": "M2_again", "copy_of": "M2"},
+                                         {"marker": "M5_copy", "copy_of": "M5"}]
+    path = tmp_path / "copies.trc"
+    write(data, path)
+    result = CliRunner().invoke(cli, ["info", str(path)])
+    assert result.exit_code == 0, result.output
+    assert "3 markers repeat another's samples exactly" in result.output

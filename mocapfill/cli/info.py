@@ -52,6 +52,10 @@ def _show(summary: dict, quiet: bool) -> None:
     from ..guards.held import held_line
 
     overview.add_row("held samples", held_line(summary["held"]))
+    copies = summary.get("copies") or []
+    if copies:
+        shown = ", ".join(f"{c['marker']} = {c['copy_of']}" for c in copies[:4]) + (", ..." if len(copies) > 4 else "")
+        overview.add_row("copies", f"{len(copies)} markers repeat another's samples exactly (the default fills them once): {shown}")
     c3d = summary.get("c3d")
     if c3d:
         overview.add_row("C3D", f"{c3d['processor']} {c3d['storage']} storage, {c3d['analog_channels']} analog "
