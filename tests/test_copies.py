@@ -83,3 +83,19 @@ def test_info_names_the_copies(tmp_path):
     result = CliRunner().invoke(cli, ["info", str(path)])
     assert result.exit_code == 0, result.output
     assert "3 markers repeat another's samples exactly" in result.output
+
+
+def test_fill_says_which_markers_were_copies(tmp_path):
+    from click.testing import CliRunner
+
+    from mocapfill.cli import cli
+    from mocapfill.io import write
+    from mocapfill.markers import MarkerData
+
+    _, pos = _with_copies()
+    labels = [f"M{i}" for i in range(8)] + ["M2_copy", "M2_again", "M5_copy"]
+    path = tmp_path / "copies.trc"
+    write(MarkerData(pos, labels, 100.0, "mm"), path)
+    result = CliRunner().invoke(cli, ["fill", str(path), str(tmp_path / "out.trc")])
+    assert result.exit_code == 0, result.output
+    assert "3 markers are exact copies of another, filled once and copied: M2_copy = M2" in result.output

@@ -198,6 +198,11 @@ def _summary(outcome, method: str, report_path, status_path, quiet: bool) -> Non
         gaps = f"{len(declined)} gap" + ("s" if len(declined) != 1 else "")
         out.print(f"{method} declined {gaps}, left missing: {shown_gaps}{more}", markup=False, highlight=False,
                   soft_wrap=True)
+    copies = result.info.get("copies") or []
+    if copies:
+        shown_copies = ", ".join(f"{c['marker']} = {c['copy_of']}" for c in copies[:4])
+        out.print(f"{len(copies)} markers are exact copies of another, filled once and copied: {shown_copies}"
+                  + (", ..." if len(copies) > 4 else ""), markup=False, highlight=False, soft_wrap=True)
     review = [rec for rec in result.info.get("gap_methods") or [] if isinstance(rec, dict) and rec.get("review")]
     if review:  # the gaps the method itself is unsure of: what a technician checks first
         shown_gaps = ", ".join(f"{rec['marker']} {data.first_frame + rec['start']}-"
