@@ -99,3 +99,4 @@ def test_fill_says_which_markers_were_copies(tmp_path):
     result = CliRunner().invoke(cli, ["fill", str(path), str(tmp_path / "out.trc")])
     assert result.exit_code == 0, result.output
     assert "3 markers are exact copies of another, filled once and copied: M2_copy = M2" in result.output
+    assert "M2_copy 60" not in result.output  # a review line names a gap once, under the original

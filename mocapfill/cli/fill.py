@@ -203,7 +203,9 @@ def _summary(outcome, method: str, report_path, status_path, quiet: bool) -> Non
         shown_copies = ", ".join(f"{c['marker']} = {c['copy_of']}" for c in copies[:4])
         out.print(f"{len(copies)} markers are exact copies of another, filled once and copied: {shown_copies}"
                   + (", ..." if len(copies) > 4 else ""), markup=False, highlight=False, soft_wrap=True)
-    review = [rec for rec in result.info.get("gap_methods") or [] if isinstance(rec, dict) and rec.get("review")]
+    copied = {c["marker_index"] for c in copies}  # a copy's gaps are its original's: listed once
+    review = [rec for rec in result.info.get("gap_methods") or [] if isinstance(rec, dict) and rec.get("review")
+              and rec.get("marker_index") not in copied]
     if review:  # the gaps the method itself is unsure of: what a technician checks first
         shown_gaps = ", ".join(f"{rec['marker']} {data.first_frame + rec['start']}-"
                                f"{data.first_frame + rec['start'] + rec['length'] - 1}" for rec in review[:8])
