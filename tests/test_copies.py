@@ -100,3 +100,33 @@ def test_fill_says_which_markers_were_copies(tmp_path):
     assert result.exit_code == 0, result.output
     assert "3 markers are exact copies of another, filled once and copied: M2_copy = M2" in result.output
     assert "M2_copy 60" not in result.output  # a review line names a gap once, under the original
+
+
+def test_evaluate_hides_copies_together_and_scores_each_error_once():
+    from mocapfill.evaluation.runner import copies_hidden_together
+
+    truth, pos = _with_copies()
+    clean = np.concatenate([truth, truth[:, [2, 2, 5]]], axis=1)
+    hidden = np.zeros(clean.shape[:2], dtype=bool)
+    hidden[10:20, 8] = True  # a copy of marker 2 only
+    hidden[30:35, 5] = True  # marker 5 only
+    corrupted = clean.copy()
+    corrupted[hidden] = np.nan
+    shifted = np.zeros_like(hidden)
+    out, scored_hidden, scored_shifted = copies_hidden_together(clean, corrupted, hidden, shifted)
+    missing = np.isnan(out).any(axis=2)
+    assert missing[10:20][:, [2, 8, 9]].all() and missing[30:35][:, [5, 10]].all()
+    assert np.array_equal(np.flatnonzero(scored_hidden.any(axis=0)), [2, 5])  # each error counted once
+    assert scored_hidden.sum() == 15 and not scored_shifted.any()
+    plain = clean[:, :8]
+    same = copies_hidden_together(plain, plain, hidden[:, :8], shifted[:, :8])
+    assert same[0] is plain and same[1] is not None
+
+
+def test_many_renamed_duplicate_labels_make_one_note():
+    from mocapfill.cli.common import grouped_notes
+
+    notes = [f"duplicate label 'M{i}' renamed 'M{i}_2'" for i in range(5)] + ["file truncated"]
+    assert grouped_notes(notes) == ["5 duplicate labels renamed: 'M0' -> 'M0_2', 'M1' -> 'M1_2', 'M2' -> 'M2_2', "
+                                    "... (all in the report)", "file truncated"]
+    assert grouped_notes(notes[:2]) == notes[:2]

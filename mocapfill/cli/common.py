@@ -197,9 +197,20 @@ def read_input(path: str, reading: ReadOptions = ReadOptions(), *, quiet: bool =
         warnings.simplefilter("ignore", DataWarning)
         data = read(path, format=reading.format, rate=reading.rate, override_rate=reading.override_rate)
     if show_notes:
-        for note in data.notes:
+        for note in grouped_notes(data.notes):
             console(quiet).print(f"note: {path}: {note}", markup=False, highlight=False, soft_wrap=True)
     return data
+
+
+def grouped_notes(notes: list[str], shown: int = 3) -> list[str]:
+    """The reader's notes, the renamed duplicate labels as one line (a file that writes every label three times
+    would otherwise print a line per copy): "48 duplicate labels renamed: 'A' -> 'A_2', ... (all in the report)"."""
+    renamed = [n for n in notes if n.startswith("duplicate label ")]
+    if len(renamed) <= shown:
+        return list(notes)
+    pairs = [n[len("duplicate label "):].replace(" renamed ", " -> ") for n in renamed[:shown]]
+    line = f"{len(renamed)} duplicate labels renamed: {', '.join(pairs)}, ... (all in the report)"
+    return [line] + [n for n in notes if not n.startswith("duplicate label ")]
 
 
 _PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

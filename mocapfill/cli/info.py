@@ -83,7 +83,9 @@ def _show(summary: dict, quiet: bool) -> None:
         if names:
             out.print(f"{kind}: {', '.join(names[:40])}" + (f" and {len(names) - 40} more" if len(names) > 40 else ""),
                       markup=False)
-    for note in summary["notes"]:
+    from .common import grouped_notes
+
+    for note in grouped_notes(summary["notes"]):
         out.print(f"note: {note}", markup=False)
 
 

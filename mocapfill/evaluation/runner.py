@@ -102,12 +102,34 @@ def _bones(positions: np.ndarray, units: str, labels: list[str]) -> tuple[np.nda
     return bones.pairs, bones.lengths
 
 
+def copies_hidden_together(positions: np.ndarray, corrupted: np.ndarray, hidden: np.ndarray, shifted: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A trial of a capture whose markers include exact copies (:mod:`mocapfill.guards.copies`): a sample hidden in
+    one copy is hidden in all of them (else its twin would give it away), and only the first of each set is scored
+    (each error counts once).  positions (n_frames, n_markers, 3) clean; the rest as :meth:`Trial.apply` returns
+    them; unchanged without copies."""
+    from ..guards.copies import distinct_markers
+
+    keep, source = distinct_markers(positions)
+    if len(keep) == positions.shape[1]:
+        return corrupted, hidden, shifted
+    together = np.zeros((len(hidden), len(keep)), dtype=bool)
+    np.logical_or.at(together.T, source, hidden.T)
+    hidden = together[:, source] & ~np.isnan(positions).any(axis=2)
+    corrupted = corrupted.copy()
+    corrupted[hidden] = np.nan
+    first = np.zeros(positions.shape[1], dtype=bool)
+    first[keep] = True
+    return corrupted, hidden & first, shifted & ~hidden & first
+
+
 def run_trial(truth: MarkerData, index: int, trial: Trial, method_seed: int, config: RunConfig) -> list[TrialScore]:
     """Corrupt ``truth`` (positions (n_frames, n_markers, 3)) with ``trial``, fill with every method, score."""
     from ..api import fill
 
     positions = truth.positions
     corrupted, hidden, shifted = trial.apply(positions)
+    corrupted, hidden, shifted = copies_hidden_together(positions, corrupted, hidden, shifted)
     detected = None
     if config.reject_outliers:
         from ..guards.outliers import reject_outliers
