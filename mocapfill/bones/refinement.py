@@ -202,7 +202,10 @@ def refine_bones(
         prec = 1.0 / std[rows][:, markers] ** 2  # (n, k) per-coordinate precision
         prec3 = np.repeat(prec, 3, axis=1)
         bw = 1.0 / bs ** 2  # (nb,) or per frame (n, nb)
-        bw2 = bw if bw.ndim == 2 else np.broadcast_to(bw, (len(rows), len(bw)))
+
+        def weight(at):
+            """The bone weights of the frames ``at``: (nb,), broadcast over frames, or (len(at), nb)."""
+            return bw[at] if bw.ndim == 2 else bw
 
         def cost(y, at):
             """Cost (len(at),), bone vectors and length residuals of the frames ``at`` (rows of this problem)."""
@@ -213,7 +216,8 @@ def refine_bones(
             # a bone whose other end is unknown in this frame (missing and not filled) does not count
             d = np.where(np.isfinite(d), d, 0.0)
             r = np.where(np.isfinite(r), r, 0.0)
-            return (prec[at][..., None] * (y - target[at]) ** 2).sum(axis=(1, 2)) + (bw2[at] * r ** 2).sum(axis=1), d, r
+            prior = (prec[at][..., None] * (y - target[at]) ** 2).sum(axis=(1, 2))
+            return prior + (weight(at) * r ** 2).sum(axis=1), d, r
 
         y = target.copy()
         f, d, r = cost(y, slice(None))
@@ -227,13 +231,14 @@ def refine_bones(
             ya, da, ra, n = y[active], d[active], r[active], len(active)
             norm = np.maximum(_norm3(da), 1e-300)[:, :, None]
             unit = da / norm  # (n, nb, 3): dr/dy_a = unit, dr/dy_b = -unit
-            weighted = unit * bw2[active][:, :, None]
+            wa = weight(active)[..., None]
+            weighted = unit * wa
             grad = (prec3[active] * (ya - target[active]).reshape(n, 3 * k)
                     + grad_sum(weighted * ra[:, :, None]).reshape(n, 3 * k))
             outer = unit[:, :, :, None] * unit[:, :, None, :]
             # the length's curvature across a stretched bone (module docstring); none for a compressed one
             across = np.maximum(ra, 0.0)[:, :, None, None] / norm[:, :, :, None]
-            hess = hess_sum((outer + across * (np.eye(3) - outer)) * bw2[active][:, :, None, None])
+            hess = hess_sum((outer + across * (np.eye(3) - outer)) * wa[..., None])
             hess[:, diagonal, diagonal] += prec3[active]
             damp = lam[active, None] * hess[:, diagonal, diagonal]  # Marquardt: lam diag(H)
             hess[:, diagonal, diagonal] += damp
