@@ -213,6 +213,12 @@ def grouped_notes(notes: list[str], shown: int = 3) -> list[str]:
     return [line] + [n for n in notes if not n.startswith("duplicate label ")]
 
 
+def copies_text(copies: list[dict], shown: int = 4) -> str:
+    """The first ``shown`` of the ``copies`` records (``info["copies"]``, ``summary["copies"]``): "B = A, D = C, ..."."""
+    return ", ".join(f"{c['marker']} = {c['copy_of']}" for c in copies[:shown]) + (", ..." if len(copies) > shown
+                                                                                  else "")
+
+
 _PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 

@@ -17,8 +17,8 @@ import numpy as np
 from ..methods import METHODS
 from ..pipeline import FillSettings
 from . import cli
-from .common import (ReadOptions, StderrProgress, console, fill_options, format_options, quiet_option, read_input,
-                     show_warnings)
+from .common import (ReadOptions, StderrProgress, console, copies_text, fill_options, format_options, quiet_option,
+                     read_input, show_warnings)
 
 
 class _ProgressBar(StderrProgress):
@@ -200,9 +200,8 @@ def _summary(outcome, method: str, report_path, status_path, quiet: bool) -> Non
                   soft_wrap=True)
     copies = result.info.get("copies") or []
     if copies:
-        shown_copies = ", ".join(f"{c['marker']} = {c['copy_of']}" for c in copies[:4])
-        out.print(f"{len(copies)} markers are exact copies of another, filled once and copied: {shown_copies}"
-                  + (", ..." if len(copies) > 4 else ""), markup=False, highlight=False, soft_wrap=True)
+        out.print(f"{len(copies)} markers are exact copies of another, filled once and copied: "
+                  f"{copies_text(copies)}", markup=False, highlight=False, soft_wrap=True)
     copied = {c["marker_index"] for c in copies}  # a copy's gaps are its original's: listed once
     review = [rec for rec in result.info.get("gap_methods") or [] if isinstance(rec, dict) and rec.get("review")
               and rec.get("marker_index") not in copied]

@@ -10,7 +10,7 @@ from rich import box
 from rich.table import Table
 
 from . import cli
-from .common import ReadOptions, input_options, console, quiet_option, read_input
+from .common import ReadOptions, copies_text, grouped_notes, input_options, console, quiet_option, read_input
 
 
 def _frames(n: int, rate: float) -> str:
@@ -54,8 +54,8 @@ def _show(summary: dict, quiet: bool) -> None:
     overview.add_row("held samples", held_line(summary["held"]))
     copies = summary.get("copies") or []
     if copies:
-        shown = ", ".join(f"{c['marker']} = {c['copy_of']}" for c in copies[:4]) + (", ..." if len(copies) > 4 else "")
-        overview.add_row("copies", f"{len(copies)} markers repeat another's samples exactly (the default fills them once): {shown}")
+        overview.add_row("copies", f"{len(copies)} markers repeat another's samples exactly (the default fills them "
+                                   f"once): {copies_text(copies)}")
     c3d = summary.get("c3d")
     if c3d:
         overview.add_row("C3D", f"{c3d['processor']} {c3d['storage']} storage, {c3d['analog_channels']} analog "
@@ -83,8 +83,6 @@ def _show(summary: dict, quiet: bool) -> None:
         if names:
             out.print(f"{kind}: {', '.join(names[:40])}" + (f" and {len(names) - 40} more" if len(names) > 40 else ""),
                       markup=False)
-    from .common import grouped_notes
-
     for note in grouped_notes(summary["notes"]):
         out.print(f"note: {note}", markup=False)
 
