@@ -205,12 +205,14 @@ def read_input(path: str, reading: ReadOptions = ReadOptions(), *, quiet: bool =
 def grouped_notes(notes: list[str], shown: int = 3) -> list[str]:
     """The reader's notes, the renamed duplicate labels as one line (a file that writes every label three times
     would otherwise print a line per copy): "48 duplicate labels renamed: 'A' -> 'A_2', ... (all in the report)"."""
-    renamed = [n for n in notes if n.startswith("duplicate label ")]
+    from ..io.labels import RENAMED_NOTE
+
+    renamed = [n for n in notes if n.startswith(RENAMED_NOTE)]
     if len(renamed) <= shown:
         return list(notes)
-    pairs = [n[len("duplicate label "):].replace(" renamed ", " -> ") for n in renamed[:shown]]
+    pairs = [n[len(RENAMED_NOTE):].replace(" renamed ", " -> ") for n in renamed[:shown]]
     line = f"{len(renamed)} duplicate labels renamed: {', '.join(pairs)}, ... (all in the report)"
-    return [line] + [n for n in notes if not n.startswith("duplicate label ")]
+    return [line] + [n for n in notes if not n.startswith(RENAMED_NOTE)]
 
 
 def copies_text(copies: list[dict], shown: int = 4) -> str:

@@ -26,7 +26,7 @@ from ..errors import DataWarning, FormatError
 from ..markers import MarkerData
 from . import c3dfile
 from .c3dfile import BLOCK, INTEL, C3DFile
-from .labels import make_unique, normalise_units, point_kinds
+from .labels import make_unique, normalise_units, point_kinds, rename_notes
 
 MODEL_OUTPUT_PARAMS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS")
 
@@ -108,8 +108,7 @@ def read_c3d(raw: bytes, name: str) -> MarkerData:
         notes.append(f"{len(model_outputs)} model outputs (angles, forces, ...) kept in the file but not filled")
 
     marker_labels, renamed = make_unique([labels[i] for i in marker_points])
-    for old, new in renamed:
-        notes.append(f"duplicate label {old!r} renamed {new!r}")
+    notes.extend(rename_notes(renamed))
     if renamed:
         warnings.warn(f"{name}: {len(renamed)} duplicate marker label(s) renamed (e.g. {renamed[0][1]!r})",
                       DataWarning, stacklevel=3)

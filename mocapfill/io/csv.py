@@ -35,7 +35,7 @@ import numpy as np
 
 from ..errors import DataWarning, FormatError
 from ..markers import MarkerData
-from .labels import make_unique, match_label_row, normalise_units, point_kinds, unit_name
+from .labels import make_unique, match_label_row, normalise_units, point_kinds, rename_notes, unit_name
 
 __all__ = ["read_csv", "csv_text", "csv_rows", "frame_number", "parse_numbers"]
 
@@ -225,8 +225,7 @@ def _read_wide(rows: list[list[str]], name: str) -> MarkerData:
             notes.append(f"subject prefix {', '.join(repr(p + ':') for p in prefixes)} removed from the labels")
             labels = stripped
     labels, renamed = make_unique(labels)
-    for old, new in renamed:
-        notes.append(f"duplicate label {old!r} renamed {new!r}")
+    notes.extend(rename_notes(renamed))
     if renamed:
         warnings.warn(f"{name}: {len(renamed)} duplicate marker label(s) renamed (e.g. {renamed[0][1]!r})",
                       DataWarning, stacklevel=3)
@@ -297,8 +296,7 @@ def _read_vicon(rows: list[list[str]], name: str) -> MarkerData:
     if note:
         notes.append(note)
     labels, renamed = make_unique(labels)
-    for old, new in renamed:
-        notes.append(f"duplicate label {old!r} renamed {new!r}")
+    notes.extend(rename_notes(renamed))
     first_frame = frame_number(values[0, 0], name) if values.size else 1
     return MarkerData(positions, labels, rate, units, first_frame, "vicon-csv", None, name, notes, point_kinds(labels))
 

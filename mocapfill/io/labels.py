@@ -13,6 +13,15 @@ _UNIT_NAMES = {
 }
 
 
+#: How a reader's note of a renamed duplicate label begins (the CLI prints many of them as one line).
+RENAMED_NOTE = "duplicate label "
+
+
+def rename_notes(renamed: list[tuple[str, str]]) -> list[str]:
+    """The reader's note for each (old, new) rename :func:`make_unique` made: "duplicate label 'A' renamed 'A_2'"."""
+    return [f"{RENAMED_NOTE}{old!r} renamed {new!r}" for old, new in renamed]
+
+
 def make_unique(labels: list[str]) -> tuple[list[str], list[tuple[str, str]]]:
     """Stripped labels made unique by suffixing repeats ``_2``, ``_3`` ...; also returns the (old, new) renames.
 

@@ -28,7 +28,7 @@ import numpy as np
 from ..errors import FormatError
 from ..markers import MarkerData
 from .csv import check_width, rate_from_times, csv_rows, frame_number, parse_numbers
-from .labels import make_unique, normalise_units, point_kinds, unit_name
+from .labels import make_unique, normalise_units, point_kinds, rename_notes, unit_name
 
 __all__ = ["read_motive"]
 
@@ -76,7 +76,7 @@ def read_motive(text: str, name: str) -> MarkerData:
         raise FormatError(f"{name}: Motive CSV without marker positions (export the markers)")
     notes: list[str] = []
     labels, renamed = make_unique(labels)
-    notes.extend(f"duplicate label {old!r} renamed {new!r}" for old, new in renamed)
+    notes.extend(rename_notes(renamed))
 
     data_rows = [r for r in rows[axis_at + 1:] if any(c.strip() for c in r)]
     data_rows = check_width(data_rows, width, name, axis_at + 2)

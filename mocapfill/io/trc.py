@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import DataWarning, FormatError
 from ..markers import MarkerData
 from .csv import frame_number, parse_numbers
-from .labels import make_unique, match_label_row, normalise_units, point_kinds
+from .labels import make_unique, match_label_row, normalise_units, point_kinds, rename_notes
 
 __all__ = ["read_trc", "trc_text"]
 
@@ -131,8 +131,7 @@ def trc_labels(label_row: list[str], n_axis: int, in_rows: int, name: str
         labels += [f"M{k + 1:03d}" for k in range(n_named, in_rows)]
         kinds += ["unlabelled"] * extra
     labels, renamed = make_unique(labels)
-    for old, new in renamed:
-        notes.append(f"duplicate label {old!r} renamed {new!r}")
+    notes.extend(rename_notes(renamed))
     return labels, kinds, notes
 
 

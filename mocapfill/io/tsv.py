@@ -42,7 +42,7 @@ from ..errors import DataWarning, FormatError
 from ..markers import MarkerData
 from ..units import length_factor
 from .csv import frame_number, parse_numbers
-from .labels import make_unique, point_kinds
+from .labels import make_unique, point_kinds, rename_notes
 
 __all__ = ["read_tsv", "tsv_text", "looks_like_tsv", "TSVExtra"]
 
@@ -113,7 +113,7 @@ def read_tsv(text: str, name: str) -> MarkerData:
         notes.append(f"header says {declared} markers, MARKER_NAMES lists {n_markers}")
     labels = [lab or f"M{k + 1:03d}" for k, lab in enumerate(raw_labels)]
     labels, renamed = make_unique(labels)
-    notes.extend(f"duplicate label {old!r} renamed {new!r}" for old, new in renamed)
+    notes.extend(rename_notes(renamed))
 
     rate = _rate(meta.get("FREQUENCY"), name)
     rows = [line.rstrip("\r\n").split("\t") for line in lines[start:]]
