@@ -25,7 +25,7 @@ from .errors import MethodError
 from .markers import MarkerData
 from .status import Status
 from .methods import DEFAULT_METHOD, METHODS, get_method
-from .methods.base import FillResult
+from .methods.base import MARKER_RECORDS, FillResult
 
 
 #: The report lists at most this many repaired samples (the count is always complete).
@@ -325,12 +325,12 @@ def widen_result(result: FillResult, columns: np.ndarray, positions: np.ndarray,
     if isinstance(info.get("left_missing"), list):  # the stretches left on request, in the full capture's columns
         info["left_missing"] = [dict(r, marker=int(columns[r["marker"]])) for r in info["left_missing"]]
     sub_labels = [labels[k] for k in columns]
-    for key in ("gap_methods", "displaced"):  # name each record's marker: indices would point into the fill's columns
+    for key in MARKER_RECORDS:  # name each record's marker: indices would point into the fill's columns
         if isinstance(info.get(key), list):
             info[key] = [dict(r, marker=sub_labels[r["marker"]]) if isinstance(r, dict)
                          and isinstance(r.get("marker"), (int, np.integer))
                          and 0 <= r["marker"] < len(sub_labels) else r for r in info[key]]
-    for key in ("gap_methods", "declined", "displaced"):  # per-gap records' marker_index: a column of the whole capture
+    for key in MARKER_RECORDS:  # per-marker records' marker_index: a column of the whole capture
         if isinstance(info.get(key), list):
             info[key] = [dict(r, marker_index=int(columns[r["marker_index"]])) if isinstance(r, dict)
                          and isinstance(r.get("marker_index"), (int, np.integer))

@@ -15,7 +15,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..methods.base import FillResult, finish
+from ..methods.base import MARKER_RECORDS, FillResult, finish
 
 
 def distinct_markers(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -51,11 +51,12 @@ def widened(positions: np.ndarray, result: FillResult, keep: np.ndarray, source:
             labels: Sequence[str] | None) -> FillResult:
     """The fill of every marker of ``positions`` (n_frames, n_markers, 3) from ``result``, the fill of
     ``positions[:, keep]``: each copy takes its original's samples and std, and the per-marker records of
-    ``result.info`` (``gap_methods``, ``displaced``, ``fallback``; ``review`` re-indexed) are repeated for each copy
-    under its own label and index; ``info["copies"]`` lists the copies (``marker``, ``marker_index``, ``copy_of``)."""
+    ``result.info`` (:data:`~mocapfill.methods.base.MARKER_RECORDS`, ``fallback``; ``review`` re-indexed) are
+    repeated for each copy under its own label and index; ``info["copies"]`` lists the copies (``marker``,
+    ``marker_index``, ``copy_of``)."""
     name = (lambda m: labels[m] if labels is not None else int(m))
     info: dict[str, Any] = dict(result.info or {})
-    for key in ("gap_methods", "displaced"):
+    for key in MARKER_RECORDS:
         records = info.get(key)
         if isinstance(records, list) and all(isinstance(r, dict) and "marker_index" in r for r in records):
             by_marker: dict[int, list[dict]] = {}

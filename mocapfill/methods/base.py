@@ -90,6 +90,11 @@ def finish(
     )
 
 
+#: ``info`` keys whose values list per-marker records (``marker_index``, ``start``, ...): what must follow a marker
+#: when a fill's columns are mapped onto another capture's (``pipeline.widen_result``, ``guards.copies.widened``).
+MARKER_RECORDS = ("gap_methods", "declined", "displaced")
+
+
 def records_mask(records: Any, shape: tuple[int, int]) -> np.ndarray:
     """(n_frames, n_markers) bool: the samples covered by a list of per-run records (dicts with ``marker_index``,
     ``start`` (0-based frame) and ``length``; malformed ones skipped), as ``info`` lists them: the gaps a method
