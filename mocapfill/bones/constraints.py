@@ -31,6 +31,7 @@ from typing import Iterator
 import numpy as np
 
 from ..engines.body_frame import nearest_rotation
+from ..gaps import members, unique_rows
 
 #: Relative bone residual |r_b| / L_b under which a frame counts as satisfying its hard constraints.
 FEASIBLE_RTOL = 1e-9
@@ -169,13 +170,12 @@ def _groups(missing: np.ndarray, pairs: np.ndarray, lengths: np.ndarray, observe
     cand = np.flatnonzero(missing.any(axis=1)) if frames is None else np.asarray(frames, dtype=np.intp)
     if cand.size == 0:
         return
-    patterns, inverse = np.unique(missing[cand], axis=0, return_inverse=True)
-    inverse = inverse.ravel()
-    for g, pattern in enumerate(patterns):
+    patterns, inverse, _ = unique_rows(missing[cand])
+    for pattern, rows in zip(patterns, members(inverse, len(patterns))):
         touches = pattern[pairs[:, 0]] | pattern[pairs[:, 1]]
         if not touches.any():
             continue
-        yield _Group(cand[inverse == g], np.flatnonzero(pattern), np.flatnonzero(touches), pairs, lengths,
+        yield _Group(cand[rows], np.flatnonzero(pattern), np.flatnonzero(touches), pairs, lengths,
                      observed)
 
 

@@ -31,13 +31,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..gaps import members, unique_rows
+
 
 def _patterns(missing: np.ndarray, frames: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
     """Frames grouped by their missing pattern: list of (frames (n,), missing markers (k,))."""
     rows = missing[frames]
-    uniq, inverse = np.unique(rows, axis=0, return_inverse=True)
-    inverse = np.asarray(inverse).ravel()
-    return [(frames[inverse == p], np.flatnonzero(uniq[p])) for p in range(len(uniq))]
+    uniq, inverse, _ = unique_rows(rows)
+    return [(frames[part], np.flatnonzero(uniq[p])) for p, part in enumerate(members(inverse, len(uniq)))]
 
 
 def _bone_sums(ia: np.ndarray, ib: np.ndarray, k: int):

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import MethodError
-from ..gaps import end_blend
+from ..gaps import end_blend, members, unique_rows
 from ..methods.base import FillResult, finish
 from ..runtime.blas import single_blas_thread
 from ..units import length_factor
@@ -272,10 +272,9 @@ def observed_groups(missing: np.ndarray, m: int, frames: np.ndarray, near: np.nd
         obs = ~missing[np.ix_(group, near)]
         rank = np.cumsum(obs, axis=1)
         pattern = obs & (rank <= NEAREST_OBSERVED)
-        uniq, inverse = np.unique(pattern, axis=0, return_inverse=True)
-        inverse = np.asarray(inverse).ravel()
-        for p in range(len(uniq)):
-            part = group[inverse == p]
+        uniq, inverse, _ = unique_rows(pattern)
+        for p, rows in enumerate(members(inverse, len(uniq))):
+            part = group[rows]
             preds, train = nearest_with_training(missing, m, near[uniq[p]], wanted, row_weight)
             out.append((part, preds, train))
     return out
@@ -765,13 +764,12 @@ def rigid_prediction(positions: np.ndarray, todo: np.ndarray, *, nearest: int = 
                 seen[rows] = whole
         rank = np.cumsum(seen, axis=1)
         pattern = seen & (rank <= nearest)
-        uniq, inverse = np.unique(pattern, axis=0, return_inverse=True)
-        inverse = np.asarray(inverse).ravel()
-        for p in range(len(uniq)):
+        uniq, inverse, _ = unique_rows(pattern)
+        for p, rows in enumerate(members(inverse, len(uniq))):
             anchors = order[uniq[p]]
             if len(anchors) < 3:
                 continue
-            group = frames[inverse == p]
+            group = frames[rows]
             train = _training(missing, m, anchors)
             if len(train) < MIN_TRAINING_FRAMES:
                 continue

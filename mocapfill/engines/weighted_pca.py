@@ -46,6 +46,7 @@ from typing import Any, Callable, NamedTuple
 import numpy as np
 
 from ..errors import MethodError
+from ..gaps import members, unique_rows
 from ..methods.interp import interpolate_columns
 from ..units import length_factor
 
@@ -417,12 +418,11 @@ def pattern_groups(missing: np.ndarray, frames: np.ndarray, near: np.ndarray, ma
     Frames with the same pattern of observed candidates form a group; when there are more than ``max_patterns``
     patterns, the largest ``max_patterns - 1`` keep theirs and the rest are merged.
     """
-    patterns, inverse, counts = np.unique(missing[np.ix_(frames, near)], axis=0, return_inverse=True,
-                                          return_counts=True)
-    inverse = np.asarray(inverse).ravel()
+    patterns, inverse, counts = unique_rows(missing[np.ix_(frames, near)])
     order = np.argsort(counts, kind="stable")[::-1]
     keep = order if len(order) <= max_patterns else order[:max(max_patterns - 1, 0)]
-    out = [(frames[inverse == p], near[~patterns[p]]) for p in keep]
+    rows = members(inverse, len(patterns))
+    out = [(frames[rows[p]], near[~patterns[p]]) for p in keep]
     if len(keep) < len(order):
         rest = frames[~np.isin(inverse, keep)]
         out.append((rest, near[~missing[np.ix_(rest, near)].any(axis=0)]))
@@ -517,8 +517,8 @@ def reconstruct(
         tasks = []
         rows = missing[missing.any(axis=1)]
         frames_any = np.flatnonzero(missing.any(axis=1))
-        patterns, inverse = np.unique(rows, axis=0, return_inverse=True)
-        inverse = np.asarray(inverse).ravel()
+        patterns, inverse, _ = unique_rows(rows)
+        groups = members(inverse, len(patterns))
         cache: dict[int, np.ndarray] = {}
         for p, pattern in enumerate(patterns):
             targets = np.flatnonzero(pattern & ~missing.all(axis=0))
@@ -531,7 +531,7 @@ def reconstruct(
                 ws.append(cache[m])
             weight = np.max(ws, axis=0)
             weight[targets] = missing_weight
-            tasks.append((targets, frames_any[inverse == p], weight))
+            tasks.append((targets, frames_any[groups[p]], weight))
     else:
         raise MethodError(f"pca strategy must be 'separate' or 'joint', got {strategy!r}")
 
