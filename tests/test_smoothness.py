@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from mocapfill.evaluation.smoothness import (accelerations, outcome_smoothness, short_fragments, smooth_enough,
-                                              smoothness)
+from mocapfill.evaluation.smoothness import (accelerations, least_max_filled, outcome_smoothness, short_fragments,
+                                              smooth_enough, smoothness)
 
 
 def _track(xs) -> np.ndarray:
@@ -146,3 +146,25 @@ def test_outcome_smoothness_counts_rejected_samples_as_filled_and_measures_marke
     outcome.rejected = None  # nothing rejected: the spike is observed
     s = outcome_smoothness(outcome)
     assert s.n_filled == 0 and s.max_observed == 20.0 and s.n_observed == 6
+
+
+def test_least_max_filled_is_the_linear_programmes_bound():
+    """One missing frame between two still stretches 10 mm apart: every fill has a second difference of at least
+    5 mm / frame^2 at the gap (|y| and |y - 10| both at most s needs s >= 5); the midpoint reaches it.  A gap at the
+    take's edge binds nothing, and a difference that involves a short fragment is left out."""
+    x = np.zeros((8, 2, 3))
+    x[4:, 0, 0] = 10.0
+    x[3, 0] = np.nan
+    x[:2, 1] = np.nan  # at the start: extrapolated with no acceleration
+    missing = np.isnan(x).any(axis=2)
+    least, marker, start = least_max_filled(x, missing)
+    assert least == pytest.approx(5.0, abs=1e-7)
+    assert (marker, start) == (0, 3)
+    filled = x.copy()
+    filled[3, 0] = [5.0, 0.0, 0.0]
+    filled[:2, 1] = 0.0
+    assert smoothness(filled, missing).max_filled == pytest.approx(least)
+    # the observed samples after the gap become a fragment (MoM): nothing binds any more
+    frag = missing.copy()
+    frag[5, 0] = True
+    assert least_max_filled(np.where(frag[..., None], np.nan, x), frag)[0] == pytest.approx(0.0, abs=1e-7)

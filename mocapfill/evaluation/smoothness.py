@@ -25,10 +25,11 @@ from typing import Any
 
 import numpy as np
 
-from ..gaps import fragments
+from ..gaps import fragments, runs
 
 __all__ = ["SHORT_FRAGMENT", "PERCENTILE", "PERCENTILE_FACTOR", "MIN_FILLED_FOR_PERCENTILE", "GUARD_MASKS",
-           "Smoothness", "accelerations", "short_fragments", "smoothness", "smooth_enough", "outcome_smoothness"]
+           "Smoothness", "accelerations", "short_fragments", "smoothness", "smooth_enough", "outcome_smoothness",
+           "least_max_filled", "outcome_mask"]
 
 #: Observed runs of at most this many frames between missing samples are left out (issue 21: "a fragment of one or
 #: two frames"); such samples are often the worst of the take.
@@ -179,6 +180,61 @@ def smoothness(output: np.ndarray, missing: np.ndarray, *, points: np.ndarray | 
                       filled_samples, worst_frame, worst_marker)
 
 
+def least_max_filled(positions: np.ndarray, missing: np.ndarray, *, points: np.ndarray | None = None,
+                     longest_fragment: int = SHORT_FRAGMENT, longest_gap: int = 20) -> tuple[float, int, int]:
+    """A lower bound on the largest filled acceleration of *any* fill that keeps the observed samples.
+
+    positions (n_frames, n_markers, 3): the observed samples (read where ``missing`` is False); missing
+    (n_frames, n_markers) bool and points as :func:`smoothness` takes them.  Per gap and axis, a linear programme finds the
+    fill values that make the largest |second difference| touching the gap smallest, the observed samples fixed and
+    differences involving a short fragment left out (as :func:`smoothness` leaves them out); the 3-D norm is at
+    least any one axis'.  A difference that needs a sample of another gap is dropped, and gaps longer than
+    ``longest_gap`` frames count 0, so the result stays a lower bound.  Returns (bound, marker, frame of the gap's
+    start), (0.0, -1, -1) when nothing binds.  Where the bound exceeds the largest observed acceleration, no fill
+    that keeps the observed samples passes :func:`smooth_enough`'s first rule: an edge sample is too far off.
+    """
+    from scipy.optimize import linprog  # the measure's only use of scipy: keep importing this module cheap
+
+    x = np.asarray(positions, dtype=float)
+    miss = np.asarray(missing, dtype=bool)
+    markers = np.arange(x.shape[1]) if points is None else np.flatnonzero(np.asarray(points, dtype=bool))
+    frag = short_fragments(miss, longest_fragment) if longest_fragment > 0 else np.zeros_like(miss)
+    best = (0.0, -1, -1)
+    n = x.shape[0]
+    for m in markers:
+        for start, length in runs(miss[:, m]):
+            if length > longest_gap or start == 0 or start + length == n:
+                continue  # a gap at the take's edge can be extrapolated with no acceleration at all
+            rows, consts = [], []
+            for t in range(max(start - 1, 1), min(start + length + 1, n - 1)):  # differences touching the gap
+                idx = (t - 1, t, t + 1)
+                if any(frag[i, m] or (miss[i, m] and not start <= i < start + length) for i in idx):
+                    continue
+                coef = np.zeros(length + 1)
+                const = np.zeros(3)
+                for i, c in zip(idx, (1.0, -2.0, 1.0)):
+                    if start <= i < start + length:
+                        coef[i - start] += c
+                    else:
+                        const += c * x[i, m]
+                rows.append(coef)
+                consts.append(const)
+            if not rows:
+                continue
+            a = np.array(rows)
+            a[:, -1] = -1.0  # |coef . y + const| <= s  <=>  coef . y - s <= -const and -coef . y - s <= const
+            a_ub = np.concatenate([a, a * np.r_[-np.ones(length), 1.0]])
+            cost = np.zeros(length + 1)
+            cost[-1] = 1.0
+            for axis in range(3):
+                c = np.array(consts)[:, axis]
+                res = linprog(cost, A_ub=a_ub, b_ub=np.concatenate([-c, c]), bounds=[(None, None)] * (length + 1),
+                              method="highs")
+                if res.status == 0 and res.fun > best[0]:
+                    best = (float(res.fun), int(m), int(start))
+    return best
+
+
 def smooth_enough(s: Smoothness, *, factor: float = PERCENTILE_FACTOR,
                   min_filled: int = MIN_FILLED_FOR_PERCENTILE) -> tuple[bool, list[str]]:
     """Issue 21's rule on one fill: (passes, the reasons it does not, as short sentences).
@@ -210,6 +266,13 @@ def outcome_smoothness(outcome: Any, **options: Any) -> Smoothness:
     :data:`GUARD_MASKS` that are set, each (n_frames, n_markers) bool); measured: the points of kind "marker".
     ``options`` go to :func:`smoothness`.  File units.
     """
+    missing, points = outcome_mask(outcome)
+    return smoothness(outcome.output.positions, missing, points=points, **options)
+
+
+def outcome_mask(outcome: Any) -> tuple[np.ndarray, np.ndarray | None]:
+    """(missing (n_frames, n_markers) bool, points (n_markers,) bool or None) of a fill as :func:`outcome_smoothness`
+    measures it: the samples the fill had to supply, and the points of kind "marker"."""
     data = outcome.data
     missing = np.isnan(np.asarray(data.positions, dtype=float)).any(axis=2)
     missing |= np.isnan(np.asarray(outcome.work.positions, dtype=float)).any(axis=2)
@@ -219,4 +282,4 @@ def outcome_smoothness(outcome: Any, **options: Any) -> Smoothness:
             missing |= np.asarray(mask, dtype=bool)
     kinds = getattr(data, "kinds", None)
     points = None if kinds is None else np.array([k == "marker" for k in kinds])
-    return smoothness(outcome.output.positions, missing, points=points, **options)
+    return missing, points
