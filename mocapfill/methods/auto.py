@@ -153,6 +153,16 @@ class ModelConfig:
     impute_trust_mm: float = 10.0
     #: Fit the spatial model again on the completed take (EM-style imputation) this many times.
     impute_passes: int = 1
+    #: Radius (mm) of a marker's segment model in the refit: the markers this close that are observed throughout its
+    #: gaps (at least 3), with their own local frame.  It predicts in place of the neighbourhood model where that one
+    #: extrapolates more and predicts a larger variance (:func:`~mocapfill.engines.local_pca.prefer_segment`), and
+    #: the bone stage leaves its predictions alone (the bones would pull them towards the neighbours the segment
+    #: model left out: vicon-arm one-marker draw 0 2.75 mm without the bones there, 6.62 with them).  0: off.
+    #: Measured (2026-11-27, seventh session) against off: the short walk's dense 5/10/20/30 % pooled RMSE
+    #: 16.7/14.6/29.0/41.4 -> 9.2/8.8/25.3/39.2 mm, one-marker, limb and segment unchanged; bench_default_captures
+    #: vicon-arm one-marker 3.26 -> 1.55, dense-5 3.78 -> 3.02, dense-10 3.16 -> 3.11, segment 31.7 -> 31.4, the
+    #: other 24 cases identical; bench_messy dense 5 % RMSE 9.2 -> 9.0; bench_default identical.
+    segment_mm: float = 120.0
     #: The spatial std is multiplied by this before the bone refinement weighs it against the bones' spread.
     bone_trust: float = 0.5
     #: Smallest bone spread in the refinement (a bone is never an exact constraint).
@@ -322,14 +332,17 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         if used_refs is not None:
             used_refs.clear()  # the last pass's models make the prediction: they are the ones reported
         off = np.full(missing.shape, np.nan) if config.extrapolation_sd and last else None
+        segment_used = np.zeros(missing.shape, dtype=bool)
         pred, pred_sd, edge, edge_sd = impute_stage(positions, fill, sd, config, mm,
                                                        reference_frames=reference_frames,
                                                        reference_weights=reference_weights, used_references=used_refs,
-                                                       extrapolation=off)
+                                                       extrapolation=off, segment_used=segment_used)
         pred, pred_sd, edge, edge_sd, report_sd = joined(positions, pred, pred_sd, edge, edge_sd,
                                                          reported_sd(pred_sd, off), prior_est, glob, config, mm)
         if boneset is not None and len(boneset):
-            pred = bone_stage(positions, pred, pred_sd, boneset, config, mm)
+            # a segment model's predictions ride on the markers observed throughout the gap: the bones stay off them
+            pred = np.where(segment_used[..., None], pred,
+                            bone_stage(positions, pred, pred_sd, boneset, config, mm))
         displaced = displaced_runs(positions, edge, edge_sd, config, mm)
         fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate,
                                             report_sd=report_sd if last else None, displaced=displaced)
@@ -338,7 +351,9 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
                                "used": int(sum(used_refs))} if config.impute_passes
                               else sinfo.get("references", {"frames": 0, "models": 0, "used": 0}))
     spatial = missing & np.isfinite(pred_sd)
-    info["gap_methods"] = gap_records(missing, sd, spatial, outliers, config, mm, labels, boneset, off, displaced)
+    segment = segment_used if config.impute_passes else None
+    info["gap_methods"] = gap_records(missing, sd, spatial, outliers, config, mm, labels, boneset, off, displaced,
+                                      segment)
     info["displaced"] = displaced_records(positions, displaced, edge, mm, labels)
     info["review"] = [i for i, r in enumerate(info["gap_methods"]) if r["review"]]
     return finish(positions, fill, std=sd, info=info)
@@ -454,7 +469,8 @@ def global_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, glob: 
 
 def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, config: ModelConfig, mm: float, *,
                  reference_frames: np.ndarray | None = None, reference_weights: np.ndarray | None = None,
-                 used_references: list | None = None, extrapolation: np.ndarray | None = None):
+                 used_references: list | None = None, extrapolation: np.ndarray | None = None,
+                 segment_used: np.ndarray | None = None):
     """Stage 4: the spatial model fitted again with the neighbours taken from the completed take.
 
     positions (n_frames, n_markers, 3) the input (NaN = missing); completed the same filled by stage 3, sd
@@ -462,7 +478,8 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
     where it is observed, every near marker a predictor (:func:`mocapfill.engines.local_pca.reconstruct_completed`;
     a filled neighbour's sd is propagated into the prediction's).  Returns pred, sd, edge, edge_sd as
     :func:`spatial_stage`; ``extrapolation`` (n_frames, n_markers) or None receives how far each prediction's pose
-    lies off its model's training poses (:func:`reported_sd`).
+    lies off its model's training poses (:func:`reported_sd`); ``segment_used`` (n_frames, n_markers) bool or None
+    receives where a segment model predicted (:attr:`ModelConfig.segment_mm`).
     """
     from ..engines.local_pca import reconstruct_completed
 
@@ -471,7 +488,8 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
         knn=config.knn, folds=config.cv_folds, max_predictors=config.max_predictors, edge_frames=config.edge_frames,
         reference=reference_frames,
         leverage_weight=config.leverage_weight, trust=config.impute_trust_mm * mm if config.impute_trust_mm else None,
-        reference_weights=reference_weights, used_references=used_references, extrapolation=extrapolation)
+        reference_weights=reference_weights, used_references=used_references, extrapolation=extrapolation,
+        segment=config.segment_mm * mm if config.segment_mm else None, segment_used=segment_used)
     return body_stage(positions, pred, pred_sd, edge, edge_sd, config, mm)
 
 
@@ -743,13 +761,14 @@ def displaced_records(positions: np.ndarray, displaced: np.ndarray, edge: np.nda
 
 def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outliers: np.ndarray,
                 config: ModelConfig, mm: float, labels, boneset, off: np.ndarray | None = None,
-                displaced: np.ndarray | None = None) -> list[dict]:
+                displaced: np.ndarray | None = None, segment: np.ndarray | None = None) -> list[dict]:
     """Stage 5: one JSON-ready record per gap (run of missing frames of one marker).
 
     missing / sd / spatial / outliers (n_frames, n_markers): the input's mask, the posterior sd, where the spatial
     model predicted, where its prediction was down-weighted; off (n_frames, n_markers) or None: how far each
     prediction's pose lay off its model's training poses (:func:`reported_sd`); displaced (n_frames, n_markers) or
-    None: observed samples judged displaced (:func:`displaced_runs`).  ``review`` is True when the gap's largest sd
+    None: observed samples judged displaced (:func:`displaced_runs`); segment (n_frames, n_markers) or None: where a
+    segment model predicted (:attr:`ModelConfig.segment_mm`).  ``review`` is True when the gap's largest sd
     exceeds ``config.review_sd_mm`` (or nothing could be filled) or a run judged displaced touches it; every number
     in ``reason`` comes from ``config``.
     """
@@ -776,7 +795,11 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
                       f"model by the smoother")
             if share < 1:
                 reason += "; the motion model bridges the rest"
-            if boneset is not None and len(boneset):
+            by_segment = segment is not None and bool(segment[sl, m].any())
+            if by_segment:
+                reason += (f"; the prediction is its segment model's (the markers within {config.segment_mm:g} mm "
+                           f"observed throughout the gap), where the neighbourhood model extrapolated more")
+            if boneset is not None and len(boneset) and not by_segment:
                 reason += "; predictions refined with the bone lengths"
             n_out = int(outliers[sl, m].sum())
             if n_out:
