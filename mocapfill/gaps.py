@@ -133,11 +133,7 @@ def unique_rows(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if pad or packed.shape[1] == 0:
         packed = np.concatenate([packed, np.zeros((n, pad or 8), dtype=np.uint8)], axis=1)
     words = packed.view(">u8")  # (n, n_words)
-    if words.shape[1] == 1:
-        _, first, inverse, counts = np.unique(words[:, 0], return_index=True, return_inverse=True,
-                                              return_counts=True)
-        return mask[first], np.asarray(inverse, dtype=np.intp).ravel(), counts
-    order = np.lexsort(words.T[::-1])
+    order = np.lexsort(words.T[::-1])  # stable: each pattern's first row comes first
     ordered = words[order]
     new = np.ones(n, dtype=bool)
     new[1:] = (ordered[1:] != ordered[:-1]).any(axis=1)

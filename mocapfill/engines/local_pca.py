@@ -746,10 +746,11 @@ def reconstruct_completed(
         if 3 <= len(close) < len(near):
             seg_weights, seg_align = marker_weights(dist, m, (segment,), align_scale, missing_weight)
             seg_off: list = []
-            seg = group_model(data, m, group, close, train, seg_weights, seg_align, dist, (segment,), reach=np.inf,
-                              normalise=normalise, folds=folds, knn=knn, row_weight=row_weight, extrapolation=seg_off)
-            if prefer_segment(seg[2], seg_off[0], rms_mix, off[0]):
-                est_all, leverage, rms_mix, sens, off[0] = seg[0], seg[1], seg[2], seg[6], seg_off[0]
+            seg_all, seg_leverage, seg_rms, _, _, _, seg_sens = group_model(
+                data, m, group, close, train, seg_weights, seg_align, dist, (segment,), reach=np.inf,
+                normalise=normalise, folds=folds, knn=knn, row_weight=row_weight, extrapolation=seg_off)
+            if prefer_segment(seg_rms, seg_off[0], rms_mix, off[0]):
+                est_all, leverage, rms_mix, sens, off[0] = seg_all, seg_leverage, seg_rms, seg_sens, seg_off[0]
                 if segment_used is not None:
                     segment_used[group, m] = True
         if extrapolation is not None:

@@ -226,8 +226,9 @@ def least_max_filled(positions: np.ndarray, missing: np.ndarray, *, points: np.n
             a_ub = np.concatenate([a, a * np.r_[-np.ones(length), 1.0]])
             cost = np.zeros(length + 1)
             cost[-1] = 1.0
+            consts = np.array(consts)  # (n_differences, 3)
             for axis in range(3):
-                c = np.array(consts)[:, axis]
+                c = consts[:, axis]
                 res = linprog(cost, A_ub=a_ub, b_ub=np.concatenate([-c, c]), bounds=[(None, None)] * (length + 1),
                               method="highs")
                 if res.status == 0 and res.fun > best[0]:

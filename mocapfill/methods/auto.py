@@ -327,6 +327,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     displaced = displaced_runs(positions, edge, edge_sd, config, mm)
     fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate,
                                         report_sd=None if config.impute_passes else report_sd, displaced=displaced)
+    segment_used = None  # where the last refit's segment models predicted (none without a refit)
     for k in range(config.impute_passes):
         last = k == config.impute_passes - 1
         if used_refs is not None:
@@ -351,9 +352,8 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
                                "used": int(sum(used_refs))} if config.impute_passes
                               else sinfo.get("references", {"frames": 0, "models": 0, "used": 0}))
     spatial = missing & np.isfinite(pred_sd)
-    segment = segment_used if config.impute_passes else None
     info["gap_methods"] = gap_records(missing, sd, spatial, outliers, config, mm, labels, boneset, off, displaced,
-                                      segment)
+                                      segment_used)
     info["displaced"] = displaced_records(positions, displaced, edge, mm, labels)
     info["review"] = [i for i, r in enumerate(info["gap_methods"]) if r["review"]]
     return finish(positions, fill, std=sd, info=info)
