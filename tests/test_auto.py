@@ -11,7 +11,7 @@ from mocapfill.errors import MethodError
 from synthetic import tumbling_body
 from synthetic import moving_body, rot_x, rot_z
 from mocapfill.methods import get_method
-from mocapfill.engines.local_pca import prefer_segment, rigid_prediction, segment_markers
+from mocapfill.engines.local_pca import prefer_segment, refit_parts, rigid_prediction, segment_markers
 from mocapfill.methods.auto import (DEFAULT_CONFIG, ModelConfig, body_stage, displaced_runs, fill_auto, gap_records,
                                          global_prediction, global_stage,
                                          motion_model, spatial_stage, temporal_stage)
@@ -426,3 +426,47 @@ def test_segment_model_carries_an_ankle_through_a_short_walk():
                     config=ModelConfig(segment_mm=0.0))
     err_off = np.linalg.norm(off.positions[12:197, m] - data.positions[12:197, m], axis=1)
     assert np.sqrt(np.mean(err_off ** 2)) > 4 * np.sqrt(np.mean(err ** 2))
+
+
+def test_refit_parts_split_the_gap_by_the_left_out_neighbours_seen():
+    """The whole-gap model keeps the trusted candidates; a left-out one observed in part of the gap frames gives
+    those frames a model of their own with it as a predictor."""
+    missing = np.zeros((10, 6), dtype=bool)
+    gap = np.arange(2, 8)
+    missing[gap, 0] = True
+    missing[5:8, 4] = True  # candidate 4 is seen in frames 2-4 of the gap only
+    candidates = np.array([4, 1, 2, 3, 5])  # nearest first
+    sure = np.array([False, True, True, True, False])  # 4 and 5 left out of the whole-gap model
+    parts = refit_parts(missing, gap, candidates, sure, 3)
+    got = sorted((f.tolist(), p.tolist()) for f, p in parts)
+    assert got == [([2, 3, 4], [4, 1, 2, 3, 5]), ([5, 6, 7], [1, 2, 3, 5])]
+    assert [(f.tolist(), p.tolist()) for f, p in refit_parts(missing, gap, candidates, sure, 1)] == \
+        [(gap.tolist(), [1, 2, 3])]
+    assert [(f.tolist(), p.tolist()) for f, p in refit_parts(missing, gap, candidates, np.ones(5, bool), 3)] == \
+        [(gap.tolist(), candidates.tolist())]
+
+
+def test_refit_parts_carry_a_knee_on_a_thigh_seen_for_part_of_its_gap():
+    """85_02 with the left shank and foot hidden for 1.25 s and the thigh marker for the second half of that and
+    beyond: one model for the knee's whole gap leaves the thigh out (it is filled uncertainly for half the gap) and
+    predicts the knee from the far markers; the part where the thigh is seen has it as a predictor."""
+    from pathlib import Path
+    from mocapfill import read
+
+    data = read(Path(__file__).parents[1] / "sample_data" / "85_02.c3d")
+    bare = [x.split(":")[-1] for x in data.labels]
+    hidden = data.positions.copy()
+    for name in ("LKNE", "LSHN", "LANK", "LHEE", "LMT5", "LTOE"):
+        hidden[100:250, bare.index(name)] = np.nan
+    hidden[180:310, bare.index("LTHI")] = np.nan
+    k = bare.index("LKNE")
+
+    def knee_rmse(parts: int) -> float:
+        res = fill_auto(hidden, units=data.units, labels=data.labels, rate=data.rate,
+                        config=ModelConfig(refit_parts=parts))
+        err = np.linalg.norm(res.positions[100:250, k] - data.positions[100:250, k], axis=1)
+        return float(np.sqrt(np.mean(err ** 2)))
+
+    with_parts, one_model = knee_rmse(3), knee_rmse(1)
+    assert with_parts < 25.0
+    assert one_model > 2 * with_parts

@@ -680,6 +680,7 @@ def reconstruct_completed(
     extrapolation: np.ndarray | None = None,
     segment: float | None = None,
     segment_used: np.ndarray | None = None,
+    parts: int = 1,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The local model refitted on a completed take (one EM-style imputation step).
 
@@ -704,7 +705,9 @@ def reconstruct_completed(
     ``segment`` (data units) or None: beside each marker's neighbourhood model, a segment model on the markers within
     this distance that are observed throughout the marker's gaps (:func:`segment_markers`; at least 3), with its own
     local frame, predicts in its place where :func:`prefer_segment` says so; ``segment_used`` (n_frames, n_markers)
-    bool or None receives where it did.
+    bool or None receives where it did.  ``parts`` (with ``trust``): a marker's gap frames are split into at most
+    this many parts by which left-out neighbours are observed there, each part with its own model
+    (:func:`refit_parts`; 1: one model per marker).
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
@@ -719,23 +722,13 @@ def reconstruct_completed(
     finite = np.isfinite(data).all(axis=2)
     estimate, std, info = empty_estimates(n_frames, n_markers)
     known_distances = distances_to(np.where(known[..., None], data, np.nan))  # once, not per marker
-    for m in np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0)):
-        group = np.flatnonzero(missing[:, m])
-        dist = known_distances(m)
-        weights, align_weight = marker_weights(dist, m, scales, align_scale, missing_weight)
-        sure = np.ones(n_markers, dtype=bool)
-        if trust is not None:
-            # a neighbour filled with little certainty during this marker's gaps (it vanished with it) is no
-            # predictor: the model and its cross-validated error are those of the markers still known there
-            with np.errstate(invalid="ignore"):
-                sure = np.nan_to_num(var[group].mean(axis=0), nan=np.inf) <= trust ** 2
-        others = np.flatnonzero(np.arange(n_markers) != m)
-        near = others[np.isfinite(dist[others]) & (dist[others] <= reach * max(scales))
-                      & finite[group][:, others].all(axis=0) & sure[others]]
-        near = near[np.argsort(dist[near], kind="stable")]
+
+    def refit(m: int, group: np.ndarray, near: np.ndarray, dist: np.ndarray, weights: list[np.ndarray],
+              align_weight: np.ndarray) -> None:
+        """One model of marker ``m`` on the predictors ``near``, predicting its missing ``group`` frames."""
         train = np.flatnonzero(known[:, m] & finite[:, near].all(axis=1)) if len(near) else np.zeros(0, int)
         if len(near) < 3 or len(train) < MIN_TRAINING_FRAMES:
-            continue
+            return
         off: list | None = [] if extrapolation is not None or segment else None
         est_all, leverage, rms_mix, _, _, _, sens = group_model(
             data, m, group, near, train, weights, align_weight, dist, scales, reach=reach,
@@ -766,7 +759,47 @@ def reconstruct_completed(
             _edge_samples(info, m, group, train[own], est_all[:n_train][own],
                           np.sqrt(rms_mix ** 2 * (1.0 + leverage_weight * leverage[:n_train][own]) + spread_t),
                           edge_frames)
+
+    for m in np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0)):
+        gap_frames = np.flatnonzero(missing[:, m])
+        dist = known_distances(m)
+        weights, align_weight = marker_weights(dist, m, scales, align_scale, missing_weight)
+        sure = np.ones(n_markers, dtype=bool)
+        if trust is not None:
+            # a neighbour filled with little certainty during this marker's gaps (it vanished with it) is no
+            # predictor: the model and its cross-validated error are those of the markers still known there
+            with np.errstate(invalid="ignore"):
+                sure = np.nan_to_num(var[gap_frames].mean(axis=0), nan=np.inf) <= trust ** 2
+        others = np.flatnonzero(np.arange(n_markers) != m)
+        candidates = others[np.isfinite(dist[others]) & (dist[others] <= reach * max(scales))
+                            & finite[gap_frames][:, others].all(axis=0)]
+        candidates = candidates[np.argsort(dist[candidates], kind="stable")]
+        for group, near in refit_parts(missing, gap_frames, candidates, sure[candidates], parts):
+            refit(m, group, near, dist, weights, align_weight)
     return estimate, std, info["edge_estimate"], info["edge_std"]
+
+
+def refit_parts(missing: np.ndarray, gap_frames: np.ndarray, candidates: np.ndarray, sure: np.ndarray,
+                max_parts: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Split one marker's gap frames for the refit: [(frames, predictors)], each part one model.
+
+    missing (n_frames, n_markers); gap_frames (n,) ascending; candidates (p,) the near markers, nearest first;
+    sure (p,) bool: trusted over all the gap frames (observed, or filled with a small sd).  The candidates the
+    whole-gap model leaves out may be observed during part of the gaps (a thigh marker seen for the first half of an
+    ankle's gap, missing with it for the second): the frames are grouped by which of those are observed
+    (:func:`~.weighted_pca.pattern_groups`, at most ``max_parts`` groups), and each part's predictors are the trusted
+    candidates plus those observed throughout it.  Where every candidate is trusted, or ``max_parts`` is 1, one part
+    with the trusted candidates.
+    """
+    trusted = candidates[sure]
+    left_out = candidates[~sure]
+    if max_parts <= 1 or not len(left_out):
+        return [(gap_frames, trusted)]
+    out = []
+    for frames, seen in pattern_groups(missing, gap_frames, left_out, max_parts):
+        near = candidates[np.isin(candidates, np.concatenate([trusted, seen]))]  # nearest first, as candidates
+        out.append((frames, near))
+    return out
 
 
 def rigid_prediction(positions: np.ndarray, todo: np.ndarray, *, nearest: int = 3, align_scale: float,

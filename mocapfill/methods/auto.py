@@ -151,6 +151,16 @@ class ModelConfig:
     #: gaps is at most this (mm; 0: every neighbour): one that vanished with the marker does not steer it (segment
     #: protocol: the refit on vanished neighbours' fills made tennis 37.9 mm against 18.2 without the refit).
     impute_trust_mm: float = 10.0
+    #: A neighbour left out that way may still be observed during part of the marker's gaps (a thigh marker seen for
+    #: the first half of an ankle's gap, missing with it for the second): the refit splits the gap frames into at
+    #: most this many parts by which of those neighbours are observed, each part a model with them as predictors
+    #: (:func:`~mocapfill.engines.local_pca.refit_parts`; 1: one model per marker).  Measured (2026-11-27, eighth
+    #: session) against 1: bench_references' same-subject CMU segment trials, median without references 61.5 ->
+    #: 43.7 mm (16_08: an ankle 215 -> 29 mm), with them 57.3 -> 31.7; bench_default_captures 6 of 28 cases better
+    #: (biogesta dense 20 / 30 % 30.3 / 79.7 -> 28.2 / 74.7, vicon-arm dense 20 % 13.8 -> 12.3) and 5 worse by
+    #: 0.3-3.4 % (vicon-arm dense 30 % 16.4 -> 16.9: a robot link on the false bone of ``bone_extrapolation``);
+    #: bench_default identical; bench_messy's dense and segment RMSEs at or below.
+    refit_parts: int = 3
     #: Fit the spatial model again on the completed take (EM-style imputation) this many times.
     impute_passes: int = 1
     #: Radius (mm) of a marker's segment model in the refit: the markers this close that are observed throughout its
@@ -489,7 +499,8 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
         reference=reference_frames,
         leverage_weight=config.leverage_weight, trust=config.impute_trust_mm * mm if config.impute_trust_mm else None,
         reference_weights=reference_weights, used_references=used_references, extrapolation=extrapolation,
-        segment=config.segment_mm * mm if config.segment_mm else None, segment_used=segment_used)
+        segment=config.segment_mm * mm if config.segment_mm else None, segment_used=segment_used,
+        parts=config.refit_parts)
     return body_stage(positions, pred, pred_sd, edge, edge_sd, config, mm)
 
 
