@@ -706,8 +706,10 @@ def reconstruct_completed(
     this distance that are observed throughout the marker's gaps (:func:`segment_markers`; at least 3), with its own
     local frame, predicts in its place where :func:`prefer_segment` says so; ``segment_used`` (n_frames, n_markers)
     bool or None receives where it did.  ``parts`` (with ``trust``): a marker's gap frames are split into at most
-    this many parts by which left-out neighbours are observed there, each part with its own model
-    (:func:`refit_parts`; 1: one model per marker).
+    this many parts by which left-out neighbours are observed there (:func:`refit_parts`); a part where one is seen
+    gets its own model with it, which predicts there in place of the whole-gap model where its predicted variance
+    (CV rms^2 times the mean pose-residual factor) is the smaller; only beside a whole-gap model (1: one model per
+    marker).
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
@@ -724,17 +726,20 @@ def reconstruct_completed(
     known_distances = distances_to(np.where(known[..., None], data, np.nan))  # once, not per marker
 
     def refit(m: int, group: np.ndarray, near: np.ndarray, dist: np.ndarray, weights: list[np.ndarray],
-              align_weight: np.ndarray) -> None:
-        """One model of marker ``m`` on the predictors ``near``, predicting its missing ``group`` frames."""
+              align_weight: np.ndarray) -> dict | None:
+        """One model of marker ``m`` on the predictors ``near`` for its missing ``group`` frames (None: too few
+        predictors or training frames): its reconstruction of the training then the group's frames, and what
+        :func:`store` and :func:`prefer_segment` need."""
         train = np.flatnonzero(known[:, m] & finite[:, near].all(axis=1)) if len(near) else np.zeros(0, int)
         if len(near) < 3 or len(train) < MIN_TRAINING_FRAMES:
-            return
+            return None
         off: list | None = [] if extrapolation is not None or segment else None
         est_all, leverage, rms_mix, _, _, _, sens = group_model(
             data, m, group, near, train, weights, align_weight, dist, scales, reach=reach,
             max_predictors=max_predictors, normalise=normalise, folds=folds, knn=knn, row_weight=row_weight,
             used_references=used_references if row_weight is not None else None, extrapolation=off)
-        n_train = len(train)
+        fit = {"group": group, "near": near, "train": train, "est": est_all, "leverage": leverage, "rms": rms_mix,
+               "sens": sens, "off": off[0] if off else None, "segment": False}
         close = segment_markers(near, dist, missing[group], segment) if segment else near[:0]
         if 3 <= len(close) < len(near):
             seg_weights, seg_align = marker_weights(dist, m, (segment,), align_scale, missing_weight)
@@ -742,23 +747,30 @@ def reconstruct_completed(
             seg_all, seg_leverage, seg_rms, _, _, _, seg_sens = group_model(
                 data, m, group, close, train, seg_weights, seg_align, dist, (segment,), reach=np.inf,
                 normalise=normalise, folds=folds, knn=knn, row_weight=row_weight, extrapolation=seg_off)
-            if prefer_segment(seg_rms, seg_off[0], rms_mix, off[0]):
-                est_all, leverage, rms_mix, sens, off[0] = seg_all, seg_leverage, seg_rms, seg_sens, seg_off[0]
-                if segment_used is not None:
-                    segment_used[group, m] = True
+            if prefer_segment(seg_rms, seg_off[0], rms_mix, fit["off"]):
+                fit.update(est=seg_all, leverage=seg_leverage, rms=seg_rms, sens=seg_sens, off=seg_off[0],
+                           segment=True)
+        return fit
+
+    def store(m: int, fit: dict) -> None:
+        """Write one model's prediction of marker ``m`` at its group's frames (and at the observed frames next to
+        them) into the outputs."""
+        group, near, train, n_train = fit["group"], fit["near"], fit["train"], len(fit["train"])
+        if segment_used is not None and fit["segment"]:
+            segment_used[group, m] = True
         if extrapolation is not None:
-            extrapolation[group, m] = off[0]
+            extrapolation[group, m] = fit["off"]
         with np.errstate(invalid="ignore"):
-            spread = var[group][:, near] @ sens[near]  # propagated predictor variance (n_group,)
-        estimate[group, m] = est_all[n_train:]
-        std[group, m] = np.sqrt(rms_mix ** 2 * (1.0 + leverage_weight * leverage[n_train:]) + spread)
+            spread = var[group][:, near] @ fit["sens"][near]  # propagated predictor variance (n_group,)
+        estimate[group, m] = fit["est"][n_train:]
+        std[group, m] = np.sqrt(fit["rms"] ** 2 * (1.0 + leverage_weight * fit["leverage"][n_train:]) + spread)
         if edge_frames:
             own = train < n_frames
             with np.errstate(invalid="ignore"):
-                spread_t = var[train[own]][:, near] @ sens[near]
-            _edge_samples(info, m, group, train[own], est_all[:n_train][own],
-                          np.sqrt(rms_mix ** 2 * (1.0 + leverage_weight * leverage[:n_train][own]) + spread_t),
-                          edge_frames)
+                spread_t = var[train[own]][:, near] @ fit["sens"][near]
+            _edge_samples(info, m, group, train[own], fit["est"][:n_train][own],
+                          np.sqrt(fit["rms"] ** 2 * (1.0 + leverage_weight * fit["leverage"][:n_train][own])
+                                  + spread_t), edge_frames)
 
     for m in np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0)):
         gap_frames = np.flatnonzero(missing[:, m])
@@ -774,8 +786,26 @@ def reconstruct_completed(
         candidates = others[np.isfinite(dist[others]) & (dist[others] <= reach * max(scales))
                             & finite[gap_frames][:, others].all(axis=0)]
         candidates = candidates[np.argsort(dist[candidates], kind="stable")]
+        trusted = candidates[sure[candidates]]
+        whole = refit(m, gap_frames, trusted, dist, weights, align_weight)
+        if whole is None:
+            continue
+        store(m, whole)
+        # the parts of the gaps where a left-out neighbour is seen: a model of their own with it, in place of the
+        # whole-gap model's where it predicts the smaller variance there (CV rms^2 times the mean pose-residual
+        # factor); only beside a whole-gap model (a marker no trusted neighbour predicts is not handed to the few
+        # that are seen now and then: a wheelchair marker predicted from an arm's was 600 mm off)
         for group, near in refit_parts(missing, gap_frames, candidates, sure[candidates], parts):
-            refit(m, group, near, dist, weights, align_weight)
+            if len(near) == len(trusted):
+                continue  # no left-out neighbour seen here: the whole-gap model's
+            fit = refit(m, group, near, dist, weights, align_weight)
+            if fit is None:
+                continue
+            if fit["off"] is not None:
+                at = np.searchsorted(gap_frames, group)
+                if not fit["rms"] ** 2 * np.mean(fit["off"]) < whole["rms"] ** 2 * np.mean(whole["off"][at]):
+                    continue
+            store(m, fit)
     return estimate, std, info["edge_estimate"], info["edge_std"]
 
 
