@@ -157,7 +157,7 @@ class ModelConfig:
     #: it that predicts there in place of the whole-gap model where its predicted variance (CV rms^2 times the mean
     #: pose-residual factor) is the smaller (:func:`~mocapfill.engines.local_pca.refit_parts`; 1: one model per
     #: marker).  Measured (2026-11-27, eighth session) against 1: bench_references' same-subject CMU trials, median
-    #: without references segment 61.5 -> 43.7 mm (16_08: an ankle 215 -> 38 mm), dense 30 % 58.4 -> 49.7, with them
+    #: without references segment 61.5 -> 43.7 mm (16_08: an ankle 215 -> 33 mm), dense 30 % 58.4 -> 49.7, with them
     #: segment 57.3 -> 31.7, dense 30 % 30.8 -> 28.9; bench_default_captures 7 of 28 cases better (biogesta dense
     #: 20 / 30 % 30.3 / 79.7 -> 28.3 / 73.8, vicon-arm dense 20 % 13.8 -> 12.3) and 3 worse, all vicon-arm draw 3
     #: through the robot's false bones (dense 5 / 10 / 30 % 3.02 / 3.11 / 16.35 -> 3.05 / 3.13 / 16.84; without
