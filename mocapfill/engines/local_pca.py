@@ -708,8 +708,8 @@ def reconstruct_completed(
     bool or None receives where it did.  ``parts`` (with ``trust``): a marker's gap frames are split into at most
     this many parts by which left-out neighbours are observed there (:func:`refit_parts`); a part where one is seen
     gets its own model with it, which predicts there in place of the whole-gap model where its predicted variance
-    (CV rms^2 times the mean pose-residual factor) is the smaller; only beside a whole-gap model (1: one model per
-    marker).
+    (CV rms^2 times the mean pose-residual factor) is the smaller and it has ``MIN_TRAIN_WANTED`` training frames
+    (reference frames count); only beside a whole-gap model (1: one model per marker).
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
@@ -799,8 +799,8 @@ def reconstruct_completed(
             if len(near) == len(trusted):
                 continue  # no left-out neighbour seen here: the whole-gap model's
             fit = refit(m, group, near, dist, weights, align_weight)
-            if fit is None:
-                continue
+            if fit is None or len(fit["train"]) < MIN_TRAIN_WANTED:
+                continue  # a model on few frames: its cross-validated error cannot tell the two apart
             if fit["off"] is not None:
                 at = np.searchsorted(gap_frames, group)
                 if not fit["rms"] ** 2 * np.mean(fit["off"]) < whole["rms"] ** 2 * np.mean(whole["off"][at]):

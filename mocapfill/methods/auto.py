@@ -155,14 +155,15 @@ class ModelConfig:
     #: the first half of an ankle's gap, missing with it for the second): the refit splits the gap frames into at
     #: most this many parts by which of those neighbours are observed, and a part where one is seen gets a model with
     #: it that predicts there in place of the whole-gap model where its predicted variance (CV rms^2 times the mean
-    #: pose-residual factor) is the smaller (:func:`~mocapfill.engines.local_pca.refit_parts`; 1: one model per
-    #: marker).  Measured (2026-11-27, eighth session) against 1: bench_references' same-subject CMU trials, median
-    #: without references segment 61.5 -> 43.7 mm (16_08: an ankle 215 -> 33 mm), dense 30 % 58.4 -> 49.7, with them
-    #: segment 57.3 -> 31.7, dense 30 % 30.8 -> 28.9; bench_default_captures 7 of 28 cases better (biogesta dense
-    #: 20 / 30 % 30.3 / 79.7 -> 28.3 / 73.8, vicon-arm dense 20 % 13.8 -> 12.3) and 3 worse, all vicon-arm draw 3
-    #: through the robot's false bones (dense 5 / 10 / 30 % 3.02 / 3.11 / 16.35 -> 3.05 / 3.13 / 16.84; without
-    #: the bone stage that draw goes 12.2 -> 9.4 mm); bench_messy's dense medians and RMSEs at or below;
-    #: bench_default identical; CPU +7 % on the 31 real gapped captures.
+    #: pose-residual factor) is the smaller and it has ``MIN_TRAIN_WANTED`` training frames (on fewer, the two
+    #: models' cross-validated errors cannot tell them apart: CMU 07_12, a pelvis marker seen in 30 frames, 17.8 ->
+    #: 24.9 mm without that condition) (:func:`~mocapfill.engines.local_pca.refit_parts`; 1: one model per marker).
+    #: Measured (2026-11-27, eighth session) against 1: bench_references' same-subject CMU trials with the subject's
+    #: other takes as references (their frames are what lets the part models train), median segment 57.3 -> 31.7
+    #: mm, dense 30 % 30.8 -> 28.9 (without references 61.5 -> 60.8 and 58.4 -> 54.0); bench_default_captures 7 of
+    #: 28 cases better (biogesta dense 20 / 30 % 30.3 / 79.7 -> 28.3 / 73.8, vicon-arm dense 20 % 13.8 -> 12.3) and
+    #: 3 worse, all vicon-arm draw 3 through the robot's false bones (dense 5 / 10 / 30 % 3.02 / 3.11 / 16.35 ->
+    #: 3.05 / 3.13 / 16.84; without the bone stage that dense-30 draw goes 12.2 -> 9.4 mm).
     refit_parts: int = 3
     #: Fit the spatial model again on the completed take (EM-style imputation) this many times.
     impute_passes: int = 1
