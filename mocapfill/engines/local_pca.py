@@ -726,12 +726,12 @@ def reconstruct_completed(
     known_distances = distances_to(np.where(known[..., None], data, np.nan))  # once, not per marker
 
     def refit(m: int, group: np.ndarray, near: np.ndarray, dist: np.ndarray, weights: list[np.ndarray],
-              align_weight: np.ndarray) -> dict | None:
-        """One model of marker ``m`` on the predictors ``near`` for its missing ``group`` frames (None: too few
-        predictors or training frames): its reconstruction of the training then the group's frames, and what
-        :func:`store` and :func:`prefer_segment` need."""
+              align_weight: np.ndarray, min_train: int = MIN_TRAINING_FRAMES) -> dict | None:
+        """One model of marker ``m`` on the predictors ``near`` for its missing ``group`` frames (None: fewer than
+        3 predictors or ``min_train`` training frames): its reconstruction of the training then the group's frames,
+        and what :func:`store` and :func:`prefer_segment` need."""
         train = np.flatnonzero(known[:, m] & finite[:, near].all(axis=1)) if len(near) else np.zeros(0, int)
-        if len(near) < 3 or len(train) < MIN_TRAINING_FRAMES:
+        if len(near) < 3 or len(train) < min_train:
             return None
         off: list | None = [] if extrapolation is not None or segment else None
         est_all, leverage, rms_mix, _, _, _, sens = group_model(
@@ -798,9 +798,10 @@ def reconstruct_completed(
         for group, near in refit_parts(missing, gap_frames, candidates, sure[candidates], parts):
             if len(near) == len(trusted):
                 continue  # no left-out neighbour seen here: the whole-gap model's
-            fit = refit(m, group, near, dist, weights, align_weight)
-            if fit is None or len(fit["train"]) < MIN_TRAIN_WANTED:
-                continue  # a model on few frames: its cross-validated error cannot tell the two apart
+            # a model on few frames: its cross-validated error cannot tell the two apart (checked before the fit)
+            fit = refit(m, group, near, dist, weights, align_weight, min_train=MIN_TRAIN_WANTED)
+            if fit is None:
+                continue
             if fit["off"] is not None:
                 at = np.searchsorted(gap_frames, group)
                 if not fit["rms"] ** 2 * np.mean(fit["off"]) < whole["rms"] ** 2 * np.mean(whole["off"][at]):
