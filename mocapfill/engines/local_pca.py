@@ -756,8 +756,8 @@ def reconstruct_completed(
         """Write one model's prediction of marker ``m`` at its group's frames (and at the observed frames next to
         them) into the outputs."""
         group, near, train, n_train = fit["group"], fit["near"], fit["train"], len(fit["train"])
-        if segment_used is not None and fit["segment"]:
-            segment_used[group, m] = True
+        if segment_used is not None:
+            segment_used[group, m] = fit["segment"]  # a part's model replaces the whole-gap one's flag too
         if extrapolation is not None:
             extrapolation[group, m] = fit["off"]
         with np.errstate(invalid="ignore"):
@@ -802,10 +802,11 @@ def reconstruct_completed(
             fit = refit(m, group, near, dist, weights, align_weight, min_train=MIN_TRAIN_WANTED)
             if fit is None:
                 continue
-            if fit["off"] is not None:
-                at = np.searchsorted(gap_frames, group)
-                if not fit["rms"] ** 2 * np.mean(fit["off"]) < whole["rms"] ** 2 * np.mean(whole["off"][at]):
-                    continue
+            at = np.searchsorted(gap_frames, group)
+            part_off = 1.0 if fit["off"] is None else float(np.mean(fit["off"]))
+            whole_off = 1.0 if whole["off"] is None else float(np.mean(whole["off"][at]))
+            if not fit["rms"] ** 2 * part_off < whole["rms"] ** 2 * whole_off:
+                continue
             store(m, fit)
     return estimate, std, info["edge_estimate"], info["edge_std"]
 
