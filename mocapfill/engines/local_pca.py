@@ -27,7 +27,7 @@ cautious.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -641,6 +641,29 @@ def segment_markers(near: np.ndarray, dist: np.ndarray, gap_missing: np.ndarray,
     return near[(dist[near] <= radius) & seen]
 
 
+def predicted_variance(rms: float, off: np.ndarray | None) -> float:
+    """A model's predicted variance per coordinate over some gap frames: its cross-validated ``rms`` squared times
+    the mean of ``off`` (n,), how far each frame's pose lies off the poses it learnt from (None: 1)."""
+    return rms ** 2 * (1.0 if off is None else float(np.mean(off)))
+
+
+class RefitModel(NamedTuple):
+    """One refit model of a marker (:func:`reconstruct_completed`): its predictors ``near`` (p,), training frames
+    ``train`` (n,), reconstruction ``est`` (n + n_group, 3) and ``leverage`` (n + n_group,) of the training then
+    the ``group`` (n_group,) frames, cross-validated ``rms``, predictor sensitivity ``sens`` (n_markers,),
+    pose-residual factor ``off`` (n_group,) or None, and whether it is the segment model."""
+
+    group: np.ndarray
+    near: np.ndarray
+    train: np.ndarray
+    est: np.ndarray
+    leverage: np.ndarray
+    rms: float
+    sens: np.ndarray
+    off: np.ndarray | None
+    segment: bool
+
+
 def prefer_segment(seg_rms: float, seg_off: np.ndarray, rms: float, off: np.ndarray) -> bool:
     """Whether the segment model predicts a marker's gaps in place of its neighbourhood model.
 
@@ -654,8 +677,8 @@ def prefer_segment(seg_rms: float, seg_off: np.ndarray, rms: float, off: np.ndar
     """
     if not (np.isfinite(seg_rms) and np.isfinite(rms) and seg_rms > 0 and rms > 0):
         return False
-    seg_far, far = float(np.mean(seg_off)), float(np.mean(off))
-    return seg_far < far and seg_rms ** 2 * seg_far < rms ** 2 * far
+    return (float(np.mean(seg_off)) < float(np.mean(off))
+            and predicted_variance(seg_rms, seg_off) < predicted_variance(rms, off))
 
 
 def reconstruct_completed(
@@ -726,7 +749,7 @@ def reconstruct_completed(
     known_distances = distances_to(np.where(known[..., None], data, np.nan))  # once, not per marker
 
     def refit(m: int, group: np.ndarray, near: np.ndarray, dist: np.ndarray, weights: list[np.ndarray],
-              align_weight: np.ndarray, min_train: int = MIN_TRAINING_FRAMES) -> dict | None:
+              align_weight: np.ndarray, min_train: int = MIN_TRAINING_FRAMES) -> RefitModel | None:
         """One model of marker ``m`` on the predictors ``near`` for its missing ``group`` frames (None: fewer than
         3 predictors or ``min_train`` training frames): its reconstruction of the training then the group's frames,
         and what :func:`store` and :func:`prefer_segment` need."""
@@ -738,8 +761,7 @@ def reconstruct_completed(
             data, m, group, near, train, weights, align_weight, dist, scales, reach=reach,
             max_predictors=max_predictors, normalise=normalise, folds=folds, knn=knn, row_weight=row_weight,
             used_references=used_references if row_weight is not None else None, extrapolation=off)
-        fit = {"group": group, "near": near, "train": train, "est": est_all, "leverage": leverage, "rms": rms_mix,
-               "sens": sens, "off": off[0] if off else None, "segment": False}
+        fit = RefitModel(group, near, train, est_all, leverage, rms_mix, sens, off[0] if off else None, False)
         close = segment_markers(near, dist, missing[group], segment) if segment else near[:0]
         if 3 <= len(close) < len(near):
             seg_weights, seg_align = marker_weights(dist, m, (segment,), align_scale, missing_weight)
@@ -747,30 +769,30 @@ def reconstruct_completed(
             seg_all, seg_leverage, seg_rms, _, _, _, seg_sens = group_model(
                 data, m, group, close, train, seg_weights, seg_align, dist, (segment,), reach=np.inf,
                 normalise=normalise, folds=folds, knn=knn, row_weight=row_weight, extrapolation=seg_off)
-            if prefer_segment(seg_rms, seg_off[0], rms_mix, fit["off"]):
-                fit.update(est=seg_all, leverage=seg_leverage, rms=seg_rms, sens=seg_sens, off=seg_off[0],
-                           segment=True)
+            if prefer_segment(seg_rms, seg_off[0], rms_mix, fit.off):
+                fit = fit._replace(est=seg_all, leverage=seg_leverage, rms=seg_rms, sens=seg_sens, off=seg_off[0],
+                                   segment=True)
         return fit
 
-    def store(m: int, fit: dict) -> None:
+    def store(m: int, fit: RefitModel) -> None:
         """Write one model's prediction of marker ``m`` at its group's frames (and at the observed frames next to
         them) into the outputs."""
-        group, near, train, n_train = fit["group"], fit["near"], fit["train"], len(fit["train"])
+        group, near, train, n_train = fit.group, fit.near, fit.train, len(fit.train)
         if segment_used is not None:
-            segment_used[group, m] = fit["segment"]  # a part's model replaces the whole-gap one's flag too
+            segment_used[group, m] = fit.segment  # a part's model replaces the whole-gap one's flag too
         if extrapolation is not None:
-            extrapolation[group, m] = fit["off"]
+            extrapolation[group, m] = fit.off
         with np.errstate(invalid="ignore"):
-            spread = var[group][:, near] @ fit["sens"][near]  # propagated predictor variance (n_group,)
-        estimate[group, m] = fit["est"][n_train:]
-        std[group, m] = np.sqrt(fit["rms"] ** 2 * (1.0 + leverage_weight * fit["leverage"][n_train:]) + spread)
+            spread = var[group][:, near] @ fit.sens[near]  # propagated predictor variance (n_group,)
+        estimate[group, m] = fit.est[n_train:]
+        std[group, m] = np.sqrt(fit.rms ** 2 * (1.0 + leverage_weight * fit.leverage[n_train:]) + spread)
         if edge_frames:
             own = train < n_frames
             with np.errstate(invalid="ignore"):
-                spread_t = var[train[own]][:, near] @ fit["sens"][near]
-            _edge_samples(info, m, group, train[own], fit["est"][:n_train][own],
-                          np.sqrt(fit["rms"] ** 2 * (1.0 + leverage_weight * fit["leverage"][:n_train][own])
-                                  + spread_t), edge_frames)
+                spread_t = var[train[own]][:, near] @ fit.sens[near]
+            _edge_samples(info, m, group, train[own], fit.est[:n_train][own],
+                          np.sqrt(fit.rms ** 2 * (1.0 + leverage_weight * fit.leverage[:n_train][own]) + spread_t),
+                          edge_frames)
 
     for m in np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0)):
         gap_frames = np.flatnonzero(missing[:, m])
@@ -802,12 +824,9 @@ def reconstruct_completed(
             fit = refit(m, group, near, dist, weights, align_weight, min_train=MIN_TRAIN_WANTED)
             if fit is None:
                 continue
-            at = np.searchsorted(gap_frames, group)
-            part_off = 1.0 if fit["off"] is None else float(np.mean(fit["off"]))
-            whole_off = 1.0 if whole["off"] is None else float(np.mean(whole["off"][at]))
-            if not fit["rms"] ** 2 * part_off < whole["rms"] ** 2 * whole_off:
-                continue
-            store(m, fit)
+            whole_off = None if whole.off is None else whole.off[np.searchsorted(gap_frames, group)]
+            if predicted_variance(fit.rms, fit.off) < predicted_variance(whole.rms, whole_off):
+                store(m, fit)
     return estimate, std, info["edge_estimate"], info["edge_std"]
 
 
