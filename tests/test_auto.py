@@ -14,7 +14,7 @@ from mocapfill.methods import get_method
 from mocapfill.engines.local_pca import prefer_segment, refit_parts, rigid_prediction, segment_markers
 from mocapfill.methods.auto import (DEFAULT_CONFIG, ModelConfig, body_stage, displaced_runs, fill_auto, gap_records,
                                          global_prediction, global_stage,
-                                         motion_model, spatial_stage, temporal_stage)
+                                         motion_model, seed_elsewhere, spatial_stage, temporal_stage)
 
 
 def model(n_series: int, q: float = 1e-3, gain=None) -> MotionModel:
@@ -470,3 +470,38 @@ def test_refit_parts_carry_a_knee_on_a_thigh_seen_for_part_of_its_gap():
     with_parts, one_model = knee_rmse(3), knee_rmse(1)
     assert with_parts < 25.0
     assert one_model > 2 * with_parts
+
+
+def test_seed_elsewhere_keeps_the_first_pass_where_the_refit_has_no_model():
+    missing = np.array([[True, False], [True, True]])
+    refit = (np.full((2, 2, 3), 1.0), np.array([[np.nan, np.nan], [2.0, np.nan]]),
+             np.full((2, 2, 3), 3.0), np.array([[np.nan, 4.0], [np.nan, np.nan]]))
+    seed = (np.full((2, 2, 3), 5.0), np.array([[6.0, 6.0], [6.0, np.nan]]),
+            np.full((2, 2, 3), 7.0), np.array([[8.0, 8.0], [np.nan, np.nan]]))
+    pred, sd, edge, edge_sd = seed_elsewhere(missing, refit, seed)
+    # missing without a refit: the seed's; with one: the refit's; observed samples are not predictions
+    np.testing.assert_array_equal(sd, [[6.0, np.nan], [2.0, np.nan]])
+    np.testing.assert_array_equal(pred[:, :, 0], [[5.0, 1.0], [1.0, 1.0]])
+    np.testing.assert_array_equal(edge_sd, [[8.0, 4.0], [np.nan, np.nan]])
+    np.testing.assert_array_equal(edge[:, :, 0], [[7.0, 3.0], [3.0, 3.0]])
+
+
+def test_a_marker_the_refit_cannot_model_keeps_its_first_pass_prediction():
+    """85_02: a toe hidden for 100 frames while every other marker misses one frame of them; with no filled
+    neighbour trusted, the refit has no model for the toe, and the first pass (conditioned on the markers seen at
+    each frame) predicts it (it was bridged by the motion alone: 35.7 mm RMS)."""
+    from pathlib import Path
+    from mocapfill import read
+
+    data = read(Path(__file__).parents[1] / "sample_data" / "85_02.c3d")
+    truth = data.positions[:400]
+    m = [x.split(":")[-1] for x in data.labels].index("LTOE")
+    hidden = truth.copy()
+    hidden[100:200, m] = np.nan
+    for i, j in enumerate(j for j in range(truth.shape[1]) if j != m):
+        hidden[100 + (7 * i) % 100, j] = np.nan
+    res = fill_auto(hidden, units=data.units, labels=data.labels, rate=data.rate,
+                    config=ModelConfig(impute_trust_mm=1e-6))
+    err = np.linalg.norm(res.positions[100:200, m] - truth[100:200, m], axis=1)
+    assert float(np.sqrt(np.mean(err ** 2))) < 5.0
+    assert [g["method"] for g in res.info["gap_methods"] if g["marker_index"] == m] == ["local-pca+motion"]
