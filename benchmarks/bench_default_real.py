@@ -35,7 +35,6 @@ harness.pin_blas()
 import os  # noqa: E402
 import argparse  # noqa: E402
 import datetime  # noqa: E402
-import hashlib  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -59,60 +58,15 @@ from mocapfill.units import length_factor  # noqa: E402
 SCRIPT = Path(__file__).name
 RESULTS = REPO / "benchmarks" / "results" / f"{Path(__file__).stem}.json"
 CACHE = REPO / "benchmarks" / ".cache" / Path(__file__).stem
-SHARED = harness.SHARED_DATA
-ROOTS = (REPO / "sample_data", REPO / "tests" / "data", SHARED)
-SUFFIXES = (".c3d", ".trc", ".csv", ".tsv")
 #: Issue 21's speed bound: the fill takes at most this share of the capture's duration ...
 SPEED_SHARE = 0.25
 #: ... or this many seconds where that is larger.
 SPEED_FLOOR_S = 1.0
 
 
-def _name(path: Path) -> str:
-    for root in ROOTS:
-        if root in path.parents:
-            prefix = "../shared/data/" if root == SHARED else ""
-            return prefix + str(path.relative_to(SHARED if root == SHARED else REPO))
-    return str(path)
-
-
-def gapped(data) -> np.ndarray:
-    """(n_frames, n_markers) bool: the samples a fill has to supply (marker points only; markers missing throughout
-    and the blank frames before the first / after the last frame where a marker is observed excluded)."""
-    missing = np.isnan(data.positions).any(axis=2)
-    marker = np.array([k == "marker" for k in (data.kinds or ["marker"] * data.n_markers)])
-    seen = ~missing.all(axis=0) & marker
-    some = np.flatnonzero((~missing[:, marker]).any(axis=1)) if marker.any() else np.zeros(0, dtype=int)
-    frames = np.zeros(missing.shape[0], dtype=bool)
-    if some.size:  # between the first and the last frame where a marker is seen (interior blackouts count)
-        frames[some[0]:some[-1] + 1] = True
-    return missing & seen[None, :] & frames[:, None]
-
-
-def find_captures() -> tuple[list[tuple[Path, str]], list[str]]:
-    """(gapped captures as (path, sha256), skipped lines): every readable file with gaps, each content once."""
-    found, skipped, seen = [], [], {}
-    for root in ROOTS:
-        if not root.is_dir():
-            skipped.append(f"{root}: absent")
-            continue
-        for path in sorted(p for p in root.rglob("*") if p.suffix.lower() in SUFFIXES and p.is_file()):
-            digest = hashlib.sha256(path.read_bytes()).hexdigest()
-            if digest in seen:
-                skipped.append(f"{_name(path)}: the same file as {_name(seen[digest])}")
-                continue
-            seen[digest] = path
-            try:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    data = read(path)  # as `mocapfill fill IN OUT` reads it, without options
-            except (MocapfillError, OSError, ValueError) as exc:
-                skipped.append(f"{_name(path)}: not read without options ({str(exc).splitlines()[0][:90]})")
-                continue
-            if not gapped(data).any():
-                continue
-            found.append((path, digest))
-    return found, skipped
+_name = harness.capture_name
+gapped = harness.gapped
+find_captures = harness.gapped_captures
 
 
 def run_one(task: tuple) -> dict:

@@ -285,3 +285,64 @@ def plain(value: Any) -> Any:
     if isinstance(value, float) and value != value:
         return None
     return value
+
+
+#: Where the real captures are looked for (issue 21's "every real capture with gaps").
+CAPTURE_ROOTS = (REPO / "sample_data", REPO / "tests" / "data", SHARED_DATA)
+CAPTURE_SUFFIXES = (".c3d", ".trc", ".csv", ".tsv")
+
+
+def capture_name(path: Path) -> str:
+    """A capture's path as the tables name it: relative to the repository, or under ``../shared/data/``."""
+    for root in CAPTURE_ROOTS:
+        if root in path.parents:
+            prefix = "../shared/data/" if root == SHARED_DATA else ""
+            return prefix + str(path.relative_to(SHARED_DATA if root == SHARED_DATA else REPO))
+    return str(path)
+
+
+def gapped(data):
+    """(n_frames, n_markers) bool: the samples a fill has to supply (marker points only; markers missing throughout
+    and the blank frames before the first / after the last frame where a marker is observed excluded)."""
+    import numpy as np
+
+    missing = np.isnan(data.positions).any(axis=2)
+    marker = np.array([k == "marker" for k in (data.kinds or ["marker"] * data.n_markers)])
+    seen = ~missing.all(axis=0) & marker
+    some = np.flatnonzero((~missing[:, marker]).any(axis=1)) if marker.any() else np.zeros(0, dtype=int)
+    frames = np.zeros(missing.shape[0], dtype=bool)
+    if some.size:  # between the first and the last frame where a marker is seen (interior blackouts count)
+        frames[some[0]:some[-1] + 1] = True
+    return missing & seen[None, :] & frames[:, None]
+
+
+def gapped_captures() -> tuple[list[tuple[Path, str]], list[str]]:
+    """(gapped captures as (path, sha256), skipped lines): every readable file with gaps, each content once."""
+    import hashlib
+    import warnings
+
+    from mocapfill.errors import MocapfillError
+    from mocapfill.io import read
+
+    found, skipped, seen = [], [], {}
+    for root in CAPTURE_ROOTS:
+        if not root.is_dir():
+            skipped.append(f"{root}: absent")
+            continue
+        for path in sorted(p for p in root.rglob("*") if p.suffix.lower() in CAPTURE_SUFFIXES and p.is_file()):
+            digest = hashlib.sha256(path.read_bytes()).hexdigest()
+            if digest in seen:
+                skipped.append(f"{capture_name(path)}: the same file as {capture_name(seen[digest])}")
+                continue
+            seen[digest] = path
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    data = read(path)  # as `mocapfill fill IN OUT` reads it, without options
+            except (MocapfillError, OSError, ValueError) as exc:
+                skipped.append(f"{capture_name(path)}: not read without options ({str(exc).splitlines()[0][:90]})")
+                continue
+            if not gapped(data).any():
+                continue
+            found.append((path, digest))
+    return found, skipped
