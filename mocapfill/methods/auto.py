@@ -494,9 +494,10 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
     (n_frames, n_markers) its posterior sd (0 observed).  One model per marker with gaps, trained on every frame
     where it is observed, every near marker a predictor (:func:`mocapfill.engines.local_pca.reconstruct_completed`;
     a filled neighbour's sd is propagated into the prediction's).  Returns pred, sd, edge, edge_sd as
-    :func:`spatial_stage`; ``extrapolation`` (n_frames, n_markers) or None receives how far each prediction's pose
-    lies off its model's training poses (:func:`reported_sd`); ``segment_used`` (n_frames, n_markers) bool or None
-    receives where a segment model predicted (:attr:`ModelConfig.segment_mm`).
+    :func:`spatial_stage` (NaN where the refit has no model: :func:`seed_elsewhere` puts stage 1's there, which
+    already holds :func:`body_stage`'s); ``extrapolation`` (n_frames, n_markers) or None receives how far each
+    prediction's pose lies off its model's training poses (:func:`reported_sd`); ``segment_used`` (n_frames,
+    n_markers) bool or None receives where a segment model predicted (:attr:`ModelConfig.segment_mm`).
     """
     from ..engines.local_pca import reconstruct_completed
 
@@ -508,7 +509,7 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
         reference_weights=reference_weights, used_references=used_references, extrapolation=extrapolation,
         segment=config.segment_mm * mm if config.segment_mm else None, segment_used=segment_used,
         parts=config.refit_parts)
-    return body_stage(positions, pred, pred_sd, edge, edge_sd, config, mm)
+    return pred, pred_sd, edge, edge_sd
 
 
 def seed_elsewhere(missing: np.ndarray, refit: tuple, seed: tuple) -> tuple:
@@ -520,7 +521,9 @@ def seed_elsewhere(missing: np.ndarray, refit: tuple, seed: tuple) -> tuple:
     :attr:`ModelConfig.impute_trust_mm` during its gaps: on a capture with gaps everywhere, most of them); the first
     pass conditioned only on the neighbours observed where it predicts, so its prediction is still the best the
     capture gives there.  Why: without it such samples were bridged by the motion model and the global PCA alone
-    (kineticstoolkit's c3d_sample with 5 % more hidden: RMSE 289 against 53 mm).  Returns the four arrays.
+    (kineticstoolkit's c3d_sample with 5 % more hidden: RMSE 289 against 53 mm).  Stage 1's arrays hold
+    :func:`body_stage`'s rigid predictions where its local PCA had none, so the order is: the refit, the first
+    pass's local PCA, the body.  Returns the four arrays.
     """
     pred, sd, edge, edge_sd = refit
     use = missing & ~np.isfinite(sd) & np.isfinite(seed[1])
