@@ -488,8 +488,9 @@ def test_seed_elsewhere_keeps_the_first_pass_where_the_refit_has_no_model():
 
 def test_a_marker_the_refit_cannot_model_keeps_its_first_pass_prediction():
     """85_02: a toe hidden for 100 frames while every other marker misses one frame of them; with no filled
-    neighbour trusted, the refit has no model for the toe, and the first pass (conditioned on the markers seen at
-    each frame) predicts it (it was bridged by the motion alone: 35.7 mm RMS)."""
+    neighbour trusted, the refit has no model for the toe; with ``seed_where_no_refit`` the first pass
+    (conditioned on the markers seen at each frame) predicts it, without it the motion alone bridges the gap
+    (35.7 mm RMS)."""
     from pathlib import Path
     from mocapfill import read
 
@@ -500,8 +501,13 @@ def test_a_marker_the_refit_cannot_model_keeps_its_first_pass_prediction():
     hidden[100:200, m] = np.nan
     for i, j in enumerate(j for j in range(truth.shape[1]) if j != m):
         hidden[100 + (7 * i) % 100, j] = np.nan
-    res = fill_auto(hidden, units=data.units, labels=data.labels, rate=data.rate,
-                    config=ModelConfig(impute_trust_mm=1e-6))
-    err = np.linalg.norm(res.positions[100:200, m] - truth[100:200, m], axis=1)
-    assert float(np.sqrt(np.mean(err ** 2))) < 5.0
-    assert [g["method"] for g in res.info["gap_methods"] if g["marker_index"] == m] == ["local-pca+motion"]
+
+    def toe(keep: bool):
+        res = fill_auto(hidden, units=data.units, labels=data.labels, rate=data.rate,
+                        config=ModelConfig(impute_trust_mm=1e-6, seed_where_no_refit=keep))
+        err = np.linalg.norm(res.positions[100:200, m] - truth[100:200, m], axis=1)
+        return float(np.sqrt(np.mean(err ** 2))), [g["method"] for g in res.info["gap_methods"]
+                                                   if g["marker_index"] == m]
+
+    assert toe(True)[0] < 5.0 and toe(True)[1] == ["local-pca+motion"]
+    assert toe(False)[0] > 20.0 and toe(False)[1] == ["motion"]

@@ -34,8 +34,9 @@ The model (equations in ``ARCHITECTURE.md``, "The default's model"), each stage 
    variance propagated into the prediction's; a neighbour filled with an sd above ``impute_trust_mm`` during the
    marker's gaps is no predictor), and step 3 runs again on its predictions.  (The first pass then only
    seeds it: one weight width, no nearest-pose correction.)  Where the refit has no model for a marker (fewer than
-   3 trusted neighbours: on captures with gaps everywhere, most markers), the first pass's prediction stands
-   (:func:`seed_elsewhere`).
+   3 trusted neighbours: on captures with gaps everywhere, most markers), the motion model and the global PCA
+   bridge the gap, or, with :attr:`ModelConfig.seed_where_no_refit` (off, as measured), the first pass's
+   prediction stands (:func:`seed_elsewhere`).
 
 5. :func:`reported_sd`: where a prediction's neighbours take a pose its model never learnt (their residual off the
    model's components beyond the held-out frames'), its variance grows by that factor for the reported posterior
@@ -167,6 +168,17 @@ class ModelConfig:
     #: 3 worse, all vicon-arm draw 3 through the robot's false bones (dense 5 / 10 / 30 % 3.02 / 3.11 / 16.35 ->
     #: 3.05 / 3.13 / 16.84; without the bone stage that dense-30 draw goes 12.2 -> 9.4 mm).
     refit_parts: int = 3
+    #: Where the refit has no model for a marker (fewer than 3 trusted neighbours: on a capture with gaps
+    #: everywhere, most markers; kineticstoolkit's basket sprint, every one), keep the first pass's prediction
+    #: (:func:`seed_elsewhere`) instead of leaving the gap to the motion model and the global PCA.  Off, as measured
+    #: (2026-11-27, ninth session): ``bench_real_hidden.py`` (31 real captures with gaps, 5 % more hidden, 3 draws)
+    #: mean pooled RMSE 59.4 -> 40.2 mm, 5 captures better (c3d_sample 376 -> 64, VER4C3D 74 -> 10, Gait.trc 120 ->
+    #: 55, Walking_Hybrid_1_1 91 -> 57, duplicate_labels 101 -> 40), none worse, and every accuracy benchmark's clip
+    #: unchanged (their refit always has a model); but the fills of VER4C3D, c3d_sample and the basket sprint jerk
+    #: (largest filled acceleration 21 -> 63 against 27 observed on VER4C3D: where the first pass predicts some
+    #: frames of a gap and not others, the smoother swings between them), and issue 21's smooth check fails on 5
+    #: captures instead of 2.
+    seed_where_no_refit: bool = False
     #: Fit the spatial model again on the completed take (EM-style imputation) this many times.
     impute_passes: int = 1
     #: Radius (mm) of a marker's segment model in the refit: the markers this close that are observed throughout its
@@ -351,10 +363,12 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
             used_refs.clear()  # the last pass's models make the prediction: they are the ones reported
         off = np.full(missing.shape, np.nan) if config.extrapolation_sd and last else None
         segment_used = np.zeros(missing.shape, dtype=bool)
-        pred, pred_sd, edge, edge_sd = seed_elsewhere(
-            missing, impute_stage(positions, fill, sd, config, mm, reference_frames=reference_frames,
-                                  reference_weights=reference_weights, used_references=used_refs,
-                                  extrapolation=off, segment_used=segment_used), seed)
+        refit = impute_stage(positions, fill, sd, config, mm, reference_frames=reference_frames,
+                             reference_weights=reference_weights, used_references=used_refs,
+                             extrapolation=off, segment_used=segment_used)
+        if config.seed_where_no_refit:
+            refit = seed_elsewhere(missing, refit, seed)
+        pred, pred_sd, edge, edge_sd = body_stage(positions, *refit, config, mm)
         pred, pred_sd, edge, edge_sd, report_sd = joined(positions, pred, pred_sd, edge, edge_sd,
                                                          reported_sd(pred_sd, off), prior_est, glob, config, mm)
         if boneset is not None and len(boneset):
@@ -494,8 +508,8 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
     (n_frames, n_markers) its posterior sd (0 observed).  One model per marker with gaps, trained on every frame
     where it is observed, every near marker a predictor (:func:`mocapfill.engines.local_pca.reconstruct_completed`;
     a filled neighbour's sd is propagated into the prediction's).  Returns pred, sd, edge, edge_sd as
-    :func:`spatial_stage` (NaN where the refit has no model: :func:`seed_elsewhere` puts stage 1's there, which
-    already holds :func:`body_stage`'s); ``extrapolation`` (n_frames, n_markers) or None receives how far each
+    :func:`spatial_stage` (NaN where the refit has no model; :func:`body_stage` runs after it, and with
+    :attr:`ModelConfig.seed_where_no_refit`, :func:`seed_elsewhere` before that); ``extrapolation`` (n_frames, n_markers) or None receives how far each
     prediction's pose lies off its model's training poses (:func:`reported_sd`); ``segment_used`` (n_frames,
     n_markers) bool or None receives where a segment model predicted (:attr:`ModelConfig.segment_mm`).
     """
@@ -520,8 +534,9 @@ def seed_elsewhere(missing: np.ndarray, refit: tuple, seed: tuple) -> tuple:
     has no model for a marker with fewer than 3 trusted neighbours (filled with an sd above
     :attr:`ModelConfig.impute_trust_mm` during its gaps: on a capture with gaps everywhere, most of them); the first
     pass conditioned only on the neighbours observed where it predicts, so its prediction is still the best the
-    capture gives there.  Why: without it such samples were bridged by the motion model and the global PCA alone
-    (kineticstoolkit's c3d_sample with 5 % more hidden: RMSE 289 against 53 mm).  Stage 1's arrays hold
+    capture gives there.  Without it such samples are bridged by the motion model and the global PCA alone
+    (``bench_real_hidden.py``: kineticstoolkit's c3d_sample 376 mm RMSE against 64 with it).  Used with
+    :attr:`ModelConfig.seed_where_no_refit` (off, as measured: see there).  Stage 1's arrays hold
     :func:`body_stage`'s rigid predictions where its local PCA had none, so the order is: the refit, the first
     pass's local PCA, the body.  Returns the four arrays.
     """
