@@ -13,9 +13,13 @@ RMSE and how many captures each method is best on; the check that the default's 
 ``bolero-sc``'s on every capture.  Results are cached per (file content, method, draw) in ``--cache``; ``--rerun
 auto`` fills again with the default only.
 
+``--config JSON`` fills ``auto`` with those :class:`~mocapfill.methods.auto.ModelConfig` fields changed (e.g.
+``'{"seed_where_no_refit": true}'``), cached apart from the default's.
+
 Run from the repository root (``--jobs 2``: a draw per worker; nothing here is timed)::
 
     python benchmarks/bench_real_hidden.py [--methods auto,pca,bolero-sc] [--draws 3] [--jobs 2] [--rerun auto]
+        [--config JSON]
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ import harness
 harness.pin_blas()
 
 import argparse  # noqa: E402
+import hashlib  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import warnings  # noqa: E402
@@ -53,7 +58,7 @@ def hidden_draw(data, draw: int, missing: float) -> np.ndarray:
 
 def run_one(task: tuple) -> dict:
     """Fill one draw of one capture with one method; the RMSE (mm) over the hidden samples."""
-    path, digest, method, draw, missing, cache = task
+    path, digest, method, draw, missing, cache, config = task
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         data = read(path)
@@ -64,7 +69,12 @@ def run_one(task: tuple) -> dict:
         record = {"file": harness.capture_name(Path(path)), "sha256": digest, "method": method, "draw": draw,
                   "missing": missing, "hidden": int(hidden.sum()), "error": None}
         try:
-            out = fill(data.with_positions(cut), method)
+            options = {}
+            if method == "auto" and config:
+                from mocapfill.methods.auto import ModelConfig
+
+                options["config"] = ModelConfig(**config)
+            out = fill(data.with_positions(cut), method, **options)
         except MocapfillError as exc:
             record["error"] = str(exc)
         else:
@@ -73,13 +83,15 @@ def run_one(task: tuple) -> dict:
             record["unfilled"] = int(np.isnan(err).sum())
             record["sq_sum"] = float(np.nansum(err ** 2))
             record["rmse"] = float(np.sqrt(np.nanmean(err ** 2))) if np.isfinite(err).any() else None
-    _cache_file(cache, digest, method, draw, missing).write_text(json.dumps(record))
+    record["config"] = config if method == "auto" else {}
+    _cache_file(cache, digest, method, draw, missing, record["config"]).write_text(json.dumps(record))
     return record
 
 
-def _cache_file(cache, digest: str, method: str, draw: int, missing: float) -> Path:
+def _cache_file(cache, digest: str, method: str, draw: int, missing: float, config: dict | None = None) -> Path:
     Path(cache).mkdir(parents=True, exist_ok=True)
-    return Path(cache) / f"{digest[:16]}_{method}_{draw}_{missing:g}.json"
+    tag = "_" + hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()[:8] if config else ""
+    return Path(cache) / f"{digest[:16]}_{method}{tag}_{draw}_{missing:g}.json"
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -92,9 +104,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--only", default="", help="only files whose path contains this text")
     parser.add_argument("--cache", default=str(CACHE))
     parser.add_argument("--results", default=str(RESULTS))
+    parser.add_argument("--config", default="", help="JSON: ModelConfig fields changed for auto")
     args = parser.parse_args(argv)
     harness.banner(SCRIPT, file=sys.stderr)
     methods = [m for m in args.methods.split(",") if m]
+    config = json.loads(args.config) if args.config else {}
+    if config and args.results == str(RESULTS):  # a variant's figures are not the default's
+        print("--config: no results file written unless --results names one", file=sys.stderr)
+        args.results = "-"
     rerun = set(m for m in args.rerun.split(",") if m)
     captures, _ = harness.gapped_captures()
     captures = [c for c in captures if args.only in harness.capture_name(c[0])]
@@ -102,11 +119,11 @@ def main(argv: list[str] | None = None) -> None:
     for path, digest in captures:
         for method in methods:
             for draw in range(args.draws):
-                f = _cache_file(args.cache, digest, method, draw, args.missing)
+                f = _cache_file(args.cache, digest, method, draw, args.missing, config if method == "auto" else None)
                 if f.exists() and method not in rerun:
                     records[(digest, method, draw)] = json.loads(f.read_text())
                 else:
-                    tasks.append((str(path), digest, method, draw, args.missing, args.cache))
+                    tasks.append((str(path), digest, method, draw, args.missing, args.cache, config))
     print(f"{len(captures)} captures, {len(tasks)} fills to run ({len(records)} cached)", file=sys.stderr)
 
     def done(task, record):
