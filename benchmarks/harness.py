@@ -346,3 +346,11 @@ def gapped_captures() -> tuple[list[tuple[Path, str]], list[str]]:
                 continue
             found.append((path, digest))
     return found, skipped
+
+
+def capture_options(parser, cache: Path) -> None:
+    """The options of a script that fills the real captures with gaps one (capture, method) at a time, caching
+    each: ``--rerun`` (methods to fill again), ``--only`` (a path substring) and ``--cache`` (default ``cache``)."""
+    parser.add_argument("--rerun", default="", help="comma-separated methods to fill again though cached")
+    parser.add_argument("--only", default="", help="only files whose path contains this text")
+    parser.add_argument("--cache", default=str(cache))
