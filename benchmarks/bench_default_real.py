@@ -64,20 +64,15 @@ SPEED_SHARE = 0.25
 SPEED_FLOOR_S = 1.0
 
 
-_name = harness.capture_name
-gapped = harness.gapped
-find_captures = harness.gapped_captures
-
-
 def run_one(task: tuple) -> dict:
     """Fill one capture with one method as ``mocapfill fill`` does; time it and measure its smoothness."""
     path, digest, method, cache, commit = task
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         data = read(path)
-    need = gapped(data)
+    need = harness.gapped(data)
     to_mm = length_factor(data.units, "mm")
-    record = {"file": _name(Path(path)), "sha256": digest, "method": method, "commit": commit,
+    record = {"file": harness.capture_name(Path(path)), "sha256": digest, "method": method, "commit": commit,
               "date": datetime.date.today().isoformat(), "frames": data.n_frames, "markers": data.n_markers,
               "rate": data.rate, "duration": data.n_frames / data.rate, "units": data.units,
               "missing": float(np.isnan(data.positions).any(axis=2).mean()), "to_fill": int(need.sum()),
@@ -151,7 +146,7 @@ def main(argv: list[str] | None = None) -> None:
     methods += [m for m in rerun if m not in methods]
     command = "python benchmarks/" + SCRIPT + (" " + " ".join(argv if argv is not None else sys.argv[1:])).rstrip()
     print(f"# {SCRIPT} ({machine()})", file=sys.stderr)
-    captures, skipped = find_captures()
+    captures, skipped = harness.gapped_captures()
     if args.only:
         captures = [(p, d) for p, d in captures if args.only in str(p)]
     print(f"{len(captures)} captures with gaps; skipped: " + "; ".join(skipped), file=sys.stderr)
@@ -187,7 +182,7 @@ def main(argv: list[str] | None = None) -> None:
         for m in methods:
             f = _cache_file(cache, digest, m)
             if not f.exists():
-                missing.append(f"{_name(path)} {m}")
+                missing.append(f"{harness.capture_name(path)} {m}")
                 continue
             r = json.loads(f.read_text())
             if r.get("error"):

@@ -139,7 +139,7 @@ def main(argv: list[str] | None = None) -> None:
             recs = [records.get((digest, method, d)) for d in range(args.draws)]
             ok = [r for r in recs if r and r.get("error") is None and r.get("rmse") is not None]
             if len(ok) < args.draws:
-                rows.append([name, method, None, "failed or unfilled" if recs else "-", None])
+                rows.append([name, method, None, "failed or unfilled" if any(recs) else "-", None])
                 continue
             total = sum(r["sq_sum"] for r in ok) / max(sum(r["hidden"] - r["unfilled"] for r in ok), 1)
             pooled[method][name] = float(np.sqrt(total))

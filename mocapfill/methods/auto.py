@@ -172,7 +172,7 @@ class ModelConfig:
     #: everywhere, most markers; kineticstoolkit's basket sprint, every one), keep the first pass's prediction
     #: (:func:`seed_elsewhere`) instead of leaving the gap to the motion model and the global PCA.  Off, as measured
     #: (2026-11-27, ninth session): ``bench_real_hidden.py`` (31 real captures with gaps, 5 % more hidden, 3 draws)
-    #: mean pooled RMSE 59.4 -> 40.2 mm, 5 captures better (c3d_sample 376 -> 64, VER4C3D 74 -> 10, Gait.trc 120 ->
+    #: mean pooled RMSE 59.4 -> 40.9 mm, 5 captures better (c3d_sample 376 -> 64, VER4C3D 74 -> 10, Gait.trc 120 ->
     #: 55, Walking_Hybrid_1_1 91 -> 57, duplicate_labels 101 -> 40), none worse, and every accuracy benchmark's clip
     #: unchanged (their refit always has a model); but the fills of VER4C3D, c3d_sample and the basket sprint jerk
     #: (largest filled acceleration 21 -> 63 against 27 observed on VER4C3D: where the first pass predicts some
@@ -509,9 +509,10 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
     where it is observed, every near marker a predictor (:func:`mocapfill.engines.local_pca.reconstruct_completed`;
     a filled neighbour's sd is propagated into the prediction's).  Returns pred, sd, edge, edge_sd as
     :func:`spatial_stage` (NaN where the refit has no model; :func:`body_stage` runs after it, and with
-    :attr:`ModelConfig.seed_where_no_refit`, :func:`seed_elsewhere` before that); ``extrapolation`` (n_frames, n_markers) or None receives how far each
-    prediction's pose lies off its model's training poses (:func:`reported_sd`); ``segment_used`` (n_frames,
-    n_markers) bool or None receives where a segment model predicted (:attr:`ModelConfig.segment_mm`).
+    :attr:`ModelConfig.seed_where_no_refit`, :func:`seed_elsewhere` before that); ``extrapolation`` (n_frames,
+    n_markers) or None receives how far each prediction's pose lies off its model's training poses
+    (:func:`reported_sd`); ``segment_used`` (n_frames, n_markers) bool or None receives where a segment model
+    predicted (:attr:`ModelConfig.segment_mm`).
     """
     from ..engines.local_pca import reconstruct_completed
 
