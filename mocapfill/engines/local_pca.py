@@ -704,6 +704,8 @@ def reconstruct_completed(
     segment: float | None = None,
     segment_used: np.ndarray | None = None,
     parts: int = 1,
+    untrusted: tuple[np.ndarray, np.ndarray] | None = None,
+    untrusted_used: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The local model refitted on a completed take (one EM-style imputation step).
 
@@ -733,6 +735,11 @@ def reconstruct_completed(
     gets its own model with it, which predicts there in place of the whole-gap model where its predicted variance
     (CV rms^2 times the mean pose-residual factor) is the smaller and it has ``MIN_TRAIN_WANTED`` training frames
     (reference frames count); only beside a whole-gap model (1: one model per marker).
+    ``untrusted`` (with ``trust``): (take, std) shaped as ``completed`` / ``completed_std``, or None: a marker with
+    fewer than 3 trusted neighbours (on a capture with gaps everywhere, most) gets one model on every candidate
+    instead of none, its neighbours read from ``take`` with variance ``std**2`` (the smoother's estimates where it did
+    not take an observed sample as exact: a flickering neighbour's one-frame fragment is often the take's worst
+    sample); ``untrusted_used`` (n_markers,) bool or None receives which markers got one.
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
@@ -747,12 +754,19 @@ def reconstruct_completed(
     finite = np.isfinite(data).all(axis=2)
     estimate, std, info = empty_estimates(n_frames, n_markers)
     known_distances = distances_to(np.where(known[..., None], data, np.nan))  # once, not per marker
+    if untrusted is not None:
+        u_data = np.array(untrusted[0], dtype=np.float64) if reference is None else np.concatenate(
+            [untrusted[0], reference])
+        u_var = np.nan_to_num(untrusted[1], nan=np.inf) ** 2
+        if reference is not None:
+            u_var = np.concatenate([u_var, var[n_frames:]])
 
     def refit(m: int, group: np.ndarray, near: np.ndarray, dist: np.ndarray, weights: list[np.ndarray],
-              align_weight: np.ndarray, min_train: int = MIN_TRAINING_FRAMES) -> RefitModel | None:
+              align_weight: np.ndarray, min_train: int = MIN_TRAINING_FRAMES, data: np.ndarray = data
+              ) -> RefitModel | None:
         """One model of marker ``m`` on the predictors ``near`` for its missing ``group`` frames (None: fewer than
         3 predictors or ``min_train`` training frames): its reconstruction of the training then the group's frames,
-        and what :func:`store` and :func:`prefer_segment` need."""
+        and what :func:`store` and :func:`prefer_segment` need (``data``: the take its predictors are read from)."""
         train = np.flatnonzero(known[:, m] & finite[:, near].all(axis=1)) if len(near) else np.zeros(0, int)
         if len(near) < 3 or len(train) < min_train:
             return None
@@ -774,9 +788,9 @@ def reconstruct_completed(
                                    segment=True)
         return fit
 
-    def store(m: int, fit: RefitModel) -> None:
+    def store(m: int, fit: RefitModel, var: np.ndarray = var) -> None:
         """Write one model's prediction of marker ``m`` at its group's frames (and at the observed frames next to
-        them) into the outputs."""
+        them) into the outputs (``var``: its predictors' variances)."""
         group, near, train, n_train = fit.group, fit.near, fit.train, len(fit.train)
         if segment_used is not None:
             segment_used[group, m] = fit.segment  # a part's model replaces the whole-gap one's flag too
@@ -809,6 +823,16 @@ def reconstruct_completed(
                             & finite[gap_frames][:, others].all(axis=0)]
         candidates = candidates[np.argsort(dist[candidates], kind="stable")]
         trusted = candidates[sure[candidates]]
+        if untrusted is not None and trust is not None and len(trusted) < 3:
+            own = u_data[:n_frames, m].copy()
+            u_data[:n_frames, m] = data[:n_frames, m]  # the marker's own samples stay as observed: its targets
+            fit = refit(m, gap_frames, candidates, dist, weights, align_weight, data=u_data)
+            u_data[:n_frames, m] = own
+            if fit is not None:
+                store(m, fit, u_var)
+                if untrusted_used is not None:
+                    untrusted_used[m] = True
+            continue
         whole = refit(m, gap_frames, trusted, dist, weights, align_weight)
         if whole is None:
             continue
