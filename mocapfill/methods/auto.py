@@ -799,10 +799,11 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
     sp = np.where(missing[:, todo, None], pred[:, todo], edge[:, todo])
     sp_sd = np.where(missing[:, todo], pred_sd[:, todo], edge_sd[:, todo])
     sp = np.where(np.isfinite(sp_sd)[..., None], sp, np.nan)
-    extra = np.zeros_like(sp_sd)
+    white = sp_sd * np.sqrt(config.white_share)
+    extra = None  # the white variance measured from the predictions' roughness, where asked
     if rough is not None and rough[todo].any():
         extra = np.where(rough[todo][None, :], rough_variance(obs, sp), 0.0)
-    white = np.sqrt(sp_sd ** 2 * config.white_share + extra)
+        white = np.sqrt(white ** 2 + extra)
     bias = sp_sd * np.sqrt(1.0 - config.white_share)
     sub = model._replace(q=model.q[todo])
     obs_var = np.where(fragments(missing[:, todo], config.fragment_frames), (config.fragment_sd_mm * mm) ** 2,
@@ -825,8 +826,10 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
         rep = np.where(missing[:, todo], report_sd[:, todo], edge_sd[:, todo]) * np.sqrt(inflate)
         redo = np.flatnonzero((np.nan_to_num(rep) > np.nan_to_num(sp_sd * np.sqrt(inflate))).any(axis=0))
         if len(redo):  # a Kalman smoother's variances do not depend on the measurements' values
-            _, sd[:, redo] = smooth(obs[:, redo], sp[:, redo], np.sqrt(rep[:, redo] ** 2 * config.white_share
-                                                                       + extra[:, redo]),
+            rep_white = rep[:, redo] * np.sqrt(config.white_share)
+            if extra is not None:
+                rep_white = np.sqrt(rep_white ** 2 + extra[:, redo])
+            _, sd[:, redo] = smooth(obs[:, redo], sp[:, redo], rep_white,
                                     rep[:, redo] * np.sqrt(1.0 - config.white_share), sub._replace(q=sub.q[redo]),
                                     obs_var=obs_var[:, redo])
     fill[:, todo] = np.where(missing[:, todo, None], mean, positions[:, todo])
