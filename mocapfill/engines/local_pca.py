@@ -739,7 +739,8 @@ def reconstruct_completed(
     fewer than 3 trusted neighbours (on a capture with gaps everywhere, most) gets one model on every candidate
     instead of none, its neighbours read from ``take`` with variance ``std**2`` (the smoother's estimates where it did
     not take an observed sample as exact: a flickering neighbour's one-frame fragment is often the take's worst
-    sample); ``untrusted_used`` (n_markers,) bool or None receives which markers got one.
+    sample), and it predicts only at the gap frames where one of its predictors is observed; ``untrusted_used``
+    (n_markers,) bool or None receives which markers got one.
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
@@ -830,6 +831,11 @@ def reconstruct_completed(
             u_data[:n_frames, m] = own
             if fit is not None:
                 store(m, fit, u_var)
+                # where none of its predictors is observed it would play the smoother's own guesses back: no
+                # prediction there (a whole-body blackout to the end of btk's Gait.c3d)
+                blind = gap_frames[~known[gap_frames][:, fit.near].any(axis=1)]
+                estimate[blind, m] = np.nan
+                std[blind, m] = np.nan
                 if untrusted_used is not None:
                     untrusted_used[m] = True
             continue

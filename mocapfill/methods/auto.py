@@ -396,6 +396,9 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         pred, pred_sd, edge, edge_sd = body_stage(positions, *refit, config, mm)
         pred, pred_sd, edge, edge_sd, report_sd = joined(positions, pred, pred_sd, edge, edge_sd,
                                                          reported_sd(pred_sd, off), prior_est, glob, config, mm)
+        # a model on guessed neighbours weighs how far they lie off the poses it learnt (the fill's sd is the
+        # reported one there: :func:`reported_sd`)
+        pred_sd = np.where(untrusted_used[None, :], report_sd, pred_sd)
         if boneset is not None and len(boneset):
             # a segment model's predictions ride on the markers observed throughout the gap: the bones stay off them
             pred = np.where(segment_used[..., None], pred,
