@@ -558,7 +558,8 @@ def test_rough_variance_measures_a_prediction_that_jumps():
 
 def test_the_refit_without_trusted_neighbours_models_on_every_one_when_asked():
     """reconstruct_completed: every neighbour of a marker filled with an sd (50 mm) above ``trust`` during its gap
-    leaves it without a model; with ``untrusted`` it gets one on all of them, read from that take."""
+    leaves it without a model; with ``untrusted`` it gets one on all of them, read from that take, which predicts
+    where one of them is observed."""
     from pathlib import Path
     from mocapfill import read
     from mocapfill.engines.local_pca import reconstruct_completed
@@ -579,3 +580,9 @@ def test_the_refit_without_trusted_neighbours_models_on_every_one_when_asked():
     assert used[m] and used.sum() == 1
     assert np.isfinite(est_sd[100:160, m]).all()
     assert np.sqrt(np.mean(np.sum((est[100:160, m] - truth[100:160, m]) ** 2, axis=1))) < 10.0
+    # where none of its predictors is observed (every marker missing at frames 150-159) it predicts nothing: it
+    # would play the smoother's own guesses back
+    pos[150:160] = np.nan
+    sd[150:160] = 50.0
+    est, est_sd = reconstruct_completed(pos, truth, sd, untrusted=(truth, sd), **kw)[:2]
+    assert np.isnan(est_sd[150:160, m]).all() and np.isfinite(est_sd[100:150, m]).all()

@@ -185,15 +185,16 @@ class ModelConfig:
     #: ``impute_trust_mm`` during its gaps), fit one on every near marker instead (the EM step without the trust),
     #: its neighbours read from the first pass's smoother (its posterior mean also at the observed samples it did not
     #: take as exact: a flickering neighbour's one-frame fragment is often the take's worst sample).  Such a model's
-    #: neighbours are themselves guesses, so its predictions judge no observed run displaced (:func:`displaced_runs`)
-    #: and the white part of their error is measured from their own roughness (:func:`rough_variance`).  Off, as
-    #: measured (2026-11-27, tenth session): ``bench_real_hidden.py`` mean pooled RMSE 59.4 -> 36.8 mm (Gait.trc 120
-    #: -> 6.0, c3d_sample 376 -> 14.3, VER4C3D 74 -> 10.7, Walking_Hybrid_1_1 91 -> 17.7, duplicate_labels 101 -> 60,
-    #: the basket sprint 118 -> 94; no capture worse by more than 0.7 %), every accuracy benchmark's clip unchanged
-    #: (their refit always has a trusted model); the smooth check passes on every capture it passes today but the
-    #: basket sprint: its largest filled acceleration 51 -> 62 (73.7 observed) but its 99.9th percentile 23 -> 43
-    #: mm/frame^2 (20 observed; 1.5x allowed): where it pushes, its hand is seen in 15 % of the frames and the models
-    #: of the arm's markers carry fast, rough motions the smoother follows.
+    #: neighbours are themselves guesses: it predicts only where one of them is observed, the fill weighs its
+    #: extrapolation-grown sd (:func:`reported_sd`), its predictions judge no observed run displaced
+    #: (:func:`displaced_runs`) and the white part of their error is measured from their roughness
+    #: (:func:`rough_variance`).  Off, as measured (2026-11-27, tenth session): ``bench_real_hidden.py`` mean pooled
+    #: RMSE 59.4 -> 35.0 mm, no capture or draw worse (Gait.trc 120 -> 6.0, c3d_sample 376 -> 15.9, VER4C3D 74 ->
+    #: 10.9, Walking_Hybrid_1_1 91 -> 17.1, duplicate_labels 101 -> 46, the basket sprint 118 -> 50), behind
+    #: ``bolero-sc`` on 2 captures instead of 6; ``bench_default_real``'s smooth verdicts all as without it; but the
+    #: fill's CPU time on btk's Gait.c3d 0.77 -> 2.12 s and Gait.trc 1.05 -> 2.02 s (best of 3; the fast bound 1.22
+    #: s): a model with four widths and the nearest-pose correction for every marker (one width and no correction:
+    #: as fast as without the option, but the basket sprint 118 mm again).
     refit_untrusted: bool = False
     #: Fit the spatial model again on the completed take (EM-style imputation) this many times.
     impute_passes: int = 1
