@@ -487,11 +487,9 @@ def test_seed_elsewhere_keeps_the_first_pass_where_the_refit_has_no_model():
     np.testing.assert_array_equal(edge[:, :, 0], [[7.0, 3.0], [3.0, 3.0]])
 
 
-def test_a_marker_the_refit_cannot_model_keeps_its_first_pass_prediction():
-    """85_02: a toe hidden for 100 frames while every other marker misses one frame of them; with no filled
-    neighbour trusted, the refit has no model for the toe; with ``seed_where_no_refit`` the first pass
-    (conditioned on the markers seen at each frame) predicts it, without it the motion alone bridges the gap
-    (35.7 mm RMS)."""
+def _toe_without_trusted_neighbours():
+    """85_02's first 400 frames with a toe hidden for 100 frames while every other marker misses one frame of them:
+    (data, truth, toe index, hidden positions)."""
     from pathlib import Path
     from mocapfill import read
 
@@ -502,37 +500,34 @@ def test_a_marker_the_refit_cannot_model_keeps_its_first_pass_prediction():
     hidden[100:200, m] = np.nan
     for i, j in enumerate(j for j in range(truth.shape[1]) if j != m):
         hidden[100 + (7 * i) % 100, j] = np.nan
+    return data, truth, m, hidden
 
-    def toe(keep: bool):
-        res = fill_auto(hidden, units=data.units, labels=data.labels, rate=data.rate,
-                        config=ModelConfig(impute_trust_mm=1e-6, seed_where_no_refit=keep))
-        err = np.linalg.norm(res.positions[100:200, m] - truth[100:200, m], axis=1)
-        return float(np.sqrt(np.mean(err ** 2))), [g["method"] for g in res.info["gap_methods"]
-                                                   if g["marker_index"] == m]
 
-    assert toe(True)[0] < 5.0 and toe(True)[1] == ["local-pca+motion"]
-    assert toe(False)[0] > 20.0 and toe(False)[1] == ["motion"]
+def _toe_fill(config: ModelConfig) -> tuple[float, list, np.ndarray, np.ndarray]:
+    """The toe case filled with ``config``: its RMS error (mm), its gaps' methods, the fill and the hidden input."""
+    data, truth, m, hidden = _toe_without_trusted_neighbours()
+    res = fill_auto(hidden, units=data.units, labels=data.labels, rate=data.rate, config=config)
+    err = np.linalg.norm(res.positions[100:200, m] - truth[100:200, m], axis=1)
+    methods = [g["method"] for g in res.info["gap_methods"] if g["marker_index"] == m]
+    return float(np.sqrt(np.mean(err ** 2))), methods, res.positions, hidden
+
+
+def test_a_marker_the_refit_cannot_model_keeps_its_first_pass_prediction():
+    """The toe case: with no filled neighbour trusted, the refit has no model for the toe; with
+    ``seed_where_no_refit`` the first pass (conditioned on the markers seen at each frame) predicts it, without it
+    the motion alone bridges the gap (35.7 mm RMS)."""
+    kept = _toe_fill(ModelConfig(impute_trust_mm=1e-6, seed_where_no_refit=True))
+    bridged = _toe_fill(ModelConfig(impute_trust_mm=1e-6))
+    assert kept[0] < 5.0 and kept[1] == ["local-pca+motion"]
+    assert bridged[0] > 20.0 and bridged[1] == ["motion"]
 
 
 def test_a_marker_without_trusted_neighbours_gets_a_model_on_all_of_them():
-    """The same toe with ``refit_untrusted``: no neighbour is trusted, so the refit fits one model on every near
+    """The toe case with ``refit_untrusted``: no neighbour is trusted, so the refit fits one model on every near
     marker, read from the first pass's smoother (2.1 mm RMS; 35.7 without a model)."""
-    from pathlib import Path
-    from mocapfill import read
-
-    data = read(Path(__file__).parents[1] / "sample_data" / "85_02.c3d")
-    truth = data.positions[:400]
-    m = [x.split(":")[-1] for x in data.labels].index("LTOE")
-    hidden = truth.copy()
-    hidden[100:200, m] = np.nan
-    for i, j in enumerate(j for j in range(truth.shape[1]) if j != m):
-        hidden[100 + (7 * i) % 100, j] = np.nan
-    res = fill_auto(hidden, units=data.units, labels=data.labels, rate=data.rate,
-                    config=ModelConfig(impute_trust_mm=1e-6, refit_untrusted=True))
-    err = np.linalg.norm(res.positions[100:200, m] - truth[100:200, m], axis=1)
-    assert float(np.sqrt(np.mean(err ** 2))) < 5.0
-    assert [g["method"] for g in res.info["gap_methods"] if g["marker_index"] == m] == ["local-pca+motion"]
-    np.testing.assert_array_equal(res.positions[~np.isnan(hidden)], hidden[~np.isnan(hidden)])
+    rms, methods, filled, hidden = _toe_fill(ModelConfig(impute_trust_mm=1e-6, refit_untrusted=True))
+    assert rms < 5.0 and methods == ["local-pca+motion"]
+    np.testing.assert_array_equal(filled[~np.isnan(hidden)], hidden[~np.isnan(hidden)])
 
 
 def test_rough_variance_measures_a_prediction_that_jumps():
