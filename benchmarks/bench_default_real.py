@@ -19,7 +19,9 @@ marker point that is observed elsewhere, in a frame where another marker is obse
   capture out (the first, the issue's rule, keeps it).
 
 Results are cached per (file content, method) in ``--cache``; ``--rerun auto`` fills again with the default only.
-Writes ``benchmarks/results/bench_default_real.json``.
+Writes ``benchmarks/results/bench_default_real.json``.  ``--config JSON`` fills ``auto`` with those
+:class:`~mocapfill.methods.auto.ModelConfig` fields changed (e.g. ``'{"refit_untrusted": true}'``), cached apart,
+and writes no results file unless ``--out`` names one.
 
 Run from the repository root (a single process measures the fills one at a time; keep ``--jobs 1`` for timing)::
 
@@ -66,7 +68,7 @@ SPEED_FLOOR_S = 1.0
 
 def run_one(task: tuple) -> dict:
     """Fill one capture with one method as ``mocapfill fill`` does; time it and measure its smoothness."""
-    path, digest, method, cache, commit = task
+    path, digest, method, cache, commit, config = task
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         data = read(path)
@@ -76,10 +78,10 @@ def run_one(task: tuple) -> dict:
               "date": datetime.date.today().isoformat(), "frames": data.n_frames, "markers": data.n_markers,
               "rate": data.rate, "duration": data.n_frames / data.rate, "units": data.units,
               "missing": float(np.isnan(data.positions).any(axis=2).mean()), "to_fill": int(need.sum()),
-              "error": None}
+              "error": None, "config": config}
     cpu0 = time.process_time()
     try:
-        with warnings.catch_warnings(), single_blas_thread():
+        with warnings.catch_warnings(), single_blas_thread(), harness.auto_config(config):
             warnings.simplefilter("ignore")
             outcome = fill_capture(data, FillSettings(method=method).check())
     except MocapfillError as exc:
@@ -114,12 +116,12 @@ def only_max_rule_fails(smooth: dict) -> bool:
     return smooth_enough(capped)[0]
 
 
-def _cache_file(cache: str | Path, digest: str, method: str) -> Path:
-    return Path(cache) / f"{digest[:16]}__{method}.json"
+def _cache_file(cache: str | Path, digest: str, method: str, config: dict | None = None) -> Path:
+    return Path(cache) / f"{digest[:16]}__{method}{harness.config_tag(config)}.json"
 
 
 def _save(cache: str | Path, record: dict) -> None:
-    path = _cache_file(cache, record["sha256"], record["method"])
+    path = _cache_file(cache, record["sha256"], record["method"], record.get("config"))
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".tmp{os.getpid()}")
     tmp.write_text(json.dumps(record))
@@ -137,7 +139,12 @@ def main(argv: list[str] | None = None) -> None:
     harness.capture_options(parser, CACHE)
     parser.add_argument("--out", default=str(RESULTS))
     parser.add_argument("--report", action="store_true", help="no fills: tables from the cache")
+    parser.add_argument("--config", default="", help="JSON: ModelConfig fields changed for auto")
     args = parser.parse_args(argv)
+    config = json.loads(args.config) if args.config else {}
+    if config and args.out == str(RESULTS):  # a variant's figures are not the default's
+        print("--config: no results file written unless --out names one", file=sys.stderr)
+        args.out = "-"
     methods = [m for m in args.methods.split(",") if m]
     rerun = {m for m in args.rerun.split(",") if m}
     bad = [m for m in [*methods, *rerun] if m not in METHODS]
@@ -151,10 +158,14 @@ def main(argv: list[str] | None = None) -> None:
         captures = [(p, d) for p, d in captures if args.only in str(p)]
     print(f"{len(captures)} captures with gaps; skipped: " + "; ".join(skipped), file=sys.stderr)
     cache = Path(args.cache)
+
+    def cfg(method: str) -> dict:
+        return config if method == "auto" else {}
+
     if not args.report:
         commit = harness.git_commit()
-        tasks = [(str(p), d, m, str(cache), commit) for p, d in captures for m in methods
-                 if m in rerun or not _cache_file(cache, d, m).exists()]
+        tasks = [(str(p), d, m, str(cache), commit, config if m == "auto" else {}) for p, d in captures
+                 for m in methods if m in rerun or not _cache_file(cache, d, m, cfg(m)).exists()]
         print(f"{len(tasks)} fill(s) to run on {args.jobs} process(es)", file=sys.stderr, flush=True)
         from mocapfill.runtime.executor import make_executor
 
@@ -180,7 +191,7 @@ def main(argv: list[str] | None = None) -> None:
     worst_acc = {m: 0.0 for m in methods}
     for path, digest in captures:
         for m in methods:
-            f = _cache_file(cache, digest, m)
+            f = _cache_file(cache, digest, m, cfg(m))
             if not f.exists():
                 missing.append(f"{harness.capture_name(path)} {m}")
                 continue

@@ -29,7 +29,6 @@ import harness
 harness.pin_blas()
 
 import argparse  # noqa: E402
-import hashlib  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import warnings  # noqa: E402
@@ -90,8 +89,7 @@ def run_one(task: tuple) -> dict:
 
 def _cache_file(cache, digest: str, method: str, draw: int, missing: float, config: dict | None = None) -> Path:
     Path(cache).mkdir(parents=True, exist_ok=True)
-    tag = "_" + hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()[:8] if config else ""
-    return Path(cache) / f"{digest[:16]}_{method}{tag}_{draw}_{missing:g}.json"
+    return Path(cache) / f"{digest[:16]}_{method}{harness.config_tag(config)}_{draw}_{missing:g}.json"
 
 
 def main(argv: list[str] | None = None) -> None:

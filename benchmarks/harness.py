@@ -19,6 +19,7 @@ tables into the READMEs and ``benchmarks/compare.py`` names every figure worse t
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import platform
@@ -346,6 +347,32 @@ def gapped_captures() -> tuple[list[tuple[Path, str]], list[str]]:
                 continue
             found.append((path, digest))
     return found, skipped
+
+
+def config_tag(config: dict | None) -> str:
+    """The cache files' suffix for a run of ``auto`` with :class:`~mocapfill.methods.auto.ModelConfig` fields changed
+    (``--config``): "" for the default, else "_" and a hash of the fields, so a variant's fills are cached apart."""
+    import hashlib
+
+    return "_" + hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()[:8] if config else ""
+
+
+@contextlib.contextmanager
+def auto_config(config: dict | None):
+    """Within the block, ``auto`` fills with those ModelConfig fields changed (None or {}: the default), also where a
+    script fills through :func:`mocapfill.pipeline.fill_capture`, as ``mocapfill fill`` does, which takes no config.
+    It changes the keyword default of :func:`~mocapfill.methods.auto.fill_auto` and restores it."""
+    if not config:
+        yield
+        return
+    from mocapfill.methods import auto
+
+    before = auto.fill_auto.__kwdefaults__["config"]
+    auto.fill_auto.__kwdefaults__["config"] = auto.ModelConfig(**config)
+    try:
+        yield
+    finally:
+        auto.fill_auto.__kwdefaults__["config"] = before
 
 
 def capture_options(parser, cache: Path) -> None:

@@ -106,3 +106,18 @@ def test_scripts_share_the_harness_and_import_no_other_script():
                        for line in text.splitlines()), path.name
         if path.stem not in ("harness", "tables", "compare"):
             assert "import harness" in text and "harness.Results(" in text, path.name
+
+
+def test_auto_config_changes_the_default_fill_for_the_block_only():
+    harness = _module("harness")
+    from mocapfill.methods import auto
+
+    before = auto.fill_auto.__kwdefaults__["config"]
+    assert harness.config_tag({}) == "" and harness.config_tag(None) == ""
+    assert harness.config_tag({"knn": 5}) != harness.config_tag({"knn": 6})
+    with harness.auto_config({"knn": 5}):
+        assert auto.fill_auto.__kwdefaults__["config"].knn == 5
+    assert auto.fill_auto.__kwdefaults__["config"] is before
+    with pytest.raises(RuntimeError), harness.auto_config({"knn": 5}):
+        raise RuntimeError("a failing fill")
+    assert auto.fill_auto.__kwdefaults__["config"] is before
