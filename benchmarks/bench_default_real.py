@@ -164,8 +164,8 @@ def main(argv: list[str] | None = None) -> None:
 
     if not args.report:
         commit = harness.git_commit()
-        tasks = [(str(p), d, m, str(cache), commit, config if m == "auto" else {}) for p, d in captures
-                 for m in methods if m in rerun or not _cache_file(cache, d, m, cfg(m)).exists()]
+        tasks = [(str(p), d, m, str(cache), commit, cfg(m)) for p, d in captures for m in methods
+                 if m in rerun or not _cache_file(cache, d, m, cfg(m)).exists()]
         print(f"{len(tasks)} fill(s) to run on {args.jobs} process(es)", file=sys.stderr, flush=True)
         from mocapfill.runtime.executor import make_executor
 

@@ -371,10 +371,11 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     model = motion_model(positions, missing, config, mm, rate)
     # the refit below reads the seed's posterior sd: only the last pass's sd is the reported one
     displaced = displaced_runs(positions, edge, edge_sd, config, mm)
-    smoothed = (np.full(positions.shape, np.nan), np.full(missing.shape, np.nan))  # every frame's posterior
+    # the take as the smoother believes it, for a refit on untrusted neighbours (:attr:`ModelConfig.refit_untrusted`)
+    believed = (np.empty(positions.shape), np.empty(missing.shape)) if config.refit_untrusted else None
     fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate,
                                         report_sd=None if config.impute_passes else report_sd, displaced=displaced,
-                                        smoothed=smoothed)
+                                        believed=believed)
     segment_used = None  # where the last refit's segment models predicted (none without a refit)
     for k in range(config.impute_passes):
         last = k == config.impute_passes - 1
@@ -383,14 +384,9 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         off = np.full(missing.shape, np.nan) if config.extrapolation_sd and last else None
         segment_used = np.zeros(missing.shape, dtype=bool)
         untrusted_used = np.zeros(missing.shape[1], dtype=bool)
-        untrusted = None
-        if config.refit_untrusted:
-            # the smoother's estimates where it did not take the observed samples as exact (fragments, displaced runs)
-            soft = ~missing & (fragments(missing, config.fragment_frames) | displaced)
-            untrusted = (np.where(soft[..., None], smoothed[0], fill), np.where(soft, smoothed[1], sd))
         refit = impute_stage(positions, fill, sd, config, mm, reference_frames=reference_frames,
                              reference_weights=reference_weights, used_references=used_refs,
-                             extrapolation=off, segment_used=segment_used, untrusted=untrusted,
+                             extrapolation=off, segment_used=segment_used, untrusted=believed,
                              untrusted_used=untrusted_used)
         if config.seed_where_no_refit:
             refit = seed_elsewhere(missing, refit, seed)
@@ -399,7 +395,8 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
                                                          reported_sd(pred_sd, off), prior_est, glob, config, mm)
         # a model on guessed neighbours weighs how far they lie off the poses it learnt (the fill's sd is the
         # reported one there: :func:`reported_sd`)
-        pred_sd = np.where(untrusted_used[None, :], report_sd, pred_sd)
+        if untrusted_used.any():
+            pred_sd = np.where(untrusted_used[None, :], report_sd, pred_sd)
         if boneset is not None and len(boneset):
             # a segment model's predictions ride on the markers observed throughout the gap: the bones stay off them
             pred = np.where(segment_used[..., None], pred,
@@ -776,7 +773,7 @@ def displaced_runs(positions: np.ndarray, edge: np.ndarray, edge_sd: np.ndarray,
 def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, edge: np.ndarray,
                    edge_sd: np.ndarray, model: MotionModel, config: ModelConfig, mm: float, rate: float,
                    report_sd: np.ndarray | None = None, displaced: np.ndarray | None = None,
-                   rough: np.ndarray | None = None, smoothed: tuple[np.ndarray, np.ndarray] | None = None
+                   rough: np.ndarray | None = None, believed: tuple[np.ndarray, np.ndarray] | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stage 3: the smoother's posterior mean and sd for every marker with gaps.
 
@@ -788,9 +785,9 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
     smoother runs again, for its variances, on the markers where it differs.  ``displaced`` (n_frames, n_markers)
     bool or None: observed samples judged displaced (:func:`displaced_runs`), measured with the sd
     ``displacement_mm`` instead of the camera's.  ``rough`` (n_markers,) bool or None: markers whose spatial
-    predictions' white error variance grows by :func:`rough_variance`.  ``smoothed`` (mean (n_frames, n_markers, 3),
-    sd (n_frames, n_markers)) or None receives the posterior mean and sd at every frame of the markers smoothed,
-    observed ones included.
+    predictions' white error variance grows by :func:`rough_variance`.  ``believed`` (take (n_frames, n_markers, 3),
+    sd (n_frames, n_markers)) or None receives the take as the smoother believes it: the fill and its sd, but at the
+    observed samples it measured as noisy (fragments, displaced runs) its posterior mean and sd.
     """
     missing = np.isnan(positions).any(axis=2)
     todo = np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0))
@@ -810,8 +807,8 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
         white = np.sqrt(white ** 2 + extra)
     bias = sp_sd * np.sqrt(1.0 - config.white_share)
     sub = model._replace(q=model.q[todo])
-    obs_var = np.where(fragments(missing[:, todo], config.fragment_frames), (config.fragment_sd_mm * mm) ** 2,
-                       model.r_obs)
+    short = fragments(missing[:, todo], config.fragment_frames)
+    obs_var = np.where(short, (config.fragment_sd_mm * mm) ** 2, model.r_obs)
     if displaced is not None:  # measured with the displacement's spread: the fill does not bend to them
         obs_var = np.where(displaced[:, todo], (config.displacement_mm * mm) ** 2, obs_var)
     inflate = np.ones_like(sp_sd)
@@ -838,8 +835,11 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
                                     obs_var=obs_var[:, redo])
     fill[:, todo] = np.where(missing[:, todo, None], mean, positions[:, todo])
     sd_out[:, todo] = np.where(missing[:, todo], sd, 0.0)
-    if smoothed is not None:
-        smoothed[0][:, todo], smoothed[1][:, todo] = mean, sd
+    if believed is not None:
+        noisy = short if displaced is None else short | displaced[:, todo]
+        believed[0][:], believed[1][:] = fill, sd_out
+        believed[0][:, todo] = np.where(noisy[..., None], mean, fill[:, todo])
+        believed[1][:, todo] = np.where(noisy, sd, sd_out[:, todo])
     return fill, sd_out, outliers
 
 
@@ -855,8 +855,9 @@ def rough_variance(obs: np.ndarray, sp: np.ndarray) -> np.ndarray:
         out[1:-1] = np.sum((x[2:] - 2.0 * x[1:-1] + x[:-2]) ** 2, axis=2) / 3.0
         return out
 
-    with np.errstate(invalid="ignore"):
-        true2 = np.nan_to_num(np.nanmean(second(obs), axis=0)) if np.isfinite(second(obs)).any() else 0.0
+    observed = second(obs)
+    seen = np.isfinite(observed)
+    true2 = np.where(seen, observed, 0.0).sum(axis=0) / np.maximum(seen.sum(axis=0), 1)  # 0 where none is seen
     ex = np.nan_to_num(np.maximum(second(sp) - true2, 0.0)) / 6.0
     out = ex.copy()
     out[1:] = np.maximum(out[1:], ex[:-1])
