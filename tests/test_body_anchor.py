@@ -1,0 +1,58 @@
+"""The body anchor (:mod:`mocapfill.engines.body_anchor`) and the default's stage that uses it."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocapfill.engines.body_anchor import body_anchor, error_memory, held
+from synthetic import moving_body
+
+
+def test_a_translating_body_anchors_a_hidden_marker_where_it_is():
+    truth = moving_body(200, 5, seed=1)  # translation only: every offset between markers is constant
+    gappy = truth.copy()
+    gappy[80:120, 0] = np.nan
+    est, sd, _ = body_anchor(gappy, rate=100.0)
+    assert np.allclose(est[80:120, 0], truth[80:120, 0], atol=1e-6)
+    assert np.all(np.isfinite(sd[80:120, 0])) and np.all(sd[80:120, 0] > 0)
+
+
+def test_the_anchor_sd_learns_the_spread_the_longer_markers_are_seen_together():
+    rng = np.random.default_rng(0)
+    truth = moving_body(4000, 4, seed=2, spread=30.0)
+    truth[:, 0] += rng.normal(scale=10.0, size=(4000, 3))  # marker 0 wobbles 10 mm per coordinate about its place
+    short = body_anchor(truth[:200], rate=100.0)[1][:, 0]  # 2 s together: the rotation prior weighs more
+    long = body_anchor(truth, rate=100.0)[1][:, 0]  # 40 s
+    assert np.all(long >= 9.0) and np.median(long) < np.median(short)
+    assert np.median(long) < 12.0
+
+
+def test_a_blackout_holds_the_last_anchor_and_grows_its_sd():
+    truth = moving_body(150, 6, seed=3)
+    gappy = truth.copy()
+    gappy[120:] = np.nan  # nothing seen in the last 30 frames
+    gappy[100:, 0] = np.nan
+    est, sd, _ = body_anchor(gappy, rate=100.0)
+    assert np.allclose(est[120:, 0], est[119, 0])
+    grow = np.diff(sd[119:, 0])
+    assert np.all(grow > 0) and np.allclose(grow, grow[0])  # linear: the body's usual pace, direction unknown
+
+
+def test_held_leaves_anchored_frames_alone():
+    est = np.arange(12.0).reshape(4, 1, 3)
+    sd = np.ones((4, 1))
+    has = np.array([[True], [False], [False], [True]])
+    out, out_sd = held(np.where(has[..., None], est, np.nan), np.where(has, sd, np.nan), has, speed=2.0)
+    assert np.array_equal(out[[0, 3]], est[[0, 3]])
+    assert np.array_equal(out[1], est[0]) and np.array_equal(out[2], est[3])
+    assert out_sd[1, 0] == 3.0 and out_sd[2, 0] == 3.0
+
+
+def test_error_memory_of_an_autoregressive_error():
+    rng = np.random.default_rng(4)
+    phi = 0.9
+    e = np.zeros((20000, 1, 3))
+    for t in range(1, len(e)):
+        e[t] = phi * e[t - 1] + rng.normal(size=(1, 3))
+    memory = error_memory(e, np.ones((len(e), 1), dtype=bool), max_lag=100)
+    assert abs(memory - (-1.0 / np.log(phi))) < 1.0  # the lag where phi^lag = 1/e: 9.5 frames
