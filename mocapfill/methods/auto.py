@@ -17,6 +17,10 @@ The model (equations in ``ARCHITECTURE.md``, "The default's model"), each stage 
    local model) takes the global distance-weighted PCA's (:func:`global_prediction`, the ``pca`` method; only where
    it stays inside the body) with sd :attr:`ModelConfig.global_sd_mm`, so it moves with the body rather than being
    bridged by the motion alone.
+   :func:`anchor_stage`: a missing sample still without a prediction takes the body anchor's
+   (:func:`mocapfill.engines.body_anchor.body_anchor`: the markers seen with it, by their mean offsets, no
+   rotation) as a weak white measurement, so a gap at a take's end comes to rest inside the body instead of
+   flying off on its last velocity.
 2. :func:`bone_stage` (optional): each frame's predictions move to the most probable positions given their
    standard deviations and the bone lengths' spread (:func:`mocapfill.bones.refinement.refine_bones`).
 3. :func:`temporal_stage`: per marker, a damped white-jerk state-space model with the spatial prediction's
@@ -109,6 +113,11 @@ class ModelConfig:
     #: pca 66 / 58; 100 made Walking_Hybrid_1_1's fill jerky (66.8 against 36.1 mm/frame^2 observed), 300 does not.
     #: Without the inside-the-body mask, duplicate_labels.c3d (74 % missing) got a marker 40 m off (pca's fill).
     global_sd_mm: float = 300.0
+    #: Samples nothing else predicts take the body anchor's prediction (:func:`anchor_stage`), a weak measurement that
+    #: keeps a fill inside the body.  Without it the motion model alone carried the last velocity and acceleration
+    #: of a gap at a take's end out of the body: 13.6x the body's extent on duplicate_labels.c3d, 4.0x on
+    #: c3d_sample.c3d (``bench_messy.py --skip dense,segment``; CHANGELOG).
+    anchor: bool = True
     #: Observed frames on either side of a gap where the spatial model's error is measured for the smoother.
     edge_frames: int = 3
     #: Correlation time of the spatial prediction's error (the old edge bridge's 30 frames at 120 Hz).
@@ -361,12 +370,18 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         glob = global_prediction(positions, units)
         pred, pred_sd, edge, edge_sd, report_sd = joined(positions, pred, pred_sd, edge, edge_sd, report_sd, None,
                                                          glob, config, mm)
+    anchor, anchored = None, np.zeros(missing.shape, dtype=bool)
+    if config.anchor and missing.any():
+        from ..engines.body_anchor import body_anchor
+        anchor = body_anchor(positions, rate)
+        pred, pred_sd, edge, edge_sd, report_sd = joined(positions, pred, pred_sd, edge, edge_sd, report_sd, None,
+                                                         None, config, mm, anchor=anchor, anchored=anchored)
     boneset = None
     if refine and bones is not False:
         from ..bones.boneset import resolve_bones
         boneset = resolve_bones(positions, bones, units=units, labels=labels)
         if len(boneset) and np.isfinite(pred_sd).any():
-            pred = bone_stage(positions, pred, pred_sd, boneset, config, mm)
+            pred = bone_stage(positions, pred, pred_sd, boneset, config, mm, anchored)
     info["bones"] = 0 if boneset is None else int(len(boneset))
     model = motion_model(positions, missing, config, mm, rate)
     # the refit below reads the seed's posterior sd: only the last pass's sd is the reported one
@@ -375,7 +390,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     believed = (np.empty(positions.shape), np.empty(missing.shape)) if config.refit_untrusted else None
     fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate,
                                         report_sd=None if config.impute_passes else report_sd, displaced=displaced,
-                                        believed=believed)
+                                        believed=believed, white_only=anchored)
     segment_used = None  # where the last refit's segment models predicted (none without a refit)
     for k in range(config.impute_passes):
         last = k == config.impute_passes - 1
@@ -392,7 +407,8 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
             refit = seed_elsewhere(missing, refit, seed)
         pred, pred_sd, edge, edge_sd = body_stage(positions, *refit, config, mm)
         pred, pred_sd, edge, edge_sd, report_sd = joined(positions, pred, pred_sd, edge, edge_sd,
-                                                         reported_sd(pred_sd, off), prior_est, glob, config, mm)
+                                                         reported_sd(pred_sd, off), prior_est, glob, config, mm,
+                                                         anchor=anchor, anchored=anchored)
         # a model on guessed neighbours weighs how far they lie off the poses it learnt (the fill's sd is the
         # reported one there: :func:`reported_sd`)
         if untrusted_used.any():
@@ -400,28 +416,30 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         if boneset is not None and len(boneset):
             # a segment model's predictions ride on the markers observed throughout the gap: the bones stay off them
             pred = np.where(segment_used[..., None], pred,
-                            bone_stage(positions, pred, pred_sd, boneset, config, mm))
+                            bone_stage(positions, pred, pred_sd, boneset, config, mm, anchored))
         displaced = displaced_runs(positions, edge, edge_sd, config, mm)
         displaced[:, untrusted_used] = False  # a model on guessed neighbours does not overrule an observation
         fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate,
                                             report_sd=report_sd if last else None, displaced=displaced,
-                                            rough=untrusted_used)
+                                            rough=untrusted_used, white_only=anchored)
     if used_refs is not None:
         info["references"] = ({"frames": int((reference_weights > 0).sum()), "models": len(used_refs),
                                "used": int(sum(used_refs))} if config.impute_passes
                               else sinfo.get("references", {"frames": 0, "models": 0, "used": 0}))
     spatial = missing & np.isfinite(pred_sd)
-    info["gap_methods"] = gap_records(missing, sd, spatial, outliers, config, mm, labels, boneset, off, displaced,
-                                      segment_used)
+    info["gap_methods"] = gap_records(missing, sd, spatial & ~anchored, outliers, config, mm, labels, boneset, off,
+                                      displaced, segment_used, anchored)
     info["displaced"] = displaced_records(positions, displaced, edge, mm, labels)
     info["review"] = [i for i, r in enumerate(info["gap_methods"]) if r["review"]]
     return finish(positions, fill, std=sd, info=info)
 
 
 def joined(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, edge: np.ndarray, edge_sd: np.ndarray,
-           report_sd: np.ndarray, prior_est: tuple | None, glob: tuple | None, config: ModelConfig, mm: float):
-    """The learned denoiser's estimate (``prior_est``, :func:`prior_stage`) and the global PCA's (``glob``,
-    :func:`global_stage`) joined to the spatial predictions, each where given, in both the sd the fill uses
+           report_sd: np.ndarray, prior_est: tuple | None, glob: tuple | None, config: ModelConfig, mm: float,
+           anchor: tuple | None = None, anchored: np.ndarray | None = None):
+    """The learned denoiser's estimate (``prior_est``, :func:`prior_stage`), the global PCA's (``glob``,
+    :func:`global_stage`) and the body anchor's (``anchor``, :func:`anchor_stage`; ``anchored`` receives where it
+    predicted) joined to the spatial predictions, each where given, in both the sd the fill uses
     (``pred_sd``) and the one it reports (``report_sd``, :func:`reported_sd`).  Arrays as :func:`spatial_stage`
     returns them; returns pred, pred_sd, edge, edge_sd, report_sd."""
     if prior_est is not None:
@@ -430,7 +448,28 @@ def joined(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, edge: n
     if glob is not None:
         report_sd = global_stage(positions, pred, report_sd, *glob, config, mm)[1]
         pred, pred_sd = global_stage(positions, pred, pred_sd, *glob, config, mm)
+    if anchor is not None:
+        pred, pred_sd, report_sd = anchor_stage(positions, pred, pred_sd, report_sd, *anchor, anchored=anchored)
     return pred, pred_sd, edge, edge_sd, report_sd
+
+
+def anchor_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, report_sd: np.ndarray,
+                 anchor: np.ndarray, anchor_sd: np.ndarray, memory: float, *, anchored: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stage 1d: missing samples still without a prediction (NaN ``pred_sd``) take the body anchor's
+    (:func:`mocapfill.engines.body_anchor.body_anchor`: ``anchor`` (n_frames, n_markers, 3), ``anchor_sd``
+    (n_frames, n_markers), ``memory`` frames) as a white measurement of sd ``anchor_sd * sqrt(memory)``: its error
+    persists over ``memory`` frames, so n frames of it count as n / memory independent ones, and
+    :func:`temporal_stage` is told (``white_only``) to give it no correlated part.  pred / pred_sd / report_sd as
+    :func:`joined` has them; returns the three with those samples filled; ``anchored`` (n_frames, n_markers) bool or
+    None receives where the anchor predicted."""
+    todo = np.isnan(positions).any(axis=2) & ~np.isfinite(pred_sd) & np.isfinite(anchor_sd)
+    if anchored is not None:
+        anchored[:] = todo
+    if not todo.any():
+        return pred, pred_sd, report_sd
+    white = anchor_sd * np.sqrt(memory)
+    return np.where(todo[..., None], anchor, pred), np.where(todo, white, pred_sd), np.where(todo, white, report_sd)
 
 
 def spatial_stage(positions: np.ndarray, config: ModelConfig, mm: float, *,
@@ -657,14 +696,22 @@ def prior_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, ed
     return pred, pred_sd, edge, edge_sd
 
 
-def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset, config: ModelConfig, mm: float
-               ) -> np.ndarray:
+def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset, config: ModelConfig, mm: float,
+               anchored: np.ndarray | None = None) -> np.ndarray:
     """Stage 2: predictions (n_frames, n_markers, 3) moved to the most probable positions given the bones.
 
     sd (n_frames, n_markers) the predictions' standard deviations (NaN: not moved); boneset a BoneSet.  With
-    ``config.bone_extrapolation`` each bone's spread is per frame (:func:`bone_spreads`).
+    ``config.bone_extrapolation`` each bone's spread is per frame (:func:`bone_spreads`).  anchored (n_frames,
+    n_markers) bool or None: the body anchor's predictions (:func:`anchor_stage`), left out: the anchor's error is
+    as large as a bone, so the bones would place them anywhere on a sphere about their neighbours, and a bone to
+    one of them does not count.
     """
     from ..bones.refinement import refine_bones
+
+    if anchored is not None and anchored.any():
+        kept = pred
+        pred = np.where(anchored[..., None], np.nan, pred)
+        return np.where(anchored[..., None], kept, bone_stage(positions, pred, sd, boneset, config, mm))
 
     est = np.where(np.isnan(positions), pred, positions)
     spread = bone_spreads(positions, est, sd, boneset, config, mm) if config.bone_extrapolation else boneset.spread
@@ -773,8 +820,8 @@ def displaced_runs(positions: np.ndarray, edge: np.ndarray, edge_sd: np.ndarray,
 def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, edge: np.ndarray,
                    edge_sd: np.ndarray, model: MotionModel, config: ModelConfig, mm: float, rate: float,
                    report_sd: np.ndarray | None = None, displaced: np.ndarray | None = None,
-                   rough: np.ndarray | None = None, believed: tuple[np.ndarray, np.ndarray] | None = None
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   rough: np.ndarray | None = None, believed: tuple[np.ndarray, np.ndarray] | None = None,
+                   white_only: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stage 3: the smoother's posterior mean and sd for every marker with gaps.
 
     positions / pred / edge (n_frames, n_markers, 3); pred_sd / edge_sd (n_frames, n_markers) (NaN: no spatial
@@ -806,6 +853,9 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
         extra = np.where(rough[todo][None, :], rough_variance(obs, sp), 0.0)
         white = np.sqrt(white ** 2 + extra)
     bias = sp_sd * np.sqrt(1.0 - config.white_share)
+    if white_only is not None:  # measurements whose error is white at the variance given (the body anchor's)
+        wo = white_only[:, todo] & missing[:, todo]
+        white, bias = np.where(wo, sp_sd, white), np.where(wo, 0.0, bias)
     sub = model._replace(q=model.q[todo])
     short = fragments(missing[:, todo], config.fragment_frames)
     obs_var = np.where(short, (config.fragment_sd_mm * mm) ** 2, model.r_obs)
@@ -828,10 +878,14 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
         redo = np.flatnonzero((np.nan_to_num(rep) > np.nan_to_num(sp_sd * np.sqrt(inflate))).any(axis=0))
         if len(redo):  # a Kalman smoother's variances do not depend on the measurements' values
             rep_white = rep[:, redo] * np.sqrt(config.white_share)
+            rep_bias = rep[:, redo] * np.sqrt(1.0 - config.white_share)
+            if white_only is not None:
+                rep_white, rep_bias = np.where(wo[:, redo], rep[:, redo], rep_white), np.where(wo[:, redo], 0.0,
+                                                                                              rep_bias)
             if extra is not None:
                 rep_white = np.sqrt(rep_white ** 2 + extra[:, redo])
             _, sd[:, redo] = smooth(obs[:, redo], sp[:, redo], rep_white,
-                                    rep[:, redo] * np.sqrt(1.0 - config.white_share), sub._replace(q=sub.q[redo]),
+                                    rep_bias, sub._replace(q=sub.q[redo]),
                                     obs_var=obs_var[:, redo])
     fill[:, todo] = np.where(missing[:, todo, None], mean, positions[:, todo])
     sd_out[:, todo] = np.where(missing[:, todo], sd, 0.0)
@@ -885,14 +939,16 @@ def displaced_records(positions: np.ndarray, displaced: np.ndarray, edge: np.nda
 
 def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outliers: np.ndarray,
                 config: ModelConfig, mm: float, labels, boneset, off: np.ndarray | None = None,
-                displaced: np.ndarray | None = None, segment: np.ndarray | None = None) -> list[dict]:
+                displaced: np.ndarray | None = None, segment: np.ndarray | None = None,
+                anchored: np.ndarray | None = None) -> list[dict]:
     """Stage 5: one JSON-ready record per gap (run of missing frames of one marker).
 
     missing / sd / spatial / outliers (n_frames, n_markers): the input's mask, the posterior sd, where the spatial
     model predicted, where its prediction was down-weighted; off (n_frames, n_markers) or None: how far each
     prediction's pose lay off its model's training poses (:func:`reported_sd`); displaced (n_frames, n_markers) or
     None: observed samples judged displaced (:func:`displaced_runs`); segment (n_frames, n_markers) or None: where a
-    segment model predicted (:attr:`ModelConfig.segment_mm`).  ``review`` is True when the gap's largest sd
+    segment model predicted (:attr:`ModelConfig.segment_mm`); anchored (n_frames, n_markers) or None: where the body
+    anchor predicted (:func:`anchor_stage`), not counted in ``spatial``.  ``review`` is True when the gap's largest sd
     exceeds ``config.review_sd_mm`` (or nothing could be filled) or a run judged displaced touches it; every number
     in ``reason`` comes from ``config``.
     """
@@ -909,7 +965,16 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
             continue
         worst = float(np.nanmax(sd[sl, m])) if np.isfinite(sd[sl, m]).any() else float("nan")
         share = float(spatial[sl, m].mean())
-        if share == 0:
+        by_anchor = 0.0 if anchored is None else float(anchored[sl, m].mean())
+        anchor_text = ("the body anchor (the position the markers seen with it give by their mean offsets, no "
+                       f"rotation) predicted {by_anchor:.0%} of the frames")
+        if share == 0 and by_anchor > 0:
+            method = "anchor+motion"
+            reason = (f"no local model could predict it: {anchor_text}, fused with the white-jerk motion model by the "
+                      f"smoother")
+            if by_anchor < 1:
+                reason += "; the motion model bridges the rest"
+        elif share == 0:
             method = "motion"
             reason = ("no spatial prediction (fewer than 3 observed neighbours or too few training frames): the "
                       "white-jerk motion model bridges the gap from its ends")
@@ -917,7 +982,9 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
             method = "local-pca+motion"
             reason = (f"local weighted PCA predicted {share:.0%} of the frames, fused with the white-jerk motion "
                       f"model by the smoother")
-            if share < 1:
+            if by_anchor > 0:
+                reason += f"; {anchor_text}"
+            if share + by_anchor < 1:
                 reason += "; the motion model bridges the rest"
             by_segment = segment is not None and bool(segment[sl, m].any())
             if by_segment:
