@@ -69,11 +69,24 @@ def test_anchor_stage_takes_only_samples_nothing_else_predicts():
     pred[1, 0], pred_sd[1, 0] = 7.0, 3.0  # a spatial prediction at frame 1
     anchor, anchor_sd = np.ones((5, 2, 3)), np.full((5, 2), 2.0)
     anchored = np.zeros((5, 2), dtype=bool)
-    out, out_sd, rep = anchor_stage(positions, pred, pred_sd, pred_sd.copy(), anchor, anchor_sd, 4.0,
+    out, out_sd, rep = anchor_stage(positions, pred, pred_sd, pred_sd.copy(), lambda: (anchor, anchor_sd, 4.0),
                                     anchored=anchored)
     assert anchored[:, 0].tolist() == [False, False, True, True, False] and not anchored[:, 1].any()
     assert np.all(out[1, 0] == 7.0) and np.all(out[2:4, 0] == 1.0)
     assert np.allclose(out_sd[2:4, 0], 4.0) and np.allclose(rep[2:4, 0], 4.0)  # sd x sqrt(memory): a white error
+
+
+def test_anchor_stage_computes_no_anchor_where_nothing_needs_it():
+    positions = np.zeros((3, 1, 3))
+    positions[1, 0] = np.nan
+    pred, pred_sd = np.ones((3, 1, 3)), np.ones((3, 1))
+
+    def never():
+        raise AssertionError("the anchor was computed")
+
+    anchored = np.ones((3, 1), dtype=bool)
+    out = anchor_stage(positions, pred, pred_sd, pred_sd, never, anchored=anchored)
+    assert out[0] is pred and not anchored.any()
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

@@ -54,8 +54,8 @@ The model (equations in ``ARCHITECTURE.md``, "The default's model"), each stage 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import partial
-from typing import Any, Sequence
+from functools import cache, partial
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -373,7 +373,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     anchor, anchored = None, np.zeros(missing.shape, dtype=bool)
     if config.anchor and missing.any():
         from ..engines.body_anchor import body_anchor
-        anchor = body_anchor(positions, rate)
+        anchor = cache(partial(body_anchor, positions, rate))  # computed once, where a sample first needs it
         pred, pred_sd, edge, edge_sd, report_sd = joined(positions, pred, pred_sd, edge, edge_sd, report_sd, None,
                                                          None, config, mm, anchor=anchor, anchored=anchored)
     boneset = None
@@ -436,7 +436,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
 
 def joined(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, edge: np.ndarray, edge_sd: np.ndarray,
            report_sd: np.ndarray, prior_est: tuple | None, glob: tuple | None, config: ModelConfig, mm: float,
-           anchor: tuple | None = None, anchored: np.ndarray | None = None):
+           anchor: Callable | None = None, anchored: np.ndarray | None = None):
     """The learned denoiser's estimate (``prior_est``, :func:`prior_stage`), the global PCA's (``glob``,
     :func:`global_stage`) and the body anchor's (``anchor``, :func:`anchor_stage`; ``anchored`` receives where it
     predicted) joined to the spatial predictions, each where given, in both the sd the fill uses
@@ -449,27 +449,30 @@ def joined(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, edge: n
         report_sd = global_stage(positions, pred, report_sd, *glob, config, mm)[1]
         pred, pred_sd = global_stage(positions, pred, pred_sd, *glob, config, mm)
     if anchor is not None:
-        pred, pred_sd, report_sd = anchor_stage(positions, pred, pred_sd, report_sd, *anchor, anchored=anchored)
+        pred, pred_sd, report_sd = anchor_stage(positions, pred, pred_sd, report_sd, anchor, anchored=anchored)
     return pred, pred_sd, edge, edge_sd, report_sd
 
 
 def anchor_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, report_sd: np.ndarray,
-                 anchor: np.ndarray, anchor_sd: np.ndarray, memory: float, *, anchored: np.ndarray | None = None
+                 anchor: Callable[[], tuple[np.ndarray, np.ndarray, float]], *, anchored: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stage 1d: missing samples still without a prediction (NaN ``pred_sd``) take the body anchor's
-    (:func:`mocapfill.engines.body_anchor.body_anchor`: ``anchor`` (n_frames, n_markers, 3), ``anchor_sd``
-    (n_frames, n_markers), ``memory`` frames) as a white measurement of sd ``anchor_sd * sqrt(memory)``: its error
+    (``anchor()``, called only if there are such samples: :func:`mocapfill.engines.body_anchor.body_anchor`'s
+    anchor (n_frames, n_markers, 3), anchor_sd (n_frames, n_markers) and memory (frames)) as a white measurement of sd ``anchor_sd * sqrt(memory)``: its error
     persists over ``memory`` frames, so n frames of it count as n / memory independent ones, and
     :func:`temporal_stage` is told (``white_only``) to give it no correlated part.  pred / pred_sd / report_sd as
     :func:`joined` has them; returns the three with those samples filled; ``anchored`` (n_frames, n_markers) bool or
     None receives where the anchor predicted."""
-    todo = np.isnan(positions).any(axis=2) & ~np.isfinite(pred_sd) & np.isfinite(anchor_sd)
+    todo = np.isnan(positions).any(axis=2) & ~np.isfinite(pred_sd)
+    if todo.any():
+        est, anchor_sd, memory = anchor()
+        todo &= np.isfinite(anchor_sd)
     if anchored is not None:
         anchored[:] = todo
     if not todo.any():
         return pred, pred_sd, report_sd
     white = anchor_sd * np.sqrt(memory)
-    return np.where(todo[..., None], anchor, pred), np.where(todo, white, pred_sd), np.where(todo, white, report_sd)
+    return np.where(todo[..., None], est, pred), np.where(todo, white, pred_sd), np.where(todo, white, report_sd)
 
 
 def spatial_stage(positions: np.ndarray, config: ModelConfig, mm: float, *,
