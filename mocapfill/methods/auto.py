@@ -203,7 +203,8 @@ class ModelConfig:
     #: ``bolero-sc`` on 2 captures instead of 6; ``bench_default_real``'s smooth verdicts all as without it; but the
     #: fill's CPU time on btk's Gait.c3d 0.77 -> 2.12 s and Gait.trc 1.05 -> 2.02 s (best of 3; the fast bound 1.22
     #: s): a model with four widths and the nearest-pose correction for every marker (one width and no correction:
-    #: as fast as without the option, but the basket sprint 118 mm again).
+    #: as fast as without the option, but the basket sprint 118 mm again).  With the body anchor (eleventh session):
+    #: mean 24.3 -> 15.6 mm, but duplicate_labels 46 -> 78 (the bones move the forearm's predictions off).
     refit_untrusted: bool = False
     #: Fit the spatial model again on the completed take (EM-style imputation) this many times.
     impute_passes: int = 1
