@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -101,3 +103,19 @@ def test_a_take_that_ends_with_two_markers_seen_is_filled_near_the_body(seed):
     assert plausibility(res.positions, gappy)["extent"] < 1.5
     assert np.nanmax(res.std) < 1000.0
     assert any("body anchor" in r["reason"] for r in res.info["gap_methods"])
+
+
+@pytest.mark.parametrize("case", ["one marker", "a marker never seen", "one frame", "nothing seen"])
+def test_degenerate_takes_give_no_anchor_and_no_warning(case):
+    rng = np.random.default_rng(5)
+    positions = {"one marker": rng.normal(size=(50, 1, 3)),
+                 "a marker never seen": np.concatenate([rng.normal(size=(50, 1, 3)), np.full((50, 1, 3), np.nan)],
+                                                       axis=1),
+                 "one frame": rng.normal(size=(1, 4, 3)),
+                 "nothing seen": np.full((10, 3, 3), np.nan)}[case]
+    positions[:, 0][len(positions) // 2:] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # an empty mean's RuntimeWarning would reach the user's terminal
+        est, sd, memory = body_anchor(positions, rate=100.0)
+    assert memory >= 1.0
+    assert np.array_equal(np.isnan(est).any(axis=2), np.isnan(sd))

@@ -69,9 +69,9 @@ def error_memory(resid: np.ndarray, ok: np.ndarray, *, max_lag: int) -> float:
     autocorrelation of its residuals at the observed samples falls to 1/e.  resid (n_frames, n_markers, 3), ok
     (n_frames, n_markers) where it is defined; each marker's residual taken about its mean (the offset a smoother
     learns at a gap's edge is no error)."""
-    r = np.where(ok[..., None], resid, np.nan)
-    r = r - np.nanmean(r, axis=0)
-    r = np.where(ok[..., None], np.nan_to_num(r), 0.0)
+    r = np.where(ok[..., None], resid, 0.0)
+    r = r - r.sum(axis=0) / np.maximum(ok.sum(axis=0), 1)[:, None]  # (a marker never anchored where seen: no mean)
+    r = np.where(ok[..., None], r, 0.0)
     power = float((r ** 2).sum())
     if power <= 0:
         return 1.0
