@@ -375,8 +375,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     if config.anchor and missing.any():
         from ..engines.body_anchor import body_anchor
         anchor = cache(partial(body_anchor, positions, rate))  # computed once, where a sample first needs it
-        pred, pred_sd, edge, edge_sd, report_sd = joined(positions, pred, pred_sd, edge, edge_sd, report_sd, None,
-                                                         None, config, mm, anchor=anchor, anchored=anchored)
+        pred, pred_sd, report_sd = anchor_stage(positions, pred, pred_sd, report_sd, anchor, anchored=anchored)
     boneset = None
     if refine and bones is not False:
         from ..bones.boneset import resolve_bones
@@ -459,11 +458,11 @@ def anchor_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, r
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stage 1d: missing samples still without a prediction (NaN ``pred_sd``) take the body anchor's
     (``anchor()``, called only if there are such samples: :func:`mocapfill.engines.body_anchor.body_anchor`'s
-    anchor (n_frames, n_markers, 3), anchor_sd (n_frames, n_markers) and memory (frames)) as a white measurement of sd ``anchor_sd * sqrt(memory)``: its error
-    persists over ``memory`` frames, so n frames of it count as n / memory independent ones, and
-    :func:`temporal_stage` is told (``white_only``) to give it no correlated part.  pred / pred_sd / report_sd as
-    :func:`joined` has them; returns the three with those samples filled; ``anchored`` (n_frames, n_markers) bool or
-    None receives where the anchor predicted."""
+    anchor (n_frames, n_markers, 3), anchor_sd (n_frames, n_markers) and memory (frames)) as a white measurement of
+    sd ``anchor_sd * sqrt(memory)``: its error persists over ``memory`` frames, so n frames of it count as
+    n / memory independent ones, and :func:`temporal_stage` is told (``white_only``) to give it no correlated part.
+    pred / pred_sd / report_sd as :func:`joined` has them; returns the three with those samples filled; ``anchored``
+    (n_frames, n_markers) bool or None receives where the anchor predicted."""
     todo = np.isnan(positions).any(axis=2) & ~np.isfinite(pred_sd)
     if todo.any():
         est, anchor_sd, memory = anchor()
@@ -851,15 +850,24 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
     sp = np.where(missing[:, todo, None], pred[:, todo], edge[:, todo])
     sp_sd = np.where(missing[:, todo], pred_sd[:, todo], edge_sd[:, todo])
     sp = np.where(np.isfinite(sp_sd)[..., None], sp, np.nan)
-    white = sp_sd * np.sqrt(config.white_share)
     extra = None  # the white variance measured from the predictions' roughness, where asked
     if rough is not None and rough[todo].any():
         extra = np.where(rough[todo][None, :], rough_variance(obs, sp), 0.0)
-        white = np.sqrt(white ** 2 + extra)
-    bias = sp_sd * np.sqrt(1.0 - config.white_share)
-    if white_only is not None:  # measurements whose error is white at the variance given (the body anchor's)
-        wo = white_only[:, todo] & missing[:, todo]
-        white, bias = np.where(wo, sp_sd, white), np.where(wo, 0.0, bias)
+    wo = None if white_only is None else white_only[:, todo] & missing[:, todo]
+
+    def split(s: np.ndarray, cols: Any = slice(None)) -> tuple[np.ndarray, np.ndarray]:
+        """The white and correlated sds of spatial measurements of sd ``s`` (n_frames, the series ``cols``):
+        ``white_share`` of the variance white (plus ``extra``), the rest correlated; a measurement ``white_only``
+        marks (the body anchor's) wholly white at the variance given."""
+        white = s * np.sqrt(config.white_share)
+        if extra is not None:
+            white = np.sqrt(white ** 2 + extra[:, cols])
+        bias = s * np.sqrt(1.0 - config.white_share)
+        if wo is not None:
+            white, bias = np.where(wo[:, cols], s, white), np.where(wo[:, cols], 0.0, bias)
+        return white, bias
+
+    white, bias = split(sp_sd)
     sub = model._replace(q=model.q[todo])
     short = fragments(missing[:, todo], config.fragment_frames)
     obs_var = np.where(short, (config.fragment_sd_mm * mm) ** 2, model.r_obs)
@@ -881,16 +889,8 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
         rep = np.where(missing[:, todo], report_sd[:, todo], edge_sd[:, todo]) * np.sqrt(inflate)
         redo = np.flatnonzero((np.nan_to_num(rep) > np.nan_to_num(sp_sd * np.sqrt(inflate))).any(axis=0))
         if len(redo):  # a Kalman smoother's variances do not depend on the measurements' values
-            rep_white = rep[:, redo] * np.sqrt(config.white_share)
-            rep_bias = rep[:, redo] * np.sqrt(1.0 - config.white_share)
-            if white_only is not None:
-                rep_white, rep_bias = np.where(wo[:, redo], rep[:, redo], rep_white), np.where(wo[:, redo], 0.0,
-                                                                                              rep_bias)
-            if extra is not None:
-                rep_white = np.sqrt(rep_white ** 2 + extra[:, redo])
-            _, sd[:, redo] = smooth(obs[:, redo], sp[:, redo], rep_white,
-                                    rep_bias, sub._replace(q=sub.q[redo]),
-                                    obs_var=obs_var[:, redo])
+            _, sd[:, redo] = smooth(obs[:, redo], sp[:, redo], *split(rep[:, redo], redo),
+                                    sub._replace(q=sub.q[redo]), obs_var=obs_var[:, redo])
     fill[:, todo] = np.where(missing[:, todo, None], mean, positions[:, todo])
     sd_out[:, todo] = np.where(missing[:, todo], sd, 0.0)
     if believed is not None:
