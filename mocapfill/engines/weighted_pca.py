@@ -213,7 +213,7 @@ def predict(model: PCAModel, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     recon = scores @ model.basis[:model.n_target].T  # (n, n_target)
     nt = model.n_target
     out = recon / model.weight[:nt] * model.scale[:nt] + model.mean[:nt]
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # a singular value of 0 (rigid data) is masked
         rel = np.where(model.singular > 0, scores / np.maximum(model.singular, 1e-300), 0.0)
     leverage = (rel ** 2).sum(axis=1)
     return out, leverage
