@@ -581,3 +581,87 @@ def test_the_refit_without_trusted_neighbours_models_on_every_one_when_asked():
     sd[150:160] = 50.0
     est, est_sd = reconstruct_completed(pos, truth, sd, untrusted=(truth, sd), **kw)[:2]
     assert np.isnan(est_sd[150:160, m]).all() and np.isfinite(est_sd[100:150, m]).all()
+
+
+def test_reported_sd_grows_by_the_square_root_of_the_extrapolation_factor():
+    """reported_sd: the variance times the factor, never below the cross-validated one; NaN or no factor: 1."""
+    from mocapfill.methods.auto import reported_sd
+
+    sd = np.array([[2.0, 2.0, 2.0, np.nan]])
+    off = np.array([[4.0, 0.5, np.nan, 9.0]])
+    out = reported_sd(sd, off)
+    assert np.array_equal(out[0, :3], [4.0, 2.0, 2.0]) and np.isnan(out[0, 3])
+    assert reported_sd(sd, None) is sd
+
+
+def _impute_case(neighbour_shift: float, neighbour_sd: float):
+    """A rigid body whose marker 0 and nearest neighbour (4) vanish together; the neighbour's filled samples are
+    ``neighbour_shift`` mm off in x with sd ``neighbour_sd`` mm.  Returns truth and impute_stage's four outputs."""
+    from mocapfill.methods.auto import impute_stage
+
+    pos = tumbling_body()
+    gapped = pos.copy()
+    gapped[100:160, [0, 4]] = np.nan
+    completed = pos.copy()
+    completed[100:160, 4, 0] += neighbour_shift
+    sd = np.zeros(pos.shape[:2])
+    sd[100:160, 0], sd[100:160, 4] = 5.0, neighbour_sd
+    return pos, impute_stage(gapped, completed, sd, DEFAULT_CONFIG, 1.0)
+
+
+def test_impute_stage_refits_on_the_completed_take_with_its_trusted_neighbours():
+    """Stage 4 (the EM-style refit): a neighbour filled with an sd above ``impute_trust_mm`` is no predictor, so a
+    wrong fill of it does not steer the marker; a trusted one does.  Predictions only at the missing samples, their
+    sd with them, and the reconstruction at ``edge_frames`` observed frames either side of the gap."""
+    pos, (pred, pred_sd, edge, edge_sd) = _impute_case(200.0, 50.0)
+    assert np.abs(pred[100:160, 0] - pos[100:160, 0]).max() < 2.0  # a rigid body: the other markers fix it
+    assert np.isfinite(pred_sd[100:160, 0]).all() and np.isnan(pred_sd[:100, 0]).all()
+    assert np.isnan(pred[:, 1]).all()  # observed throughout: nothing to predict
+    assert np.isfinite(edge_sd[[97, 99, 160, 162], 0]).all() and np.isnan(edge_sd[[96, 163, 50], 0]).all()
+    assert np.abs(edge[97:100, 0] - pos[97:100, 0]).max() < 2.0
+    _, (steered, *_) = _impute_case(200.0, 1.0)  # the same wrong fill, trusted
+    assert np.abs(steered[100:160, 0] - pos[100:160, 0]).max() > 10.0
+
+
+def test_bone_stage_pulls_a_prediction_onto_its_bone_and_leaves_the_anchor_and_the_unknown_alone():
+    """Stage 2: a prediction 104 mm from its bone partner, where the bone is 100 +- 1 mm and the prediction's sd 10
+    mm, moves onto the bone; one with no sd is not moved, and the body anchor's predictions are left out."""
+    from mocapfill.bones.boneset import BoneSet
+    from mocapfill.methods.auto import bone_stage
+
+    n = 40
+    pos = np.zeros((n, 3, 3))
+    pos[:, 1] = np.arange(n)[:, None] * [5.0, 0.0, 0.0] + [0.0, 0.0, 1000.0]
+    pos[:, 0] = pos[:, 1] + [100.0, 0.0, 0.0]
+    pos[:, 2] = pos[:, 1] + [0.0, 200.0, 0.0]
+    gapped = pos.copy()
+    gapped[10:20, 0] = np.nan
+    pred = np.full_like(pos, np.nan)
+    pred[10:20, 0] = pos[10:20, 0] + [0.0, 30.0, 0.0]
+    sd = np.full(pos.shape[:2], np.nan)
+    sd[10:20, 0] = 10.0
+    sd[12, 0] = np.nan  # no uncertainty known: not moved
+    anchored = np.zeros(pos.shape[:2], dtype=bool)
+    anchored[15, 0] = True
+    bones = BoneSet(np.array([[0, 1], [1, 2]]), np.array([100.0, 200.0]), np.array([1.0, 1.0]),
+                    np.array([n, n]), "mm")
+    out = bone_stage(gapped, pred, sd, bones, DEFAULT_CONFIG, 1.0, anchored)
+    moved = [t for t in range(10, 20) if t not in (12, 15)]
+    length = np.linalg.norm(out[moved, 0] - pos[moved, 1], axis=1)
+    assert np.abs(length - 100.0).max() < 1.0  # was 104.4
+    assert np.array_equal(out[[12, 15], 0], pred[[12, 15], 0])
+    assert np.isnan(out[:10]).all() and np.isnan(out[:, 1:]).all()  # only the predictions come back
+
+
+def test_displaced_records_name_each_displaced_run_and_its_offset():
+    from mocapfill.methods.auto import displaced_records
+
+    pos = np.zeros((30, 2, 3))
+    edge = np.full_like(pos, np.nan)
+    edge[5:8, 1] = pos[5:8, 1] + [0.03, 0.0, 0.04]  # the spatial model's reconstruction 0.05 m away (metres)
+    displaced = np.zeros((30, 2), dtype=bool)
+    displaced[5:8, 1] = True
+    displaced[20:22, 1] = True  # a run without a reconstruction: no offset
+    out = displaced_records(pos, displaced, edge, 0.001, ["A", "B"])
+    assert [(r["marker"], r["marker_index"], r["start"], r["length"]) for r in out] == [("B", 1, 5, 3), ("B", 1, 20, 2)]
+    assert out[0]["offset_mm"] == pytest.approx(50.0) and out[1]["offset_mm"] is None
