@@ -592,6 +592,30 @@ def test_reported_sd_grows_by_the_square_root_of_the_extrapolation_factor():
     out = reported_sd(sd, off)
     assert np.array_equal(out[0, :3], [4.0, 2.0, 2.0]) and np.isnan(out[0, 3])
     assert reported_sd(sd, None) is sd
+    spread = np.array([[9.0, np.nan, 0.0, 1.0]])  # the widths' variance about their mix adds (NaN: none)
+    assert np.array_equal(reported_sd(sd, off, spread)[0, :3], [5.0, 2.0, 2.0])
+
+
+def test_the_reported_sd_adds_the_spread_of_the_widths_and_the_fill_stays():
+    """The refit averages its widths' predictions; the variance of that mix adds their spread about it
+    (:attr:`ModelConfig.width_spread_sd`): none on a rigid body (every width exact), some where a knee bends."""
+    from mocapfill.methods.auto import impute_stage
+
+    for pos, gap, apart in ((tumbling_body(), slice(100, 160), False), (bent_knee(), slice(90, 150), True)):
+        gapped = pos.copy()
+        gapped[gap, 0] = np.nan
+        told = fill_auto(gapped)
+        plain = fill_auto(gapped, config=ModelConfig(width_spread_sd=False))
+        assert np.array_equal(told.positions, plain.positions)  # the mean keeps the cross-validated sd
+        assert (told.std[gap, 0] >= plain.std[gap, 0]).all()
+        spread = np.full(pos.shape[:2], np.nan)
+        _, pred_sd, *_ = impute_stage(gapped, told.positions, np.where(np.isnan(gapped).any(axis=2), told.std, 0.0),
+                                      DEFAULT_CONFIG, 1.0, disagreement=spread)
+        assert np.isfinite(spread[gap, 0]).all() and np.isnan(spread[:gap.start]).all()
+        if apart:
+            assert spread[gap, 0].max() > pred_sd[gap, 0].max() ** 2 and (told.std[gap, 0] > plain.std[gap, 0]).all()
+        else:
+            assert spread[gap, 0].max() < 1e-6 and np.allclose(told.std, plain.std)
 
 
 def _impute_case(neighbour_shift: float, neighbour_sd: float):

@@ -372,7 +372,7 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
                 weights: list[np.ndarray], align_weight: np.ndarray, dist: np.ndarray, scales: tuple[float, ...], *,
                 reach: float, normalise: bool, folds: int, knn: int, row_weight: np.ndarray | None = None,
                 used_references: list | None = None, max_predictors: int | None = None,
-                extrapolation: list | None = None):
+                extrapolation: list | None = None, disagreement: list | None = None):
     """One local model of marker ``m``: fitted on ``train`` frames, evaluated on ``train`` then ``group`` frames.
 
     positions (n_frames, n_markers, 3) finite at ``m`` on ``train`` and at ``predictors`` on every frame used;
@@ -389,6 +389,8 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
     the nearest (None: all within ``reach``).  ``extrapolation`` (a list) receives the (n_group,) factor by
     which each row's pose lies off the poses the model learnt from: per width max(1, the row's predictor residual /
     the held-out rows' mean one, :func:`~.weighted_pca.predictor_residual`), averaged with the widths' weights.
+    ``disagreement`` (a list) receives the (n_train + n_group,) variance per coordinate of the widths' reconstructions
+    about their mix, sum_s mix_s |est_s - est|^2 / 3: the mixture's variance beyond its members' own.
     """
     n_markers = positions.shape[1]
     needed = np.concatenate([[m], predictors])
@@ -461,6 +463,8 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
         mix = np.ones(len(ests))
     mix = mix / mix.sum()
     est_local = np.einsum("s,std->td", mix, np.stack(ests))
+    if disagreement is not None:  # (a rotation keeps lengths: the local frame's spread is the laboratory's)
+        disagreement.append(np.einsum("s,st->t", mix, ((np.stack(ests) - est_local) ** 2).sum(axis=2)) / 3.0)
     leverage = np.einsum("s,st->t", mix, np.stack(levs))
     if extrapolation is not None:
         extrapolation.append(np.einsum("s,st->t", mix, np.stack(offs)))
@@ -651,7 +655,8 @@ class RefitModel(NamedTuple):
     """One refit model of a marker (:func:`reconstruct_completed`): its predictors ``near`` (p,), training frames
     ``train`` (n,), reconstruction ``est`` (n + n_group, 3) and ``leverage`` (n + n_group,) of the training then
     the ``group`` (n_group,) frames, cross-validated ``rms``, predictor sensitivity ``sens`` (n_markers,),
-    pose-residual factor ``off`` (n_group,) or None, and whether it is the segment model."""
+    pose-residual factor ``off`` (n_group,) or None, whether it is the segment model, and the widths'
+    ``disagreement`` (n + n_group,) (:func:`group_model`) or None."""
 
     group: np.ndarray
     near: np.ndarray
@@ -662,6 +667,7 @@ class RefitModel(NamedTuple):
     sens: np.ndarray
     off: np.ndarray | None
     segment: bool
+    disagreement: np.ndarray | None = None
 
 
 def prefer_segment(seg_rms: float, seg_off: np.ndarray, rms: float, off: np.ndarray) -> bool:
@@ -706,6 +712,7 @@ def reconstruct_completed(
     parts: int = 1,
     untrusted: tuple[np.ndarray, np.ndarray] | None = None,
     untrusted_used: np.ndarray | None = None,
+    disagreement: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The local model refitted on a completed take (one EM-style imputation step).
 
@@ -740,7 +747,9 @@ def reconstruct_completed(
     instead of none, its neighbours read from ``take`` with variance ``std**2`` (the smoother's estimates where it did
     not take an observed sample as exact: a flickering neighbour's one-frame fragment is often the take's worst
     sample), and it predicts only at the gap frames where one of its predictors is observed; ``untrusted_used``
-    (n_markers,) bool or None receives which markers got one.
+    (n_markers,) bool or None receives which markers got one.  ``disagreement`` (n_frames, n_markers) or None
+    receives at each estimated sample the variance per coordinate of its model's widths about their mix
+    (:func:`group_model`; 0 for a segment model, which has one width).
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
@@ -772,11 +781,14 @@ def reconstruct_completed(
         if len(near) < 3 or len(train) < min_train:
             return None
         off: list | None = [] if extrapolation is not None or segment else None
+        spread: list | None = [] if disagreement is not None else None
         est_all, leverage, rms_mix, _, _, _, sens = group_model(
             data, m, group, near, train, weights, align_weight, dist, scales, reach=reach,
             max_predictors=max_predictors, normalise=normalise, folds=folds, knn=knn, row_weight=row_weight,
-            used_references=used_references if row_weight is not None else None, extrapolation=off)
-        fit = RefitModel(group, near, train, est_all, leverage, rms_mix, sens, off[0] if off else None, False)
+            used_references=used_references if row_weight is not None else None, extrapolation=off,
+            disagreement=spread)
+        fit = RefitModel(group, near, train, est_all, leverage, rms_mix, sens, off[0] if off else None, False,
+                         spread[0] if spread else None)
         close = segment_markers(near, dist, missing[group], segment) if segment else near[:0]
         if 3 <= len(close) < len(near):
             seg_weights, seg_align = marker_weights(dist, m, (segment,), align_scale, missing_weight)
@@ -786,7 +798,7 @@ def reconstruct_completed(
                 normalise=normalise, folds=folds, knn=knn, row_weight=row_weight, extrapolation=seg_off)
             if prefer_segment(seg_rms, seg_off[0], rms_mix, fit.off):
                 fit = fit._replace(est=seg_all, leverage=seg_leverage, rms=seg_rms, sens=seg_sens, off=seg_off[0],
-                                   segment=True)
+                                   segment=True, disagreement=None if spread is None else np.zeros(len(seg_all)))
         return fit
 
     def store(m: int, fit: RefitModel, var: np.ndarray = var) -> None:
@@ -797,6 +809,8 @@ def reconstruct_completed(
             segment_used[group, m] = fit.segment  # a part's model replaces the whole-gap one's flag too
         if extrapolation is not None:
             extrapolation[group, m] = fit.off
+        if disagreement is not None:
+            disagreement[group, m] = fit.disagreement[n_train:]
         with np.errstate(invalid="ignore"):
             spread = var[group][:, near] @ fit.sens[near]  # propagated predictor variance (n_group,)
         estimate[group, m] = fit.est[n_train:]

@@ -246,6 +246,13 @@ class ModelConfig:
     #: converged bone refinement (2026-11-27, fourth session) 87 of 151 and 39 of 47; with displaced runs (fifth
     #: session) 89 of 151.
     extrapolation_sd: bool = True
+    #: The reported sd is the mixture's: the refit's widths (``scales_mm``) are averaged into one prediction, whose
+    #: variance adds to the members' own the spread of their predictions about the mix (sum_s mix_s |est_s - est|^2
+    #: / 3 per coordinate), so where the widths disagree the sd says so.  The fill's mean keeps the sd without it.
+    #: Measured (2026-11-28, twelfth session; fills unchanged): bench_default's err/std inside 0.5-2 on 74 of 80
+    #: trials (70 without); bench_default_captures' gaps needing review flagged 99 of 155 (88), at 265 flagged in
+    #: all (212); the committed walk 37 of 43 (36), 53 flagged (51).
+    width_spread_sd: bool = True
     #: Frame rate assumed when the capture has none.
     default_rate: float = 100.0
     #: With a learned denoiser (``--model``, :func:`prior_stage`): observed frames per marker hidden to learn the
@@ -392,22 +399,24 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
                                         report_sd=None if config.impute_passes else report_sd, displaced=displaced,
                                         believed=believed, white_only=anchored)
     segment_used = None  # where the last refit's segment models predicted (none without a refit)
+    spread = None  # the spread of the last refit's widths (:func:`reported_sd`)
     for k in range(config.impute_passes):
         last = k == config.impute_passes - 1
         if used_refs is not None:
             used_refs.clear()  # the last pass's models make the prediction: they are the ones reported
         off = np.full(missing.shape, np.nan) if config.extrapolation_sd and last else None
+        spread = np.full(missing.shape, np.nan) if config.width_spread_sd and last else None
         segment_used = np.zeros(missing.shape, dtype=bool)
         untrusted_used = np.zeros(missing.shape[1], dtype=bool)
         refit = impute_stage(positions, fill, sd, config, mm, reference_frames=reference_frames,
                              reference_weights=reference_weights, used_references=used_refs,
                              extrapolation=off, segment_used=segment_used, untrusted=believed,
-                             untrusted_used=untrusted_used)
+                             untrusted_used=untrusted_used, disagreement=spread)
         if config.seed_where_no_refit:
             refit = seed_elsewhere(missing, refit, seed)
         pred, pred_sd, edge, edge_sd = body_stage(positions, *refit, config, mm)
         pred, pred_sd, edge, edge_sd, report_sd = joined(positions, pred, pred_sd, edge, edge_sd,
-                                                         reported_sd(pred_sd, off), prior_est, glob, config, mm,
+                                                         reported_sd(pred_sd, off, spread), prior_est, glob, config, mm,
                                                          anchor=anchor, anchored=anchored)
         # a model on guessed neighbours weighs how far they lie off the poses it learnt (the fill's sd is the
         # reported one there: :func:`reported_sd`)
@@ -428,7 +437,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
                               else sinfo.get("references", {"frames": 0, "models": 0, "used": 0}))
     spatial = missing & np.isfinite(pred_sd)
     info["gap_methods"] = gap_records(missing, sd, spatial & ~anchored, outliers, config, mm, labels, boneset, off,
-                                      displaced, segment_used, anchored)
+                                      displaced, segment_used, anchored, spread=spread)
     info["displaced"] = displaced_records(positions, displaced, edge, mm, labels)
     info["review"] = [i for i, r in enumerate(info["gap_methods"]) if r["review"]]
     return finish(positions, fill, std=sd, info=info)
@@ -572,7 +581,7 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
                  reference_frames: np.ndarray | None = None, reference_weights: np.ndarray | None = None,
                  used_references: list | None = None, extrapolation: np.ndarray | None = None,
                  segment_used: np.ndarray | None = None, untrusted: tuple | None = None,
-                 untrusted_used: np.ndarray | None = None):
+                 untrusted_used: np.ndarray | None = None, disagreement: np.ndarray | None = None):
     """Stage 4: the spatial model fitted again with the neighbours taken from the completed take.
 
     positions (n_frames, n_markers, 3) the input (NaN = missing); completed the same filled by stage 3, sd
@@ -585,7 +594,8 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
     (:func:`reported_sd`); ``segment_used`` (n_frames, n_markers) bool or None receives where a segment model
     predicted (:attr:`ModelConfig.segment_mm`).  ``untrusted`` (take, sd) or None, with
     :attr:`ModelConfig.refit_untrusted`: where fewer than 3 neighbours are trusted, a model on every near marker read
-    from that take; ``untrusted_used`` (n_markers,) bool or None receives which markers got one.
+    from that take; ``untrusted_used`` (n_markers,) bool or None receives which markers got one; ``disagreement``
+    (n_frames, n_markers) or None receives the spread of the widths' predictions (:func:`reported_sd`).
     """
     from ..engines.local_pca import reconstruct_completed
 
@@ -596,7 +606,7 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
         leverage_weight=config.leverage_weight, trust=config.impute_trust_mm * mm if config.impute_trust_mm else None,
         reference_weights=reference_weights, used_references=used_references, extrapolation=extrapolation,
         segment=config.segment_mm * mm if config.segment_mm else None, segment_used=segment_used,
-        parts=config.refit_parts, untrusted=untrusted, untrusted_used=untrusted_used)
+        parts=config.refit_parts, untrusted=untrusted, untrusted_used=untrusted_used, disagreement=disagreement)
     return pred, pred_sd, edge, edge_sd
 
 
@@ -771,15 +781,22 @@ def motion_model(positions: np.ndarray, missing: np.ndarray, config: ModelConfig
                        gain=gain, rho_acc=rho_acc)
 
 
-def reported_sd(pred_sd: np.ndarray, off: np.ndarray | None) -> np.ndarray:
-    """The spatial sd (n_frames, n_markers) the reported posterior sd is computed with: ``pred_sd`` times the square
-    root of ``off`` (n_frames, n_markers, >= 1: how far each prediction's pose lies off its model's training poses;
-    NaN or None: 1).  Where the neighbours take a pose the model never saw, its cross-validated error understates
-    the prediction's (qualisys-walk, dense 5 %: a heel trained in stance, predicted in swing, 40 mm off with a
-    cross-validated sd of 1 mm)."""
-    if off is None:
+def reported_sd(pred_sd: np.ndarray, off: np.ndarray | None, spread: np.ndarray | None = None) -> np.ndarray:
+    """The spatial sd (n_frames, n_markers) the reported posterior sd is computed with: sqrt(pred_sd^2 off + spread),
+    ``off`` (n_frames, n_markers, >= 1) how far each prediction's pose lies off its model's training poses (NaN or
+    None: 1) and ``spread`` (n_frames, n_markers) the variance per coordinate of the model's widths about their mix
+    (:attr:`ModelConfig.width_spread_sd`; NaN or None: 0).  Where the neighbours take a pose the model never saw, its
+    cross-validated error understates the prediction's (qualisys-walk, dense 5 %: a heel trained in stance,
+    predicted in swing, 40 mm off with a cross-validated sd of 1 mm); where its widths disagree, so does their
+    average's."""
+    if off is None and spread is None:
         return pred_sd
-    return pred_sd * np.sqrt(np.where(np.isfinite(off), np.maximum(off, 1.0), 1.0))
+    var = pred_sd ** 2
+    if off is not None:
+        var = var * np.where(np.isfinite(off), np.maximum(off, 1.0), 1.0)
+    if spread is not None:
+        var = var + np.where(np.isfinite(spread), spread, 0.0)
+    return np.sqrt(var)
 
 
 def displaced_runs(positions: np.ndarray, edge: np.ndarray, edge_sd: np.ndarray, config: ModelConfig, mm: float
@@ -944,7 +961,7 @@ def displaced_records(positions: np.ndarray, displaced: np.ndarray, edge: np.nda
 def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outliers: np.ndarray,
                 config: ModelConfig, mm: float, labels, boneset, off: np.ndarray | None = None,
                 displaced: np.ndarray | None = None, segment: np.ndarray | None = None,
-                anchored: np.ndarray | None = None) -> list[dict]:
+                anchored: np.ndarray | None = None, spread: np.ndarray | None = None) -> list[dict]:
     """Stage 5: one JSON-ready record per gap (run of missing frames of one marker).
 
     missing / sd / spatial / outliers (n_frames, n_markers): the input's mask, the posterior sd, where the spatial
@@ -952,9 +969,10 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
     prediction's pose lay off its model's training poses (:func:`reported_sd`); displaced (n_frames, n_markers) or
     None: observed samples judged displaced (:func:`displaced_runs`); segment (n_frames, n_markers) or None: where a
     segment model predicted (:attr:`ModelConfig.segment_mm`); anchored (n_frames, n_markers) or None: where the body
-    anchor predicted (:func:`anchor_stage`), not counted in ``spatial``.  ``review`` is True when the gap's largest sd
-    exceeds ``config.review_sd_mm`` (or nothing could be filled) or a run judged displaced touches it; every number
-    in ``reason`` comes from ``config``.
+    anchor predicted (:func:`anchor_stage`), not counted in ``spatial``; spread (n_frames, n_markers) or None: the
+    variance of the spatial model's widths about their mix (:func:`reported_sd`).  ``review`` is True when the gap's
+    largest sd exceeds ``config.review_sd_mm`` (or nothing could be filled) or a run judged displaced touches it;
+    every number in ``reason`` comes from ``config`` or from the fill.
     """
     limit = config.review_sd_mm * mm
     out = []
@@ -1007,6 +1025,11 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
         if uncertain and far is not None and far > 1.0:
             reason += (f" (the neighbours took poses the spatial model never learnt: its sd raised up to "
                        f"{np.sqrt(far):.1f}x)")
+        apart = float(np.sqrt(np.nanmax(spread[sl, m]))) if spread is not None and np.isfinite(spread[sl, m]).any() \
+            else 0.0
+        if uncertain and apart > limit:
+            reason += (f" (the spatial model's {len(config.scales_mm)} widths disagree there by up to "
+                       f"{apart / mm:.1f} mm per coordinate)")
         # (lengths, not frame numbers: a long take's windows shift the records' starts, not their texts)
         beside = [] if displaced is None else [
             (side, int(np.argmin(np.append(displaced[a::step, m], False))))  # the run's length from its edge
