@@ -81,7 +81,8 @@ def error_memory(resid: np.ndarray, ok: np.ndarray, *, max_lag: int) -> float:
         if not both.any():
             break
         a, b = r[lag:][both], r[:-lag][both]
-        c = float((a * b).sum() / np.sqrt((a ** 2).sum() * (b ** 2).sum())) if (a ** 2).sum() > 0 else 0.0
+        aa = (a ** 2).sum()
+        c = float((a * b).sum() / np.sqrt(aa * (b ** 2).sum())) if aa > 0 else 0.0
         if c < np.exp(-1.0):
             return max(1.0, lag - 1 + (prev - np.exp(-1.0)) / max(prev - c, 1e-12))
         prev = c

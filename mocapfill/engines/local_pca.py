@@ -462,9 +462,10 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
     else:
         mix = np.ones(len(ests))
     mix = mix / mix.sum()
-    est_local = np.einsum("s,std->td", mix, np.stack(ests))
+    stacked = np.stack(ests)
+    est_local = np.einsum("s,std->td", mix, stacked)
     if disagreement is not None:  # (a rotation keeps lengths: the local frame's spread is the laboratory's)
-        disagreement.append(np.einsum("s,st->t", mix, ((np.stack(ests) - est_local) ** 2).sum(axis=2)) / 3.0)
+        disagreement.append(np.einsum("s,st->t", mix, ((stacked - est_local) ** 2).sum(axis=2)) / 3.0)
     leverage = np.einsum("s,st->t", mix, np.stack(levs))
     if extrapolation is not None:
         extrapolation.append(np.einsum("s,st->t", mix, np.stack(offs)))
@@ -793,12 +794,14 @@ def reconstruct_completed(
         if 3 <= len(close) < len(near):
             seg_weights, seg_align = marker_weights(dist, m, (segment,), align_scale, missing_weight)
             seg_off: list = []
+            seg_spread: list | None = None if spread is None else []
             seg_all, seg_leverage, seg_rms, _, _, _, seg_sens = group_model(
                 data, m, group, close, train, seg_weights, seg_align, dist, (segment,), reach=np.inf,
-                normalise=normalise, folds=folds, knn=knn, row_weight=row_weight, extrapolation=seg_off)
+                normalise=normalise, folds=folds, knn=knn, row_weight=row_weight, extrapolation=seg_off,
+                disagreement=seg_spread)
             if prefer_segment(seg_rms, seg_off[0], rms_mix, fit.off):
                 fit = fit._replace(est=seg_all, leverage=seg_leverage, rms=seg_rms, sens=seg_sens, off=seg_off[0],
-                                   segment=True, disagreement=None if spread is None else np.zeros(len(seg_all)))
+                                   segment=True, disagreement=seg_spread[0] if seg_spread else None)
         return fit
 
     def store(m: int, fit: RefitModel, var: np.ndarray = var) -> None:
