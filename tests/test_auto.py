@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -675,6 +677,82 @@ def test_bone_stage_pulls_a_prediction_onto_its_bone_and_leaves_the_anchor_and_t
     assert np.abs(length - 100.0).max() < 1.0  # was 104.4
     assert np.array_equal(out[[12, 15], 0], pred[[12, 15], 0])
     assert np.isnan(out[:10]).all() and np.isnan(out[:, 1:]).all()  # only the predictions come back
+
+
+def _bone_case(miss_mm: float, off: int = 2):
+    """Two markers 100 mm apart (the bone, spread 1 mm) but 300 mm apart at ``off`` of the 40 frames (a hand that let
+    go of what it held); marker 0 hidden at frames 10-19 and predicted ``miss_mm`` farther along the bone with an sd
+    of 5 mm."""
+    from mocapfill.bones.boneset import BoneSet
+
+    n = 40
+    pos = np.zeros((n, 2, 3))
+    pos[:, 1] = np.arange(n)[:, None] * [5.0, 0.0, 0.0] + [0.0, 0.0, 1000.0]
+    pos[:, 0] = pos[:, 1] + [100.0, 0.0, 0.0]
+    pos[30:30 + off, 0] += [200.0, 0.0, 0.0]
+    gapped = pos.copy()
+    gapped[10:20, 0] = np.nan
+    pred = np.full_like(pos, np.nan)
+    pred[10:20, 0] = pos[10:20, 1] + [100.0 + miss_mm, 0.0, 0.0]
+    sd = np.full(pos.shape[:2], np.nan)
+    sd[10:20, 0] = 5.0
+    bones = BoneSet(np.array([[0, 1]]), np.array([100.0]), np.array([1.0]), np.array([n]), "mm")
+    return pos, gapped, pred, sd, bones
+
+
+def test_bone_breaks_leaves_out_a_bone_the_predictions_say_broke():
+    """A prediction 150 mm off a 100 +- 1 mm bone (that broke at 2 of its 38 observed frames) with an sd of 5 mm: the
+    bone broke more probably than a Student-t miss of 30 sds, so the bone stage leaves the prediction alone and says
+    where; frames with both ends observed keep the bone; a bone that held at every observed frame holds."""
+    from mocapfill.bones.refinement import break_rates
+    from mocapfill.methods.auto import bone_breaks, bone_stage
+
+    pos, gapped, pred, sd, bones = _bone_case(150.0)
+    p = break_rates(gapped, bones.pairs, bones.lengths, bones.spread, dof=3.0)
+    assert p[0] == pytest.approx(2 / 30, rel=0.05)  # the share of observed frames it was off
+    est = np.where(np.isnan(gapped), pred, gapped)
+    broken = bone_breaks(gapped, est, sd, bones, DEFAULT_CONFIG, 1.0)
+    assert broken[10:20, 0].all() and not broken[:10].any() and not broken[20:].any()
+    seen = np.zeros_like(broken)
+    out = bone_stage(gapped, pred, sd, bones, DEFAULT_CONFIG, 1.0, broken=seen)
+    assert np.array_equal(out[10:20, 0], pred[10:20, 0]) and np.array_equal(seen, broken)
+    # a bone that always held, or a model with no breaks (0 degrees of freedom): the bone pulls the prediction on
+    kept = gapped.copy()
+    kept[30:32, 0] = pos[30:32, 1] + [100.0, 0.0, 0.0]
+    assert break_rates(kept, bones.pairs, bones.lengths, bones.spread, dof=3.0)[0] < 1e-6
+    for case, config in ((kept, DEFAULT_CONFIG), (gapped, dataclasses.replace(DEFAULT_CONFIG, bone_break_dof=0.0))):
+        held = bone_stage(case, pred, sd, bones, config, 1.0)
+        assert np.abs(np.linalg.norm(held[10:20, 0] - pos[10:20, 1], axis=1) - 100.0).max() < 25.0  # was 250
+
+
+def test_bone_breaks_keeps_a_bone_against_an_overconfident_miss():
+    """A prediction 30 mm off (6 of its sds) a bone that broke at one observed frame: with a near-Gaussian miss (30
+    degrees of freedom) that looks like a break; the Student t's tail says the prediction missed, so the bone holds
+    and pulls it back (an overconfident wrist prediction on the tennis serve)."""
+    from mocapfill.methods.auto import bone_breaks, bone_stage
+
+    pos, gapped, pred, sd, bones = _bone_case(30.0, off=1)
+    est = np.where(np.isnan(gapped), pred, gapped)
+    gaussian = dataclasses.replace(DEFAULT_CONFIG, bone_break_dof=30.0)
+    assert bone_breaks(gapped, est, sd, bones, gaussian, 1.0)[10:20].all()
+    assert not bone_breaks(gapped, est, sd, bones, DEFAULT_CONFIG, 1.0).any()
+    out = bone_stage(gapped, pred, sd, bones, DEFAULT_CONFIG, 1.0)
+    assert np.abs(np.linalg.norm(out[10:20, 0] - pos[10:20, 1], axis=1) - 100.0).max() < 10.0  # was 130
+
+
+def test_gap_records_name_the_bones_left_out():
+    from mocapfill.methods.auto import gap_records
+
+    pos, gapped, pred, sd, bones = _bone_case(150.0)
+    missing = np.isnan(gapped).any(axis=2)
+    broken = np.zeros((len(pos), 1), dtype=bool)
+    broken[12:17, 0] = True
+    post = np.where(missing, 5.0, 0.0)
+    rec = gap_records(missing, post, missing, np.zeros_like(missing), DEFAULT_CONFIG, 1.0, ["HAND", "ROBOT"], bones,
+                      broken=broken)
+    assert len(rec) == 1 and "the bone(s) to ROBOT (5 frames)" in rec[0]["reason"]
+    assert "did not hold" not in gap_records(missing, post, missing, np.zeros_like(missing), DEFAULT_CONFIG, 1.0,
+                                             ["HAND", "ROBOT"], bones)[0]["reason"]
 
 
 def test_displaced_records_name_each_displaced_run_and_its_offset():

@@ -29,6 +29,8 @@ components of those bones, and each component is solved alone, batched over ever
 
 from __future__ import annotations
 
+from math import lgamma
+
 import numpy as np
 
 from ..gaps import members, unique_rows
@@ -154,7 +156,7 @@ def refine_bones(
         Per-coordinate standard deviation of each filled sample (NaN / non-positive samples are not moved).
     pairs : ndarray int (B, 2); lengths : ndarray (B,); spread : ndarray (B,) or (n_frames, B)
         Bones, their lengths and spreads (data units), the spreads per bone or per frame and bone; a NaN spread
-        counts as ``spread_floor``.
+        counts as ``spread_floor``, an infinite one leaves the bone out (at that frame).
     spread_floor : float
         Smallest spread used (data units), so that a bone never becomes an exact constraint.
     max_iter : int
@@ -179,7 +181,7 @@ def refine_bones(
             "cost": 0.0}
     if not len(pairs) or not movable.any():
         return out, info
-    spread = np.where(np.isfinite(spread), np.maximum(spread, spread_floor), spread_floor)
+    spread = np.where(np.isnan(spread), spread_floor, np.maximum(spread, spread_floor))  # (+inf: weight 0)
     frames = np.flatnonzero((movable[:, pairs[:, 0]] | movable[:, pairs[:, 1]]).any(axis=1))
     problems: dict[tuple, list[np.ndarray]] = {}  # a component's markers -> the frames where they are one
     for rows, markers in _patterns(movable, frames):
@@ -275,3 +277,43 @@ def refine_bones(
         info["bone_error_before"] = before_sum / count
         info["bone_error_after"] = after_sum / count
     return out, info
+
+
+def miss_log_densities(r: np.ndarray, v: np.ndarray, lengths: np.ndarray, dof: float) -> tuple[np.ndarray, np.ndarray]:
+    """Log densities of a bone's miss r = |x_a - x_b| - L (any shape, bones last) if the bone holds, a Student t with
+    ``dof`` degrees of freedom scaled by sqrt(v) (v its variance: the bone's spread squared plus the ends'
+    uncertainty), and if it broke, N(0, L^2 + v) (its ends anywhere within about its length ``lengths``)."""
+    held = (lgamma((dof + 1) / 2) - lgamma(dof / 2) - 0.5 * np.log(dof * np.pi * v)
+            - (dof + 1) / 2 * np.log1p(r ** 2 / (dof * v)))
+    w = lengths ** 2 + v
+    return held, -0.5 * np.log(2 * np.pi * w) - 0.5 * r ** 2 / w
+
+
+def break_rates(positions: np.ndarray, pairs: np.ndarray, lengths: np.ndarray, spread: np.ndarray, *, dof: float,
+                iterations: int = 50) -> np.ndarray:
+    """How often each bone broke where both its ends were observed (n_bones,): the maximum-likelihood weight p of
+    the mixture (1 - p) held + p broken (:func:`miss_log_densities` with v = spread^2) over those frames, by EM.
+
+    positions (n_frames, n_markers, 3) NaN = missing; pairs (B, 2); lengths, spread (B,), spread > 0.  A bone seen
+    to hold everywhere gets p = 0 (its tail within the t's); one that let go for a while (a hand on a robot arm) gets
+    the share of frames it was off.  0 where no frame has both ends.  (EM from p = 0.5: after 50 iterations the
+    rates above 1e-4 of three captures' bones were within 1e-5 of their values after 400.)
+    """
+    missing = np.isnan(positions).any(axis=2)
+    a, b = pairs[:, 0], pairs[:, 1]
+    co = ~missing[:, a] & ~missing[:, b]
+    n = co.sum(axis=0)
+    with np.errstate(invalid="ignore"):
+        r = np.where(co, np.linalg.norm(positions[:, a] - positions[:, b], axis=2) - lengths, 0.0)
+    held, gone = miss_log_densities(r, spread ** 2, lengths, dof)
+    ratio = np.where(co, np.exp(np.clip(gone - held, -700.0, 700.0)), 0.0)  # broken over held, per frame
+    # the log-likelihood sum log(1 - p + p ratio) is concave in p with slope sum(ratio - 1) at 0: where the mean
+    # ratio is at most 1 (a bone that held), the maximum is p = 0, and only the others need EM
+    p = np.zeros(len(pairs))
+    todo = np.flatnonzero((n > 0) & (ratio.sum(axis=0) > n))
+    if len(todo):
+        r, q = ratio[:, todo], np.full(len(todo), 0.5)
+        for _ in range(iterations):
+            q = (q * r / (q * r + 1.0 - q)).sum(axis=0) / n[todo]
+        p[todo] = q
+    return p

@@ -22,7 +22,8 @@ The model (equations in ``ARCHITECTURE.md``, "The default's model"), each stage 
    rotation) as a weak white measurement, so a gap at a take's end comes to rest inside the body instead of
    flying off on its last velocity.
 2. :func:`bone_stage` (optional): each frame's predictions move to the most probable positions given their
-   standard deviations and the bone lengths' spread (:func:`mocapfill.bones.refinement.refine_bones`).
+   standard deviations and the bone lengths' spread (:func:`mocapfill.bones.refinement.refine_bones`); a bone the
+   predictions say broke at a frame (a hand let go of what it held) is left out there (:func:`bone_breaks`).
 3. :func:`temporal_stage`: per marker, a damped white-jerk state-space model with the spatial prediction's
    correlated error in its state (:mod:`mocapfill.engines.motion_smoother`); the observations and the spatial
    predictions are its measurements; one Rauch-Tung-Striebel smoother gives the fill (posterior mean) and its
@@ -220,6 +221,16 @@ class ModelConfig:
     segment_mm: float = 120.0
     #: The spatial std is multiplied by this before the bone refinement weighs it against the bones' spread.
     bone_trust: float = 0.5
+    #: A bone does not hold everywhere (a hand lets go of what it held): where the spatial predictions say a bone broke
+    #: more probably than it held, it is left out at that frame (:func:`bone_breaks`), the prior being how often it
+    #: broke where both its ends were observed (a bone that always held holds).  The predictions' miss off a bone
+    #: that holds follows a Student t with this many degrees of freedom (0: every bone holds everywhere): their
+    #: error has heavier tails than their sd says (``bench_default.py``'s err/std reaches 6), and with a Gaussian
+    #: miss an overconfident prediction looked like a broken bone.  Why: vicon-arm dense 20 % draw 0, a hand marker
+    #: held 414 mm from a robot link (spread 0.6 mm) moved up to 663 mm from it in a gap, and the bone pulled the
+    #: hand's fill 80 mm off (19.8 mm RMSE over the draw; 8.1 with this; 15.8 with 2 degrees of freedom, 4.2 with 6
+    #: but tennis serve limb's mean 8.71 -> 8.83 mm, 3.9 with 30 and 9.09 mm there).
+    bone_break_dof: float = 3.0
     #: Smallest bone spread in the refinement (a bone is never an exact constraint).
     spread_floor_mm: float = 1.0
     #: A bone knows where it extrapolates: its spread grows by how far the estimates put its vector off the vectors
@@ -384,11 +395,15 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         anchor = cache(partial(body_anchor, positions, rate))  # computed once, where a sample first needs it
         pred, pred_sd, report_sd = anchor_stage(positions, pred, pred_sd, report_sd, anchor, anchored=anchored)
     boneset = None
+    broken = None  # (n_frames, n_bones): where the last bone stage left a bone out (:func:`bone_breaks`)
     if refine and bones is not False:
         from ..bones.boneset import resolve_bones
         boneset = resolve_bones(positions, bones, units=units, labels=labels)
+        broken = np.zeros((len(positions), len(boneset)), dtype=bool)
+        rates = bone_break_rates(positions, boneset, config, mm) if len(boneset) and config.bone_break_dof else None
         if len(boneset) and np.isfinite(pred_sd).any():
-            pred = bone_stage(positions, pred, pred_sd, boneset, config, mm, anchored)
+            pred = bone_stage(positions, pred, pred_sd, boneset, config, mm, anchored, report_sd=report_sd,
+                              broken=broken, rates=rates)
     info["bones"] = 0 if boneset is None else int(len(boneset))
     model = motion_model(positions, missing, config, mm, rate)
     # the refit below reads the seed's posterior sd: only the last pass's sd is the reported one
@@ -425,7 +440,8 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         if boneset is not None and len(boneset):
             # a segment model's predictions ride on the markers observed throughout the gap: the bones stay off them
             pred = np.where(segment_used[..., None], pred,
-                            bone_stage(positions, pred, pred_sd, boneset, config, mm, anchored))
+                            bone_stage(positions, pred, pred_sd, boneset, config, mm, anchored,
+                                       report_sd=report_sd, broken=broken, rates=rates))
         displaced = displaced_runs(positions, edge, edge_sd, config, mm)
         displaced[:, untrusted_used] = False  # a model on guessed neighbours does not overrule an observation
         fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate,
@@ -437,7 +453,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
                               else sinfo.get("references", {"frames": 0, "models": 0, "used": 0}))
     spatial = missing & np.isfinite(pred_sd)
     info["gap_methods"] = gap_records(missing, sd, spatial & ~anchored, outliers, config, mm, labels, boneset, off,
-                                      displaced, segment_used, anchored, spread=spread)
+                                      displaced, segment_used, anchored, spread=spread, broken=broken)
     info["displaced"] = displaced_records(positions, displaced, edge, mm, labels)
     info["review"] = [i for i, r in enumerate(info["gap_methods"]) if r["review"]]
     return finish(positions, fill, std=sd, info=info)
@@ -710,27 +726,89 @@ def prior_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, ed
 
 
 def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset, config: ModelConfig, mm: float,
-               anchored: np.ndarray | None = None) -> np.ndarray:
+               anchored: np.ndarray | None = None, *, report_sd: np.ndarray | None = None,
+               broken: np.ndarray | None = None, rates: np.ndarray | None = None) -> np.ndarray:
     """Stage 2: predictions (n_frames, n_markers, 3) moved to the most probable positions given the bones.
 
     sd (n_frames, n_markers) the predictions' standard deviations (NaN: not moved); boneset a BoneSet.  With
     ``config.bone_extrapolation`` each bone's spread is per frame (:func:`bone_spreads`).  anchored (n_frames,
     n_markers) bool or None: the body anchor's predictions (:func:`anchor_stage`), left out: the anchor's error is
     as large as a bone, so the bones would place them anywhere on a sphere about their neighbours, and a bone to
-    one of them does not count.
+    one of them does not count.  A bone the predictions say broke at a frame is left out there
+    (:func:`bone_breaks`, judged with ``report_sd``, the sd that knows where the model extrapolates; None: ``sd``);
+    ``broken`` (n_frames, n_bones) bool or None receives where; ``rates`` the bones' break rates if already computed
+    (:func:`bone_break_rates`; None: computed here).
     """
     from ..bones.refinement import refine_bones
 
     if anchored is not None and anchored.any():
         kept = pred
         pred = np.where(anchored[..., None], np.nan, pred)
-        return np.where(anchored[..., None], kept, bone_stage(positions, pred, sd, boneset, config, mm))
+        return np.where(anchored[..., None], kept, bone_stage(positions, pred, sd, boneset, config, mm,
+                                                              report_sd=report_sd, broken=broken, rates=rates))
 
     est = np.where(np.isnan(positions), pred, positions)
     spread = bone_spreads(positions, est, sd, boneset, config, mm) if config.bone_extrapolation else boneset.spread
+    gone = bone_breaks(positions, est, sd if report_sd is None else report_sd, boneset, config, mm, rates)
+    if broken is not None:
+        broken[:] = gone
+    if gone.any():  # an infinite spread leaves the bone out at that frame
+        spread = np.where(gone, np.inf, np.broadcast_to(spread, gone.shape))
     refined, _ = refine_bones(est, positions, sd * config.bone_trust, boneset.pairs, boneset.lengths,
                               spread, spread_floor=config.spread_floor_mm * mm)
     return np.where(np.isfinite(pred), refined, np.nan)
+
+
+def bone_break_rates(positions: np.ndarray, boneset, config: ModelConfig, mm: float) -> np.ndarray:
+    """Each bone's break rate (n_bones,) on the capture ``positions`` (n_frames, n_markers, 3), NaN = missing:
+    :func:`~mocapfill.bones.refinement.break_rates` with the spreads floored as the bone stage floors them."""
+    from ..bones.refinement import break_rates
+
+    pairs = np.asarray(boneset.pairs, dtype=int).reshape(-1, 2)
+    return break_rates(positions, pairs, np.asarray(boneset.lengths, dtype=float), _floored_spread(boneset, config, mm),
+                       dof=config.bone_break_dof)
+
+
+def _floored_spread(boneset, config: ModelConfig, mm: float) -> np.ndarray:
+    return np.maximum(np.nan_to_num(np.asarray(boneset.spread, dtype=float), nan=0.0), config.spread_floor_mm * mm)
+
+
+def bone_breaks(positions: np.ndarray, est: np.ndarray, sd: np.ndarray, boneset, config: ModelConfig, mm: float,
+                rates: np.ndarray | None = None) -> np.ndarray:
+    """Where each bone does not hold (n_frames, n_bones) bool, by the predictions' word against the bone's.
+
+    positions (n_frames, n_markers, 3) NaN = missing; est the same with the predictions in the missing samples; sd
+    (n_frames, n_markers) their sd per coordinate (NaN: no prediction).  At a frame where an end is predicted, the
+    bone's miss r = |x_a - x_b| - L has variance v = s^2 + sd_a^2 + sd_b^2 (s the bone's spread; 0 for an observed
+    end).  The bone is broken there where its break rate p (how often it broke where both ends were observed,
+    :func:`~mocapfill.bones.refinement.break_rates`) times the density of r if it broke, N(0, L^2 + v), exceeds
+    1 - p times the density if it held, a Student t with ``bone_break_dof`` degrees of freedom scaled by sqrt(v) (the
+    prediction's error is heavier-tailed than its sd says; :func:`~mocapfill.bones.refinement.miss_log_densities`).
+    A bone that held at every observed frame holds everywhere.  ``rates`` (n_bones,) or None: the break rates, if
+    already computed (:func:`bone_break_rates`).
+    """
+    from ..bones.refinement import miss_log_densities
+
+    missing = np.isnan(positions).any(axis=2)
+    pairs = np.asarray(boneset.pairs, dtype=int).reshape(-1, 2)
+    out = np.zeros((len(positions), len(pairs)), dtype=bool)
+    if not len(pairs) or not config.bone_break_dof > 0:
+        return out
+    p = bone_break_rates(positions, boneset, config, mm) if rates is None else rates
+    live = np.flatnonzero(p > 0)  # a bone that held at every observed frame holds
+    if not len(live):
+        return out
+    a, b = pairs[live, 0], pairs[live, 1]
+    need = missing[:, a] | missing[:, b]
+    length = np.asarray(boneset.lengths, dtype=float)[live]
+    var = np.where(missing, sd, 0.0) ** 2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.linalg.norm(est[:, a] - est[:, b], axis=2) - length
+        held, gone = miss_log_densities(r, _floored_spread(boneset, config, mm)[live] ** 2 + var[:, a] + var[:, b],
+                                        length, config.bone_break_dof)
+        # (NaN: an end without an estimate: no verdict)
+        out[:, live] = need & (np.log(p[live]) + gone > np.log1p(-p[live]) + held)
+    return out
 
 
 def bone_spreads(positions: np.ndarray, est: np.ndarray, sd: np.ndarray, boneset, config: ModelConfig, mm: float
@@ -940,6 +1018,21 @@ def rough_variance(obs: np.ndarray, sp: np.ndarray) -> np.ndarray:
     return out
 
 
+def broken_text(m: int, sl: slice, boneset, broken: np.ndarray | None, labels) -> str:
+    """The reason's words for the bones of marker ``m`` left out during the frames ``sl`` (``broken`` (n_frames,
+    n_bones) from :func:`bone_breaks`; '' where none was)."""
+    if broken is None or not len(boneset):
+        return ""
+    pairs = np.asarray(boneset.pairs, dtype=int).reshape(-1, 2)
+    parts = []
+    for k in np.flatnonzero((pairs == m).any(axis=1) & broken[sl].any(axis=0)):
+        other = int(pairs[k, 1] if pairs[k, 0] == m else pairs[k, 0])
+        parts.append(f"{labels[other] if labels is not None else other} ({int(broken[sl, k].sum())} frames)")
+    if not parts:
+        return ""
+    return ("; left out where the predictions say the bone did not hold: the bone(s) to " + ", ".join(parts))
+
+
 def displaced_records(positions: np.ndarray, displaced: np.ndarray, edge: np.ndarray, mm: float, labels
                       ) -> list[dict]:
     """One JSON-ready record per observed run judged displaced (:func:`displaced_runs`): ``marker``,
@@ -961,7 +1054,8 @@ def displaced_records(positions: np.ndarray, displaced: np.ndarray, edge: np.nda
 def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outliers: np.ndarray,
                 config: ModelConfig, mm: float, labels, boneset, off: np.ndarray | None = None,
                 displaced: np.ndarray | None = None, segment: np.ndarray | None = None,
-                anchored: np.ndarray | None = None, spread: np.ndarray | None = None) -> list[dict]:
+                anchored: np.ndarray | None = None, spread: np.ndarray | None = None,
+                broken: np.ndarray | None = None) -> list[dict]:
     """Stage 5: one JSON-ready record per gap (run of missing frames of one marker).
 
     missing / sd / spatial / outliers (n_frames, n_markers): the input's mask, the posterior sd, where the spatial
@@ -970,7 +1064,8 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
     None: observed samples judged displaced (:func:`displaced_runs`); segment (n_frames, n_markers) or None: where a
     segment model predicted (:attr:`ModelConfig.segment_mm`); anchored (n_frames, n_markers) or None: where the body
     anchor predicted (:func:`anchor_stage`), not counted in ``spatial``; spread (n_frames, n_markers) or None: the
-    variance of the spatial model's widths about their mix (:func:`reported_sd`).  ``review`` is True when the gap's
+    variance of the spatial model's widths about their mix (:func:`reported_sd`); broken (n_frames, n_bones) or
+    None: where the bone stage left a bone of ``boneset`` out (:func:`bone_breaks`).  ``review`` is True when the gap's
     largest sd exceeds ``config.review_sd_mm`` (or nothing could be filled) or a run judged displaced touches it;
     every number in ``reason`` comes from ``config`` or from the fill.
     """
@@ -1014,6 +1109,7 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
                            f"observed throughout the gap), where the neighbourhood model extrapolated more")
             if boneset is not None and len(boneset) and not by_segment:
                 reason += "; predictions refined with the bone lengths"
+                reason += broken_text(m, sl, boneset, broken, labels)
             n_out = int(outliers[sl, m].sum())
             if n_out:
                 reason += (f"; {n_out} prediction(s) more than {config.outlier:g} sd off the smoothed path "
