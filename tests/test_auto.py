@@ -679,6 +679,15 @@ def test_bone_stage_pulls_a_prediction_onto_its_bone_and_leaves_the_anchor_and_t
     assert np.isnan(out[:10]).all() and np.isnan(out[:, 1:]).all()  # only the predictions come back
 
 
+def test_no_edge_frames_fills_without_the_edge_samples():
+    """``edge_frames=0`` (the smoother learns no error at a gap's ends) is a valid model, not a crash."""
+    pos = moving_body(n_frames=120)
+    gapped = pos.copy()
+    gapped[40:70, 0] = np.nan
+    res = fill_auto(gapped, config=dataclasses.replace(DEFAULT_CONFIG, edge_frames=0))
+    assert np.isfinite(res.positions).all() and np.array_equal(res.positions[:40], pos[:40])
+
+
 def _bone_case(miss_mm: float, off: int = 2):
     """Two markers 100 mm apart (the bone, spread 1 mm) but 300 mm apart at ``off`` of the 40 frames (a hand that let
     go of what it held); marker 0 hidden at frames 10-19 and predicted ``miss_mm`` farther along the bone with an sd

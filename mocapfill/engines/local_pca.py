@@ -514,10 +514,10 @@ def reconstruct_local(
     max_patterns : cost bound: a marker's gap frames are split by which predictors are observed there, the
         ``max_patterns - 1`` largest patterns get their own model and the remaining frames share one model whose
         predictors are observed in all of them.
-    edge_frames : when > 0, ``info["edge_estimate"]`` (n_frames, n_markers, 3) and ``info["edge_std"]`` (n_frames,
-        n_markers) hold the model's reconstruction (and its uncertainty) at up to this many observed training frames
-        on either side of each gap run (NaN elsewhere): what a smoother needs to learn the model's error at a gap's
-        ends instead of the ``edge`` bridge.
+    edge_frames : ``info["edge_estimate"]`` (n_frames, n_markers, 3) and ``info["edge_std"]`` (n_frames, n_markers)
+        hold the model's reconstruction (and its uncertainty) at up to this many observed training frames on either
+        side of each gap run (NaN elsewhere; all NaN with 0): what a smoother needs to learn the model's error at a
+        gap's ends instead of the ``edge`` bridge.
     context : ndarray (n_frames, n_markers, 3) or None: the take with the missing samples a previous estimate
         trusts filled (NaN elsewhere); when given, a marker's predictors are read from it (its own samples still
         from ``positions``): one EM-style imputation step, in which frames where a neighbour was missing but is
@@ -548,9 +548,8 @@ def reconstruct_local(
     info: dict[str, Any] = {"fallback": [], "groups": [], "anchors": np.zeros((n_frames, n_markers), dtype=int)}
     if extrapolation:
         info["extrapolation"] = np.full((n_frames, n_markers), np.nan)
-    if edge_frames:
-        info["edge_estimate"] = np.full((n_frames, n_markers, 3), np.nan)
-        info["edge_std"] = np.full((n_frames, n_markers), np.nan)
+    info["edge_estimate"] = np.full((n_frames, n_markers, 3), np.nan)
+    info["edge_std"] = np.full((n_frames, n_markers), np.nan)
     gap_markers = np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0))
     if context is not None:
         ctx_missing = np.isnan(context).any(axis=2)
