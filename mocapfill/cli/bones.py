@@ -6,6 +6,7 @@ import re
 import sys
 
 import click
+import numpy as np
 from rich import box
 from rich.table import Table
 
@@ -31,7 +32,8 @@ def parse_length(text: str | None, units: str, option: str) -> float | None:
     return value
 
 
-def _show(bones, labels, units: str, n_markers: int, min_partners: int, path: str, quiet: bool) -> None:
+def _show(bones, labels, units: str, n_markers: int, min_partners: int, path: str, quiet: bool,
+          breaks=None) -> None:
     out = console(quiet)
     table = Table(title=f"[bold]{path}[/bold]: {len(bones)} bones", title_justify="left", box=box.SIMPLE_HEAD,
                   pad_edge=False)
@@ -52,6 +54,14 @@ def _show(bones, labels, units: str, n_markers: int, min_partners: int, path: st
     loose = [f"{labels[m]} ({degree[m]})" for m in range(n_markers) if degree[m] < min_partners]
     if loose:
         out.print(f"held by fewer than {min_partners} bones: " + ", ".join(loose), markup=False)
+    let_go = [] if breaks is None else [k for k in np.argsort(-breaks, kind="stable") if breaks[k] >= 5e-4]
+    if let_go:
+        shown = [f"{labels[bones.pairs[k][0]]} - {labels[bones.pairs[k][1]]} ({100 * breaks[k]:.1f} %)"
+                 for k in let_go[:10]]
+        more = f", and {len(let_go) - 10} more" if len(let_go) > 10 else ""
+        out.print("bones that did not hold at some frames (their share of the frames with both markers seen; the "
+                  "default fill leaves such a bone out where its predictions say it broke): " + ", ".join(shown) + more,
+                  markup=False)
 
 
 @cli.command("estimate-bones")
@@ -79,7 +89,8 @@ def estimate_bones_command(input_path: str, output: str | None, fmt: str | None,
     both relative to its length and in absolute terms; markers held by fewer than --min-partners bones get their
     most rigid remaining pairs if those are nearly as rigid.  The output (JSON, or CSV) lists per bone the two
     labels, the length (median distance), the spread and the frames used; edit it and pass it back with
-    `mocapfill fill --bones FILE`.  A table goes to stderr.
+    `mocapfill fill --bones FILE`.  A table goes to stderr, with the bones that did not hold at some of those frames
+    (a hand that lets go of what it holds, a marker that slides).
     """
     from ..bones.boneset import (DEFAULT_MAX_REL_SPREAD, DEFAULT_MIN_PARTNERS, bones_to_csv, bones_to_dict,
                          estimate_bones, save_bones)
@@ -113,6 +124,12 @@ def estimate_bones_command(input_path: str, output: str | None, fmt: str | None,
     else:
         save_bones(bones, output, labels=data.labels, units=data.units, format=fmt)
     # The data is written before the table: a reader of stderr that goes away must not cost the output.
-    _show(bones, data.labels, data.units, data.n_markers, min_partners, data.path or input_path, quiet)
+    breaks = None
+    if not quiet and len(bones):
+        from ..methods.auto import DEFAULT_CONFIG, bone_break_rates
+        from ..units import length_factor
+
+        breaks = bone_break_rates(data.positions, bones, DEFAULT_CONFIG, length_factor("mm", data.units))
+    _show(bones, data.labels, data.units, data.n_markers, min_partners, data.path or input_path, quiet, breaks)
     if output != "-":
         console(quiet).print(f"wrote {len(bones)} bones to {output}", markup=False)
