@@ -312,8 +312,8 @@ def break_rates(positions: np.ndarray, pairs: np.ndarray, lengths: np.ndarray, s
     p = np.zeros(len(pairs))
     todo = np.flatnonzero((n > 0) & (ratio.sum(axis=0) > n))
     if len(todo):
-        r, q = ratio[:, todo], np.full(len(todo), 0.5)
+        rt, q = ratio[:, todo], np.full(len(todo), 0.5)
         for _ in range(iterations):
-            q = (q * r / (q * r + 1.0 - q)).sum(axis=0) / n[todo]
+            q = (q * rt / (q * rt + 1.0 - q)).sum(axis=0) / n[todo]
         p[todo] = q
     return p

@@ -400,7 +400,9 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         from ..bones.boneset import resolve_bones
         boneset = resolve_bones(positions, bones, units=units, labels=labels)
         broken = np.zeros((len(positions), len(boneset)), dtype=bool)
-        rates = bone_break_rates(positions, boneset, config, mm) if len(boneset) and config.bone_break_dof else None
+        # (a take without gaps has no bone to judge: the rates are not needed)
+        rates = (bone_break_rates(positions, boneset, config, mm)
+                 if len(boneset) and config.bone_break_dof and missing.any() else None)
         if len(boneset) and np.isfinite(pred_sd).any():
             pred = bone_stage(positions, pred, pred_sd, boneset, config, mm, anchored, report_sd=report_sd,
                               broken=broken, rates=rates)
@@ -792,8 +794,8 @@ def bone_breaks(positions: np.ndarray, est: np.ndarray, sd: np.ndarray, boneset,
     missing = np.isnan(positions).any(axis=2)
     pairs = np.asarray(boneset.pairs, dtype=int).reshape(-1, 2)
     out = np.zeros((len(positions), len(pairs)), dtype=bool)
-    if not len(pairs) or not config.bone_break_dof > 0:
-        return out
+    if not len(pairs) or not config.bone_break_dof > 0 or not (missing[:, pairs[:, 0]] | missing[:, pairs[:, 1]]).any():
+        return out  # (no bone with an end to judge: its break rate is not needed)
     p = bone_break_rates(positions, boneset, config, mm) if rates is None else rates
     live = np.flatnonzero(p > 0)  # a bone that held at every observed frame holds
     if not len(live):
