@@ -69,7 +69,7 @@ DEFAULT_MIN_PARTNERS = 3
 DEFAULT_RELAX = 1.25
 
 #: The robust spread: (p95 - p5) / this equals the standard deviation of a normal distribution.
-_P5_P95_TO_STD = 3.2897072539029457
+P5_P95_TO_STD = 3.2897072539029457
 
 SPREAD_DEFINITION = "robust standard deviation of the distance: (95th - 5th percentile) / 3.29"
 
@@ -189,7 +189,7 @@ def pair_scores(positions: np.ndarray, *, units: str = "mm", max_rel_spread: flo
                              f"absolute {max_abs_spread})")
     stats = pair_distance_stats(positions, pairs, percentiles=(5.0, 50.0, 95.0))
     lengths = stats.percentiles[:, 1]
-    spread = (stats.percentiles[:, 2] - stats.percentiles[:, 0]) / _P5_P95_TO_STD
+    spread = (stats.percentiles[:, 2] - stats.percentiles[:, 0]) / P5_P95_TO_STD
     with np.errstate(divide="ignore", invalid="ignore"):
         score = np.maximum(spread / lengths / max_rel_spread, spread / max_abs_spread)
     usable = (stats.count >= max(int(min_frames), 2)) & (lengths > 0) & np.isfinite(score)
