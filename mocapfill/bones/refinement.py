@@ -143,6 +143,7 @@ def refine_bones(
     spread_floor: float,
     max_iter: int = 30,
     tolerance: float = 0.01,
+    one_sided: np.ndarray | None = None,
 ) -> tuple[np.ndarray, dict]:
     """Move each frame's missing markers to the most probable positions given the fill and the bones.
 
@@ -166,12 +167,17 @@ def refine_bones(
     tolerance : float
         A frame has converged when its last step was accepted and the damped model promised a decrease of the
         objective (twice a negative log-likelihood) of at most this: a hundredth of a standard deviation's worth.
+    one_sided : ndarray bool (B,) or None
+        Pairs that only a distance beyond their ``lengths`` costs (reaches, :mod:`mocapfill.bones.reach`): their term
+        is max(0, |x_a - x_b| - L)^2 / spread^2, with neither pull nor curvature within L, at the frames where the
+        estimate stretches the pair past L from a fixed end (one end moved, the other not).  None: every pair a bone.
 
     Returns
     -------
     refined (n_frames, n_markers, 3), info dict (frames refined, mean |bone error| before / after on the bones
     touching a refined marker, ``unconverged``: a frame's components still moving after ``max_iter``, ``cost``: the
-    objective's sum over the refined frames).
+    objective's sum over the refined frames; with ``one_sided``, ``stretched`` (n_frames, n_one_sided) bool: where
+    each such pair acted).
     """
     out = np.array(estimate, dtype=np.float64)
     missing = np.isnan(positions).any(axis=2)
@@ -179,22 +185,53 @@ def refine_bones(
     pairs = np.asarray(pairs, dtype=int).reshape(-1, 2)
     info = {"frames": 0, "bone_error_before": float("nan"), "bone_error_after": float("nan"), "unconverged": 0,
             "cost": 0.0}
+    if one_sided is not None:
+        info["stretched"] = np.zeros((len(out), int(np.sum(one_sided))), dtype=bool)
     if not len(pairs) or not movable.any():
         return out, info
     spread = np.where(np.isnan(spread), spread_floor, np.maximum(spread, spread_floor))  # (+inf: weight 0)
-    frames = np.flatnonzero((movable[:, pairs[:, 0]] | movable[:, pairs[:, 1]]).any(axis=1))
+    two = np.ones(len(pairs), dtype=bool) if one_sided is None else ~np.asarray(one_sided, dtype=bool)
+    bones = pairs[two]
+    frames = np.flatnonzero((movable[:, bones[:, 0]] | movable[:, bones[:, 1]]).any(axis=1))
+    if not two.all():
+        # a reach acts only at the frames where the fill stretches it from a fixed end (observed, or not moved):
+        # between two moved markers it would join their problems into one, at several times the cost, for a bound
+        # between two guesses
+        reach = np.flatnonzero(~two)
+        a, b = pairs[reach, 0], pairs[reach, 1]
+        with np.errstate(invalid="ignore"):
+            stretched = (movable[:, a] ^ movable[:, b]) & (_norm3(out[:, a] - out[:, b]) > lengths[reach])
+        frames = np.union1d(frames, np.flatnonzero(stretched.any(axis=1)))
+        info["stretched"] = stretched
     problems: dict[tuple, list[np.ndarray]] = {}  # a component's markers -> the frames where they are one
     for rows, markers in _patterns(movable, frames):
-        for comp in _components(markers, pairs):
+        comps = _components(markers, bones)
+        if not two.all():  # a marker on no bone, held by a reach alone, is a problem of its own
+            held = np.zeros(movable.shape[1], dtype=bool)
+            held[pairs[reach[stretched[rows].any(axis=0)]].ravel()] = True
+            for comp in comps:
+                held[comp] = False
+            comps = comps + [np.array([m]) for m in markers if held[m]]
+        for comp in comps:
             problems.setdefault(tuple(comp.tolist()), []).append(rows)
     before_sum = after_sum = 0.0
     count = unconverged = 0
     for key, parts in problems.items():
         rows, markers = np.sort(np.concatenate(parts)), np.array(key)
         touch = np.isin(pairs, markers).any(axis=1)
+        if two.all():
+            bs = spread[touch] if spread.ndim == 1 else spread[rows][:, touch]  # (nb,) or per frame (n, nb)
+        else:  # the reaches stretched somewhere in its frames, each left out (infinite spread) where it is not
+            touch &= two | np.isin(np.arange(len(pairs)), reach[stretched[rows].any(axis=0)])
+            bs = np.array(np.broadcast_to(spread, (len(movable), len(pairs)))[rows][:, touch])
+            col = np.flatnonzero(touch)
+            on = ~two[col]
+            bs[:, on] = np.where(stretched[rows][:, np.searchsorted(reach, col[on])], bs[:, on], np.inf)
         bp, bl = pairs[touch], lengths[touch]
-        bs = spread[touch] if spread.ndim == 1 else spread[rows][:, touch]  # (nb,) or per frame (n, nb)
         k = len(markers)
+        hinge = None if one_sided is None else np.asarray(one_sided, dtype=bool)[touch]
+        if hinge is not None and not hinge.any():
+            hinge = None
         slot = -np.ones(out.shape[1], dtype=int)
         slot[markers] = np.arange(k)
         ia, ib = slot[bp[:, 0]], slot[bp[:, 1]]  # -1 where the end is fixed
@@ -216,6 +253,8 @@ def refine_bones(
             pb = np.where(ib[None, :, None] >= 0, y[:, np.maximum(ib, 0)], fixed_b[at])
             d = pa - pb  # (n, nb, 3)
             r = _norm3(d) - bl
+            if hinge is not None:  # a reach: only stretching past it costs
+                r = np.where(hinge & (r < 0.0), 0.0, r)
             # a bone whose other end is unknown in this frame (missing and not filled) does not count
             d = np.where(np.isfinite(d), d, 0.0)
             r = np.where(np.isfinite(r), r, 0.0)
@@ -235,6 +274,8 @@ def refine_bones(
             norm = np.maximum(_norm3(da), 1e-300)[:, :, None]
             unit = da / norm  # (n, nb, 3): dr/dy_a = unit, dr/dy_b = -unit
             wa = weight(active)[..., None]
+            if hinge is not None:  # a reach within its bound adds nothing (nor curvature)
+                wa = np.where((hinge & (ra == 0.0))[..., None], 0.0, wa)
             weighted = unit * wa
             grad = (prec3[active] * (ya - target[active]).reshape(n, 3 * k)
                     + grad_sum(weighted * ra[:, :, None]).reshape(n, 3 * k))
@@ -268,9 +309,10 @@ def refine_bones(
         unconverged += len(active)
         info["cost"] += float(f.sum())
         out[np.ix_(rows, markers)] = y
-        before_sum += float(r0.sum())
-        after_sum += float(np.abs(r).sum())
-        count += r.size
+        cols = slice(None) if hinge is None else ~hinge  # the bones' errors (a reach's are not)
+        before_sum += float(r0[:, cols].sum())
+        after_sum += float(np.abs(r[:, cols]).sum())
+        count += r[:, cols].size
     info["frames"] = int(len(frames))  # each has a moved marker on a bone, so a problem of its own
     info["unconverged"] = unconverged
     if count:

@@ -231,6 +231,20 @@ class ModelConfig:
     #: hand's fill 80 mm off (19.8 mm RMSE over the draw; 8.1 with this; 15.8 with 2 degrees of freedom, 4.2 with 6
     #: but tennis serve limb's mean 8.71 -> 8.83 mm, 3.9 with 30 and 9.09 mm there).
     bone_break_dof: float = 3.0
+    #: Reaches (:mod:`mocapfill.bones.reach`): a marker with gaps is held within reach of this many partners (not its
+    #: bones; those whose distance to it varied least for its size, seen with it through at least half the take): at
+    #: a frame where the fill puts it farther from such a partner, observed or not moved, than the two were ever seen
+    #: apart, the bone stage pulls it back by how far, in units of the distance's spread.  0: off.  Why: the tennis
+    #: serve's dense 30 % draw 3 hides the left wrist, hand and forearm through a swing; the refit predicted the wrist
+    #: 760 mm off (sd 23 mm), 570 mm from an elbow never seen more than 290 mm from it: the draw's RMSE 30.4 mm against
+    #: bolero-sc's 23.4 (the per-draw check's last failure).  Measured (2026-11-28, fourteenth session): CHANGELOG.
+    reach_partners: int = 3
+    #: A pair counts as a reach only if its direction turned by at least this many degrees (95th percentile of the
+    #: angle to its mean direction) over the frames both were seen: only then was its largest distance seen in many
+    #: poses.  Why: on vicon-arm's limb draw 2 a table marker and the robot's links (spread 9 mm, turned 10-20 degrees
+    #: while both were seen) moved 80 mm past their largest observed distance once the table marker was hidden (19.4
+    #: -> 20.3 mm RMSE with every pair a reach); biogesta's dense 30 % draw 1 likewise (118.3 -> 132.7 mm).
+    reach_turned_deg: float = 45.0
     #: Smallest bone spread in the refinement (a bone is never an exact constraint).
     spread_floor_mm: float = 1.0
     #: A bone knows where it extrapolates: its spread grows by how far the estimates put its vector off the vectors
@@ -396,6 +410,8 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         pred, pred_sd, report_sd = anchor_stage(positions, pred, pred_sd, report_sd, anchor, anchored=anchored)
     boneset = None
     broken = None  # (n_frames, n_bones): where the last bone stage left a bone out (:func:`bone_breaks`)
+    reach, stretched = None, None  # the reaches, and where the last bone stage found a prediction past one
+    holds = False  # whether the bone stage has anything to hold a prediction with
     if refine and bones is not False:
         from ..bones.boneset import resolve_bones
         boneset = resolve_bones(positions, bones, units=units, labels=labels)
@@ -403,10 +419,17 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         # (a take without gaps has no bone to judge: the rates are not needed)
         rates = (bone_break_rates(positions, boneset, config, mm)
                  if len(boneset) and config.bone_break_dof and missing.any() else None)
-        if len(boneset) and np.isfinite(pred_sd).any():
+        if config.reach_partners > 0:
+            from ..bones.reach import reaches
+            reach = reaches(positions, boneset.pairs, partners=config.reach_partners,
+                            turned_deg=config.reach_turned_deg)
+            stretched = np.zeros((len(positions), len(reach.pairs)), dtype=bool)
+        holds = bool(len(boneset)) or (reach is not None and bool(len(reach.pairs)))
+        if holds and np.isfinite(pred_sd).any():
             pred = bone_stage(positions, pred, pred_sd, boneset, config, mm, anchored, report_sd=report_sd,
-                              broken=broken, rates=rates)
+                              broken=broken, rates=rates, reach=reach, stretched=stretched)
     info["bones"] = 0 if boneset is None else int(len(boneset))
+    info["reaches"] = 0 if reach is None else int(len(reach.pairs))
     model = motion_model(positions, missing, config, mm, rate)
     # the refit below reads the seed's posterior sd: only the last pass's sd is the reported one
     displaced = displaced_runs(positions, edge, edge_sd, config, mm)
@@ -439,11 +462,12 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         # reported one there: :func:`reported_sd`)
         if untrusted_used.any():
             pred_sd = np.where(untrusted_used[None, :], report_sd, pred_sd)
-        if boneset is not None and len(boneset):
+        if holds:
             # a segment model's predictions ride on the markers observed throughout the gap: the bones stay off them
             pred = np.where(segment_used[..., None], pred,
                             bone_stage(positions, pred, pred_sd, boneset, config, mm, anchored,
-                                       report_sd=report_sd, broken=broken, rates=rates))
+                                       report_sd=report_sd, broken=broken, rates=rates, reach=reach,
+                                       stretched=stretched))
         displaced = displaced_runs(positions, edge, edge_sd, config, mm)
         displaced[:, untrusted_used] = False  # a model on guessed neighbours does not overrule an observation
         fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate,
@@ -455,7 +479,8 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
                               else sinfo.get("references", {"frames": 0, "models": 0, "used": 0}))
     spatial = missing & np.isfinite(pred_sd)
     info["gap_methods"] = gap_records(missing, sd, spatial & ~anchored, outliers, config, mm, labels, boneset, off,
-                                      displaced, segment_used, anchored, spread=spread, broken=broken)
+                                      displaced, segment_used, anchored, spread=spread, broken=broken, reach=reach,
+                                      stretched=stretched)
     info["displaced"] = displaced_records(positions, displaced, edge, mm, labels)
     info["review"] = [i for i, r in enumerate(info["gap_methods"]) if r["review"]]
     return finish(positions, fill, std=sd, info=info)
@@ -729,7 +754,8 @@ def prior_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, ed
 
 def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset, config: ModelConfig, mm: float,
                anchored: np.ndarray | None = None, *, report_sd: np.ndarray | None = None,
-               broken: np.ndarray | None = None, rates: np.ndarray | None = None) -> np.ndarray:
+               broken: np.ndarray | None = None, rates: np.ndarray | None = None, reach=None,
+               stretched: np.ndarray | None = None) -> np.ndarray:
     """Stage 2: predictions (n_frames, n_markers, 3) moved to the most probable positions given the bones.
 
     sd (n_frames, n_markers) the predictions' standard deviations (NaN: not moved); boneset a BoneSet.  With
@@ -739,7 +765,9 @@ def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset,
     one of them does not count.  A bone the predictions say broke at a frame is left out there
     (:func:`bone_breaks`, judged with ``report_sd``, the sd that knows where the model extrapolates; None: ``sd``);
     ``broken`` (n_frames, n_bones) bool or None receives where; ``rates`` the bones' break rates if already computed
-    (:func:`bone_break_rates`; None: computed here).
+    (:func:`bone_break_rates`; None: computed here).  ``reach`` (:func:`mocapfill.bones.reach.reaches`) or None:
+    pairs that only a distance past their limit costs, held with the bones; ``stretched`` (n_frames, n_reaches) bool
+    or None receives where a prediction stretched one past its limit.
     """
     from ..bones.refinement import refine_bones
 
@@ -747,7 +775,8 @@ def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset,
         kept = pred
         pred = np.where(anchored[..., None], np.nan, pred)
         return np.where(anchored[..., None], kept, bone_stage(positions, pred, sd, boneset, config, mm,
-                                                              report_sd=report_sd, broken=broken, rates=rates))
+                                                              report_sd=report_sd, broken=broken, rates=rates,
+                                                              reach=reach, stretched=stretched))
 
     est = np.where(np.isnan(positions), pred, positions)
     spread = bone_spreads(positions, est, sd, boneset, config, mm) if config.bone_extrapolation else boneset.spread
@@ -756,8 +785,18 @@ def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset,
         broken[:] = gone
     if gone.any():  # an infinite spread leaves the bone out at that frame
         spread = np.where(gone, np.inf, np.broadcast_to(spread, gone.shape))
-    refined, _ = refine_bones(est, positions, sd * config.bone_trust, boneset.pairs, boneset.lengths,
-                              spread, spread_floor=config.spread_floor_mm * mm)
+    pairs, lengths, one_sided = np.asarray(boneset.pairs, dtype=int).reshape(-1, 2), boneset.lengths, None
+    if reach is not None and len(reach.pairs):
+        pairs = np.concatenate([pairs, reach.pairs])
+        lengths = np.concatenate([lengths, reach.limit])
+        spread = np.asarray(spread, dtype=float)
+        spread = np.concatenate([spread, np.broadcast_to(reach.spread, spread.shape[:-1] + (len(reach.pairs),))],
+                                axis=-1)
+        one_sided = np.arange(len(pairs)) >= len(boneset)
+    refined, info = refine_bones(est, positions, sd * config.bone_trust, pairs, lengths,
+                                 spread, spread_floor=config.spread_floor_mm * mm, one_sided=one_sided)
+    if stretched is not None and one_sided is not None:
+        stretched[:] = info["stretched"]
     return np.where(np.isfinite(pred), refined, np.nan)
 
 
@@ -1035,6 +1074,22 @@ def broken_text(m: int, sl: slice, boneset, broken: np.ndarray | None, labels) -
     return ("; left out where the predictions say the bone did not hold: the bone(s) to " + ", ".join(parts))
 
 
+def stretched_text(m: int, sl: slice, reach, stretched: np.ndarray | None, labels) -> str:
+    """The reason's words for the reaches of marker ``m`` its predictions stretched past during the frames ``sl``
+    (``reach`` from :func:`mocapfill.bones.reach.reaches`, ``stretched`` (n_frames, n_reaches) from
+    :func:`bone_stage`; '' where none was)."""
+    if reach is None or stretched is None or not len(reach.pairs):
+        return ""
+    parts = []
+    for k in np.flatnonzero((reach.pairs == m).any(axis=1) & stretched[sl].any(axis=0)):
+        other = int(reach.pairs[k, 1] if reach.pairs[k, 0] == m else reach.pairs[k, 0])
+        parts.append(f"{labels[other] if labels is not None else other} ({int(stretched[sl, k].sum())} frames)")
+    if not parts:
+        return ""
+    return ("; pulled back within reach where the predictions put it farther than it was ever seen from: "
+            + ", ".join(parts))
+
+
 def displaced_records(positions: np.ndarray, displaced: np.ndarray, edge: np.ndarray, mm: float, labels
                       ) -> list[dict]:
     """One JSON-ready record per observed run judged displaced (:func:`displaced_runs`): ``marker``,
@@ -1057,7 +1112,7 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
                 config: ModelConfig, mm: float, labels, boneset, off: np.ndarray | None = None,
                 displaced: np.ndarray | None = None, segment: np.ndarray | None = None,
                 anchored: np.ndarray | None = None, spread: np.ndarray | None = None,
-                broken: np.ndarray | None = None) -> list[dict]:
+                broken: np.ndarray | None = None, reach=None, stretched: np.ndarray | None = None) -> list[dict]:
     """Stage 5: one JSON-ready record per gap (run of missing frames of one marker).
 
     missing / sd / spatial / outliers (n_frames, n_markers): the input's mask, the posterior sd, where the spatial
@@ -1112,6 +1167,8 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
             if boneset is not None and len(boneset) and not by_segment:
                 reason += "; predictions refined with the bone lengths"
                 reason += broken_text(m, sl, boneset, broken, labels)
+            if not by_segment:
+                reason += stretched_text(m, sl, reach, stretched, labels)
             n_out = int(outliers[sl, m].sum())
             if n_out:
                 reason += (f"; {n_out} prediction(s) more than {config.outlier:g} sd off the smoothed path "
