@@ -57,8 +57,8 @@ def test_a_pair_that_never_turned_is_no_reach():
     from mocapfill.bones.reach import turned
 
     pos = _arm()
-    assert turned(pos[:, 0] - pos[:, 1]) < 1.0
-    assert turned(pos[:, 2] - pos[:, 1]) == pytest.approx(57.0, abs=2.0)
+    assert turned((pos[:, 0] - pos[:, 1])[:, None])[0] < 1.0
+    assert turned((pos[:, 2] - pos[:, 1])[:, None])[0] == pytest.approx(57.0, abs=2.0)
     gapped = pos.copy()
     gapped[:1, 0] = np.nan  # the shoulder has a gap
     assert [0, 1] in reaches(gapped, np.zeros((0, 2), dtype=int), partners=3, turned_deg=0.0).pairs.tolist()

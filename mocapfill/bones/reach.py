@@ -20,6 +20,10 @@ from .boneset import P5_P95_TO_STD
 from .distances import pair_distance_stats
 
 
+#: Candidates whose turning is measured at once (a marker's tightest few usually hold it).
+_BLOCK = 8
+
+
 class Reaches(NamedTuple):
     """Reach pairs (R, 2) int (smaller index first), their largest observed distance ``limit`` (R,) and the robust
     spread of their distance ``spread`` (R,) ((p95 - p5) / 3.29), in the data's units."""
@@ -73,28 +77,48 @@ def reaches(positions: np.ndarray, bones: np.ndarray, *, partners: int, turned_d
     chosen = np.zeros(len(cand), dtype=bool)
     for m in gapped:
         mine = np.flatnonzero(usable & ((cand[:, 0] == m) | (cand[:, 1] == m)))
+        order = mine[np.argsort(tight[mine], kind="stable")]
         taken = 0
-        for k in mine[np.argsort(tight[mine], kind="stable")]:
-            if taken == partners:
-                break
-            if np.isnan(angle[k]):
-                angle[k] = turned(positions[:, cand[k, 0]] - positions[:, cand[k, 1]])
-            if angle[k] >= turned_deg:
+        for start in range(0, len(order), _BLOCK):  # the tightest first, a block of candidates at a time
+            block = order[start:start + _BLOCK]
+            todo = block[np.isnan(angle[block])]
+            if len(todo):
+                angle[todo] = turned(positions[:, cand[todo, 0]] - positions[:, cand[todo, 1]])
+            for k in block[angle[block] >= turned_deg][:partners - taken]:
                 chosen[k] = True
                 taken += 1
+            if taken == partners:
+                break
     idx = np.flatnonzero(chosen)
     return Reaches(cand[idx], stats.max[idx], spread[idx])
 
 
-def turned(vectors: np.ndarray) -> float:
-    """How far a pair's direction turned: the 95th percentile of the angle (degrees) between its unit vectors
-    (n_frames, 3; NaN rows = not seen together, left out) and their mean direction; 180 where they cancel out."""
-    v = vectors[np.isfinite(vectors).all(axis=1)]
-    if not len(v):
-        return 0.0
-    u = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
-    mean = u.mean(axis=0)
-    r = float(np.linalg.norm(mean))
-    if r <= 0:
-        return 180.0
-    return float(np.percentile(np.degrees(np.arccos(np.clip(u @ (mean / r), -1.0, 1.0))), 95))
+def turned(vectors: np.ndarray) -> np.ndarray:
+    """How far each pair's direction turned: the 95th percentile of the angle (degrees) between its unit vectors and
+    their mean direction, over the frames it was seen.  vectors (n_frames, n_pairs, 3), NaN rows = not seen
+    together (left out); returns (n_pairs,), 180 where the directions cancel out, 0 where never seen."""
+    seen = np.isfinite(vectors).all(axis=2)  # (n, p)
+    v = np.where(seen[..., None], vectors, 0.0)
+    norm = np.sqrt((v ** 2).sum(axis=2))
+    u = v / np.maximum(norm, 1e-300)[..., None]
+    count = seen.sum(axis=0)
+    mean = u.sum(axis=0) / np.maximum(count, 1)[:, None]  # (p, 3)
+    r = np.sqrt((mean ** 2).sum(axis=1))
+    unit = mean / np.where(r > 0, r, 1.0)[:, None]
+    angle = np.degrees(np.arccos(np.clip((u * unit[None]).sum(axis=2), -1.0, 1.0)))
+    out = _percentile95(np.where(seen, angle, np.inf), count)
+    return np.where(count == 0, 0.0, np.where(r > 0, out, 180.0))
+
+
+def _percentile95(values: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """np.percentile(column[:count], 95) of each column of ``values`` (n, p) whose first ``count`` (p,) sorted entries
+    are its values (the others +inf), as NumPy's linear method computes it, without its per-column loop."""
+    x = np.sort(values, axis=0)
+    virtual = (np.maximum(count, 1) - 1) * 0.95
+    lo = np.floor(virtual).astype(int)
+    hi = np.minimum(lo + 1, np.maximum(count, 1) - 1)
+    cols = np.arange(x.shape[1])
+    a, b, t = x[lo, cols], x[hi, cols], virtual - lo
+    with np.errstate(invalid="ignore"):
+        diff = b - a
+        return np.where(t >= 0.5, b - diff * (1 - t), a + diff * t)
