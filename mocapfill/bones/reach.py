@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .boneset import P5_P95_TO_STD
-from .distances import pair_distance_stats
+from .distances import all_pairs, pair_distance_stats
 
 
 #: Candidates whose turning is measured at once (a marker's tightest few usually hold it).
@@ -61,9 +61,10 @@ def reaches(positions: np.ndarray, bones: np.ndarray, *, partners: int, turned_d
         return empty
     if min_frames is None:
         min_frames = max(n_frames // 2, 2)
-    others = np.arange(n_markers)
-    cand = np.concatenate([np.stack([np.full(n_markers - 1, m), others[others != m]], axis=1) for m in gapped])
-    cand = np.unique(np.sort(cand, axis=1), axis=0)  # (P, 2), smaller index first
+    cand = all_pairs(n_markers)
+    has_gap = np.zeros(n_markers, dtype=bool)
+    has_gap[gapped] = True
+    cand = cand[has_gap[cand[:, 0]] | has_gap[cand[:, 1]]]  # (P, 2), smaller index first
     stats = pair_distance_stats(positions, cand, percentiles=(5.0, 50.0, 95.0))
     length = stats.percentiles[:, 1]
     usable = (stats.count >= max(int(min_frames), 2)) & np.isfinite(length) & (length > 0)

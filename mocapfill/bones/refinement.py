@@ -229,8 +229,8 @@ def refine_bones(
             bs[:, on] = np.where(stretched[rows][:, np.searchsorted(reach, col[on])], bs[:, on], np.inf)
         bp, bl = pairs[touch], lengths[touch]
         k = len(markers)
-        hinge = None if one_sided is None else np.asarray(one_sided, dtype=bool)[touch]
-        if hinge is not None and not hinge.any():
+        hinge = ~two[touch]  # the reaches among its terms
+        if not hinge.any():
             hinge = None
         slot = -np.ones(out.shape[1], dtype=int)
         slot[markers] = np.arange(k)

@@ -1059,35 +1059,34 @@ def rough_variance(obs: np.ndarray, sp: np.ndarray) -> np.ndarray:
     return out
 
 
+def _partners_text(m: int, sl: slice, pairs: np.ndarray, acted: np.ndarray) -> list[tuple[int, int]]:
+    """(partner, frames) of each pair of ``pairs`` (P, 2) with marker ``m`` at one end that ``acted`` (n_frames, P)
+    marks somewhere in the frames ``sl``."""
+    pairs = np.asarray(pairs, dtype=int).reshape(-1, 2)
+    return [(int(pairs[k, 1] if pairs[k, 0] == m else pairs[k, 0]), int(acted[sl, k].sum()))
+            for k in np.flatnonzero((pairs == m).any(axis=1) & acted[sl].any(axis=0))]
+
+
+def _named(parts: list[tuple[int, int]], labels) -> str:
+    return ", ".join(f"{labels[o] if labels is not None else o} ({n} frames)" for o, n in parts)
+
+
 def broken_text(m: int, sl: slice, boneset, broken: np.ndarray | None, labels) -> str:
     """The reason's words for the bones of marker ``m`` left out during the frames ``sl`` (``broken`` (n_frames,
     n_bones) from :func:`bone_breaks`; '' where none was)."""
-    if broken is None or not len(boneset):
-        return ""
-    pairs = np.asarray(boneset.pairs, dtype=int).reshape(-1, 2)
-    parts = []
-    for k in np.flatnonzero((pairs == m).any(axis=1) & broken[sl].any(axis=0)):
-        other = int(pairs[k, 1] if pairs[k, 0] == m else pairs[k, 0])
-        parts.append(f"{labels[other] if labels is not None else other} ({int(broken[sl, k].sum())} frames)")
-    if not parts:
-        return ""
-    return ("; left out where the predictions say the bone did not hold: the bone(s) to " + ", ".join(parts))
+    parts = [] if broken is None or not len(boneset) else _partners_text(m, sl, boneset.pairs, broken)
+    return ("; left out where the predictions say the bone did not hold: the bone(s) to " + _named(parts, labels)
+            if parts else "")
 
 
 def stretched_text(m: int, sl: slice, reach, stretched: np.ndarray | None, labels) -> str:
     """The reason's words for the reaches of marker ``m`` its predictions stretched past during the frames ``sl``
     (``reach`` from :func:`mocapfill.bones.reach.reaches`, ``stretched`` (n_frames, n_reaches) from
     :func:`bone_stage`; '' where none was)."""
-    if reach is None or stretched is None or not len(reach.pairs):
-        return ""
-    parts = []
-    for k in np.flatnonzero((reach.pairs == m).any(axis=1) & stretched[sl].any(axis=0)):
-        other = int(reach.pairs[k, 1] if reach.pairs[k, 0] == m else reach.pairs[k, 0])
-        parts.append(f"{labels[other] if labels is not None else other} ({int(stretched[sl, k].sum())} frames)")
-    if not parts:
-        return ""
+    parts = [] if reach is None or stretched is None or not len(reach.pairs) else \
+        _partners_text(m, sl, reach.pairs, stretched)
     return ("; pulled back within reach where the predictions put it farther than it was ever seen from: "
-            + ", ".join(parts))
+            + _named(parts, labels) if parts else "")
 
 
 def displaced_records(positions: np.ndarray, displaced: np.ndarray, edge: np.ndarray, mm: float, labels
