@@ -214,9 +214,12 @@ def refine_bones(
             comps = comps + [np.array([m]) for m in markers if held[m]]
         for comp in comps:
             problems.setdefault(tuple(comp.tolist()), []).append(rows)
-    before_sum = after_sum = 0.0
-    count = unconverged = 0
-    for key, parts in problems.items():
+
+    def solve(item: tuple[tuple, list[np.ndarray]]) -> tuple:
+        """One problem (a component's markers, the frames where they are one): its frames, markers, refined
+        positions (n, k, 3), summed cost, frames still moving, and the summed |bone error| before / after and their
+        count (pure: the problems share no moved sample, so they may be solved in any process)."""
+        key, parts = item
         rows, markers = np.sort(np.concatenate(parts)), np.array(key)
         touch = np.isin(pairs, markers).any(axis=1)
         if two.all():
@@ -306,13 +309,19 @@ def refine_bones(
             active = active[~(ok & (predicted <= tolerance))]
             if not len(active):
                 break
-        unconverged += len(active)
-        info["cost"] += float(f.sum())
-        out[np.ix_(rows, markers)] = y
         cols = slice(None) if hinge is None else ~hinge  # the bones' errors (a reach's are not)
-        before_sum += float(r0[:, cols].sum())
-        after_sum += float(np.abs(r[:, cols]).sum())
-        count += r[:, cols].size
+        return (rows, markers, y, float(f.sum()), len(active), float(r0[:, cols].sum()),
+                float(np.abs(r[:, cols]).sum()), r[:, cols].size)
+
+    before_sum = after_sum = 0.0
+    count = unconverged = 0
+    for rows, markers, y, cost_sum, moving, before, after, n_terms in map(solve, problems.items()):
+        unconverged += moving
+        info["cost"] += cost_sum
+        out[np.ix_(rows, markers)] = y
+        before_sum += before
+        after_sum += after
+        count += n_terms
     info["frames"] = int(len(frames))  # each has a moved marker on a bone, so a problem of its own
     info["unconverged"] = unconverged
     if count:

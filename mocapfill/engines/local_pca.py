@@ -565,7 +565,11 @@ def reconstruct_local(
     if context is None and ref is not None:  # reference frames join the training rows (never the predicted ones)
         with_refs_src = np.concatenate([positions, ref])
         with_refs_miss = np.concatenate([missing, np.isnan(ref).any(axis=2)])
-    for m in gap_markers:
+
+    def marker_models(m: int) -> list[tuple]:
+        """Marker ``m``'s groups: ``(group,)`` where no model could be fitted (the linear fallback), else ``(group,
+        train, group_model's outputs, extrapolation, references kept)`` (pure: the markers may be fitted in any
+        process)."""
         frames = np.flatnonzero(missing[:, m])
         src, miss = positions, missing
         if context is not None:  # predictors from the context, the target's own samples as observed
@@ -586,23 +590,34 @@ def reconstruct_local(
         other_idx = np.flatnonzero(others)
         near = other_idx[np.isfinite(dist[other_idx]) & (dist[other_idx] <= reach * max(scales))]
         near = near[np.argsort(dist[near], kind="stable")]
-        interpolated = None  # the marker's linear interpolation, once for all its groups that need it
+        out: list[tuple] = []
         for group, predictors, train in observed_groups(miss, m, frames, near, max_patterns, min_train, row_weight):
             if len(predictors) < 3 or len(train) < MIN_TRAINING_FRAMES:
+                out.append((group,))
+                continue
+            with_refs: list[bool] = []
+            off: list | None = [] if extrapolation else None
+            fitted = group_model(
+                src, m, group, predictors, train, weights, align_weight, dist, scales, reach=reach,
+                max_predictors=max_predictors, normalise=normalise, folds=folds, knn=knn, row_weight=row_weight,
+                used_references=with_refs, extrapolation=off)
+            out.append((group, train, fitted, off[0] if off else None, with_refs))
+        return out
+
+    for m, groups in zip(gap_markers, map(marker_models, gap_markers)):
+        interpolated = None  # the marker's linear interpolation, once for all its groups that need it
+        for entry in groups:
+            group = entry[0]
+            if len(entry) == 1:
                 info["fallback"].append(int(m))
                 if interpolated is None:
                     interpolated = linear_fallback(positions[:, m], missing[:, m])
                 estimate[group, m] = interpolated[group]
                 continue
-            with_refs: list[bool] = []
-            off: list | None = [] if extrapolation else None
-            est_all, leverage, rms_mix, ks, rmss, anchors, _ = group_model(
-                src, m, group, predictors, train, weights, align_weight, dist, scales, reach=reach,
-                max_predictors=max_predictors, normalise=normalise, folds=folds, knn=knn, row_weight=row_weight,
-                used_references=with_refs, extrapolation=off)
+            _, train, (est_all, leverage, rms_mix, ks, rmss, anchors, _), off, with_refs = entry
             n_train = len(train)
-            if off:
-                info["extrapolation"][group, m] = off[0]
+            if off is not None:
+                info["extrapolation"][group, m] = off
             used = np.concatenate([train, group])
             est = est_all[n_train:]
             factor = np.ones(len(group))
@@ -772,8 +787,8 @@ def reconstruct_completed(
             u_var = np.concatenate([u_var, var[n_frames:]])
 
     def refit(m: int, group: np.ndarray, near: np.ndarray, dist: np.ndarray, weights: list[np.ndarray],
-              align_weight: np.ndarray, min_train: int = MIN_TRAINING_FRAMES, data: np.ndarray = data
-              ) -> RefitModel | None:
+              align_weight: np.ndarray, min_train: int = MIN_TRAINING_FRAMES, data: np.ndarray = data,
+              refs: list | None = None) -> RefitModel | None:
         """One model of marker ``m`` on the predictors ``near`` for its missing ``group`` frames (None: fewer than
         3 predictors or ``min_train`` training frames): its reconstruction of the training then the group's frames,
         and what :func:`store` and :func:`prefer_segment` need (``data``: the take its predictors are read from)."""
@@ -785,8 +800,8 @@ def reconstruct_completed(
         est_all, leverage, rms_mix, _, _, _, sens = group_model(
             data, m, group, near, train, weights, align_weight, dist, scales, reach=reach,
             max_predictors=max_predictors, normalise=normalise, folds=folds, knn=knn, row_weight=row_weight,
-            used_references=used_references if row_weight is not None else None, extrapolation=off,
-            disagreement=spread)
+            used_references=refs if row_weight is not None and used_references is not None else None,
+            extrapolation=off, disagreement=spread)
         fit = RefitModel(group, near, train, est_all, leverage, rms_mix, sens, off[0] if off else None, False,
                          spread[0] if spread else None)
         close = segment_markers(near, dist, missing[group], segment) if segment else near[:0]
@@ -825,7 +840,11 @@ def reconstruct_completed(
                           np.sqrt(fit.rms ** 2 * (1.0 + leverage_weight * fit.leverage[:n_train][own]) + spread_t),
                           edge_frames)
 
-    for m in np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0)):
+    def models(m: int) -> tuple[list[tuple[RefitModel, bool]], list]:
+        """Marker ``m``'s models, in the order :func:`store` writes them (a part's model over the whole-gap one's),
+        each with whether it is an untrusted one; and the references' use they appended (pure: no output touched,
+        so the markers may be fitted in any process)."""
+        refs: list = []
         gap_frames = np.flatnonzero(missing[:, m])
         dist = known_distances(m)
         weights, align_weight = marker_weights(dist, m, scales, align_scale, missing_weight)
@@ -841,24 +860,14 @@ def reconstruct_completed(
         candidates = candidates[np.argsort(dist[candidates], kind="stable")]
         trusted = candidates[sure[candidates]]
         if untrusted is not None and trust is not None and len(trusted) < 3:
-            own = u_data[:n_frames, m].copy()
-            u_data[:n_frames, m] = data[:n_frames, m]  # the marker's own samples stay as observed: its targets
-            fit = refit(m, gap_frames, candidates, dist, weights, align_weight, data=u_data)
-            u_data[:n_frames, m] = own
-            if fit is not None:
-                store(m, fit, u_var)
-                # where none of its predictors is observed it would play the smoother's own guesses back: no
-                # prediction there (a whole-body blackout to the end of btk's Gait.c3d)
-                blind = gap_frames[~known[gap_frames][:, fit.near].any(axis=1)]
-                estimate[blind, m] = np.nan
-                std[blind, m] = np.nan
-                if untrusted_used is not None:
-                    untrusted_used[m] = True
-            continue
-        whole = refit(m, gap_frames, trusted, dist, weights, align_weight)
+            u_take = u_data.copy()
+            u_take[:n_frames, m] = data[:n_frames, m]  # the marker's own samples stay as observed: its targets
+            fit = refit(m, gap_frames, candidates, dist, weights, align_weight, data=u_take, refs=refs)
+            return ([] if fit is None else [(fit, True)]), refs
+        whole = refit(m, gap_frames, trusted, dist, weights, align_weight, refs=refs)
         if whole is None:
-            continue
-        store(m, whole)
+            return [], refs
+        out = [(whole, False)]
         # the parts of the gaps where a left-out neighbour is seen: a model of their own with it, in place of the
         # whole-gap model's where it predicts the smaller variance there (CV rms^2 times the mean pose-residual
         # factor); only beside a whole-gap model (a marker no trusted neighbour predicts is not handed to the few
@@ -867,12 +876,30 @@ def reconstruct_completed(
             if len(near) == len(trusted):
                 continue  # no left-out neighbour seen here: the whole-gap model's
             # a model on few frames: its cross-validated error cannot tell the two apart (checked before the fit)
-            fit = refit(m, group, near, dist, weights, align_weight, min_train=MIN_TRAIN_WANTED)
+            fit = refit(m, group, near, dist, weights, align_weight, min_train=MIN_TRAIN_WANTED, refs=refs)
             if fit is None:
                 continue
             whole_off = None if whole.off is None else whole.off[np.searchsorted(gap_frames, group)]
             if predicted_variance(fit.rms, fit.off) < predicted_variance(whole.rms, whole_off):
+                out.append((fit, False))
+        return out, refs
+
+    todo = np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0))
+    for m, (fits, refs) in zip(todo, map(models, todo)):
+        if used_references is not None:
+            used_references.extend(refs)
+        for fit, untrusted_fit in fits:
+            if not untrusted_fit:
                 store(m, fit)
+                continue
+            store(m, fit, u_var)
+            # where none of its predictors is observed it would play the smoother's own guesses back: no
+            # prediction there (a whole-body blackout to the end of btk's Gait.c3d)
+            blind = fit.group[~known[fit.group][:, fit.near].any(axis=1)]
+            estimate[blind, m] = np.nan
+            std[blind, m] = np.nan
+            if untrusted_used is not None:
+                untrusted_used[m] = True
     return estimate, std, info["edge_estimate"], info["edge_std"]
 
 
