@@ -43,3 +43,29 @@ def test_a_dead_worker_ends_only_its_task():
     LocalProcesses(2).run(die_on_three, [1, 2, 3, 4, 5], seen.__setitem__, on_failure=on_failure)
     assert seen == {1: 1, 2: 2, 3: None, 4: 4, 5: 5}
     assert [t for t, _ in lost] == [3] and isinstance(lost[0][1], WorkerLost) and "SIGKILL" in str(lost[0][1])
+
+
+def test_forked_map_keeps_the_items_order_and_runs_closures_elsewhere():
+    from mocapfill.runtime.executor import can_fork, forked_map
+
+    offset = 10  # a closure: the forked workers inherit it, nothing is pickled but items and results
+    items = list(range(7))
+    here = os.getpid()
+    out = forked_map(lambda x: (x + offset, os.getpid()), items, 2, cost=[1, 5, 2, 9, 0, 3, 3])
+    assert [v for v, _ in out] == [x + offset for x in items]  # the costliest first, the results in order
+    if can_fork():
+        assert all(pid != here for _, pid in out)
+    assert forked_map(lambda x: os.getpid(), items, 1) == [here] * len(items)  # jobs 1: here
+    assert forked_map(lambda x: x, [], 2) == []
+
+
+def test_forked_map_raises_a_workers_exception():
+    from mocapfill.runtime.executor import forked_map
+
+    def fail_on_three(x):
+        if x == 3:
+            raise ValueError("three")
+        return x
+
+    with pytest.raises(ValueError, match="three"):
+        forked_map(fail_on_three, range(5), 2)

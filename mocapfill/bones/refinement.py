@@ -34,6 +34,7 @@ from math import lgamma
 import numpy as np
 
 from ..gaps import members, unique_rows
+from ..runtime.executor import forked_map
 
 
 def _patterns(missing: np.ndarray, frames: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -144,6 +145,7 @@ def refine_bones(
     max_iter: int = 30,
     tolerance: float = 0.01,
     one_sided: np.ndarray | None = None,
+    jobs: int | None = None,
 ) -> tuple[np.ndarray, dict]:
     """Move each frame's missing markers to the most probable positions given the fill and the bones.
 
@@ -171,6 +173,9 @@ def refine_bones(
         Pairs that only a distance beyond their ``lengths`` costs (reaches, :mod:`mocapfill.bones.reach`): their term
         is max(0, |x_a - x_b| - L)^2 / spread^2, with neither pull nor curvature within L, at the frames where the
         estimate stretches the pair past L from a fixed end (one end moved, the other not).  None: every pair a bone.
+    jobs : int or None
+        Processes the independent problems (a component's markers over the frames where they are one) are solved
+        on (:func:`~mocapfill.runtime.executor.forked_map`; None or 1: this one); the output does not depend on it.
 
     Returns
     -------
@@ -315,7 +320,9 @@ def refine_bones(
 
     before_sum = after_sum = 0.0
     count = unconverged = 0
-    for rows, markers, y, cost_sum, moving, before, after, n_terms in map(solve, problems.items()):
+    size = [sum(map(len, parts)) * len(key) ** 2 for key, parts in problems.items()]  # frames x the solve's size
+    for rows, markers, y, cost_sum, moving, before, after, n_terms in forked_map(solve, problems.items(), jobs,
+                                                                                  cost=size):
         unconverged += moving
         info["cost"] += cost_sum
         out[np.ix_(rows, markers)] = y

@@ -158,7 +158,9 @@ class StderrProgress:
     """A transient rich progress bar on stderr, shown on terminals only and never with --quiet.
 
     ``columns()`` builds the rich columns (called only when the bar shows, so rich.progress loads lazily);
-    ``fields`` are the task's initial custom fields.
+    ``fields`` are the task's initial custom fields.  The bar starts at its first update: one that is never updated
+    (a method that reports no progress) starts no refresh thread, so the work it wraps may fork
+    (:func:`mocapfill.runtime.executor.can_fork`).
     """
 
     def __init__(self, quiet: bool, columns: Callable[[], tuple], **fields) -> None:
@@ -172,16 +174,16 @@ class StderrProgress:
             self._task = self._bar.add_task("", total=None, **fields)
 
     def __enter__(self):
-        if self._bar is not None:
-            self._bar.start()
         return self
 
     def __exit__(self, *exc) -> None:
-        if self._bar is not None:
+        if self._bar is not None and self._bar.live.is_started:
             self._bar.stop()
 
     def update(self, **changes) -> None:
         if self._bar is not None:
+            if not self._bar.live.is_started:
+                self._bar.start()
             self._bar.update(self._task, **changes)
 
 

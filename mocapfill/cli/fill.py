@@ -52,8 +52,9 @@ FILL_EPILOG = "\b\nMethods:\n" + "\n".join(f"  {spec.name:<10} {spec.summary}" f
 @format_options
 @quiet_option
 @click.option("--force", is_flag=True, help="Allow OUT to be the same file as IN (it is replaced atomically).")
-@click.option("-j", "--jobs", type=click.IntRange(min=0), default=1, show_default=True,
-              help="Worker processes for a long take's windows (0 = every core); the output does not depend on it.")
+@click.option("-j", "--jobs", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Worker processes (0 = every core): a long take's windows, the default method's per-marker "
+                   "models; the output does not depend on it.")
 def fill_command(input_path: str, output_path: str, fill_settings: FillSettings, report_path: str | None,
                  status_path: str | None, output_format: str | None, reading: ReadOptions, quiet: bool,
                  force: bool, jobs: int) -> None:

@@ -35,6 +35,7 @@ from ..errors import MethodError
 from ..gaps import end_blend, members, unique_rows
 from ..methods.base import FillResult, finish
 from ..runtime.blas import single_blas_thread
+from ..runtime.executor import forked_map
 from ..units import length_factor
 from .body_frame import nearest_rotation
 from .weighted_pca import (
@@ -495,6 +496,7 @@ def reconstruct_local(
     reference_frames: np.ndarray | None = None,
     reference_weights: np.ndarray | None = None,
     extrapolation: bool = False,
+    jobs: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """Estimate every missing sample with the weighted PCA in each missing marker's local frame.
 
@@ -539,7 +541,9 @@ def reconstruct_local(
     and pattern: marker, frames, components per scale, cross-validated RMS) and ``anchors`` (n_frames, n_markers)
     int: how many observed neighbours defined the local frame of each estimated sample (0 elsewhere); with
     ``extrapolation``, ``info["extrapolation"]`` (n_frames, n_markers): how far each estimated sample's pose lies off
-    the poses its model learnt from (:func:`group_model`; >= 1, NaN elsewhere).
+    the poses its model learnt from (:func:`group_model`; >= 1, NaN elsewhere).  ``jobs``: processes the markers'
+    models are fitted on (:func:`~mocapfill.runtime.executor.forked_map`; None or 1: this one); the output does not
+    depend on it.
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
@@ -604,7 +608,7 @@ def reconstruct_local(
             out.append((group, train, fitted, off[0] if off else None, with_refs))
         return out
 
-    for m, groups in zip(gap_markers, map(marker_models, gap_markers)):
+    for m, groups in zip(gap_markers, forked_map(marker_models, gap_markers, jobs, cost=missing[:, gap_markers].sum(axis=0))):
         interpolated = None  # the marker's linear interpolation, once for all its groups that need it
         for entry in groups:
             group = entry[0]
@@ -728,6 +732,7 @@ def reconstruct_completed(
     untrusted: tuple[np.ndarray, np.ndarray] | None = None,
     untrusted_used: np.ndarray | None = None,
     disagreement: np.ndarray | None = None,
+    jobs: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The local model refitted on a completed take (one EM-style imputation step).
 
@@ -764,7 +769,7 @@ def reconstruct_completed(
     sample), and it predicts only at the gap frames where one of its predictors is observed; ``untrusted_used``
     (n_markers,) bool or None receives which markers got one.  ``disagreement`` (n_frames, n_markers) or None
     receives at each estimated sample the variance per coordinate of its model's widths about their mix
-    (:func:`group_model`; 0 for a segment model, which has one width).
+    (:func:`group_model`; 0 for a segment model, which has one width).  ``jobs`` as in :func:`reconstruct_local`.
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
@@ -885,7 +890,7 @@ def reconstruct_completed(
         return out, refs
 
     todo = np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0))
-    for m, (fits, refs) in zip(todo, map(models, todo)):
+    for m, (fits, refs) in zip(todo, forked_map(models, todo, jobs, cost=missing[:, todo].sum(axis=0))):
         if used_references is not None:
             used_references.extend(refs)
         for fit, untrusted_fit in fits:

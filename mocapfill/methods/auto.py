@@ -67,6 +67,7 @@ from ..gaps import find_gaps, fragments, runs
 from ..guards.copies import bones_on_distinct, distinct_markers, widened
 from ..guards.windows import DEFAULT_WINDOW, fill_in_windows
 from ..runtime.blas import single_blas_thread
+from ..runtime.executor import resolve_jobs
 from ..units import length_factor
 from .base import FillResult, check_positions, finish
 
@@ -328,8 +329,10 @@ def fill_auto(
     model : a learned denoiser (:class:`~mocapfill.engines.denoiser.DenoiserModel` or a path, ``mocapfill train``)
         or None: its estimate is a second spatial measurement (:func:`prior_stage`).
     config : ModelConfig
-    jobs : worker processes for the windows of a take longer than :data:`~mocapfill.guards.windows.DEFAULT_WINDOW`
-        frames (None: 1; the output does not depend on it).
+    jobs : worker processes (None: 1, this one; 0: every core; the output does not depend on it): the windows of a
+        take longer than :data:`~mocapfill.guards.windows.DEFAULT_WINDOW` frames run on them, and on a shorter take
+        the local models of stages 1 and 4, one marker's at a time
+        (:func:`~mocapfill.runtime.executor.forked_map`: forked, so only on Linux).
 
     Markers that are exact copies of another (:mod:`mocapfill.guards.copies`) are filled once and copied back
     (``info["copies"]`` lists them).
@@ -369,22 +372,24 @@ def fill_auto(
     core = partial(model_fill, units=units, labels=labels, rate=rate, bones=bones, refine=refine,
                    reference_frames=reference_frames, reference_weights=reference_weights, prior=model,
                    config=config)
+    jobs = resolve_jobs(jobs)
     with single_blas_thread():
         if positions.shape[0] > DEFAULT_WINDOW:  # long takes: overlapping windows, time linear in frames
-            return fill_in_windows(positions, core, jobs=1 if jobs is None else max(1, int(jobs)))
-        return core(positions)
+            return fill_in_windows(positions, core, jobs=jobs)  # (each window's models in its own worker)
+        return core(positions, jobs=jobs)
 
 
 def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine: bool,
                reference_frames: np.ndarray | None, config: ModelConfig,
-               reference_weights: np.ndarray | None = None, prior: Any = None) -> FillResult:
+               reference_weights: np.ndarray | None = None, prior: Any = None, jobs: int = 1) -> FillResult:
     """The model on one (already validated) array: stages 1-6 of the module docstring (``prior``: a learned
-    denoiser whose estimate :func:`prior_stage` fuses with every spatial prediction)."""
+    denoiser whose estimate :func:`prior_stage` fuses with every spatial prediction; ``jobs``: processes the
+    local models of stages 1 and 4 are fitted on, the output the same)."""
     mm = length_factor("mm", units)
     rate = float(rate) if rate and np.isfinite(rate) and rate > 0 else config.default_rate
     missing = np.isnan(positions).any(axis=2)
     pred, pred_sd, edge, edge_sd, sinfo = spatial_stage(positions, config, mm, reference_frames=reference_frames,
-                                                        reference_weights=reference_weights)
+                                                        reference_weights=reference_weights, jobs=jobs)
     off = sinfo.get("extrapolation")  # how far each prediction's pose lies off its model's training poses
     seed = (pred, pred_sd, edge, edge_sd)  # stage 1's own: where a refit has no model, they stand
     info: dict[str, Any] = {"pipeline": "local weighted PCA + white-jerk smoother", "fallback": sinfo["fallback"]}
@@ -427,7 +432,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         holds = bool(len(boneset)) or (reach is not None and bool(len(reach.pairs)))
         if holds and np.isfinite(pred_sd).any():
             pred = bone_stage(positions, pred, pred_sd, boneset, config, mm, anchored, report_sd=report_sd,
-                              broken=broken, rates=rates, reach=reach, stretched=stretched)
+                              broken=broken, rates=rates, reach=reach, stretched=stretched, jobs=jobs)
     info["bones"] = 0 if boneset is None else int(len(boneset))
     info["reaches"] = 0 if reach is None else int(len(reach.pairs))
     model = motion_model(positions, missing, config, mm, rate)
@@ -451,7 +456,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         refit = impute_stage(positions, fill, sd, config, mm, reference_frames=reference_frames,
                              reference_weights=reference_weights, used_references=used_refs,
                              extrapolation=off, segment_used=segment_used, untrusted=believed,
-                             untrusted_used=untrusted_used, disagreement=spread)
+                             untrusted_used=untrusted_used, disagreement=spread, jobs=jobs)
         if config.seed_where_no_refit:
             refit = seed_elsewhere(missing, refit, seed)
         pred, pred_sd, edge, edge_sd = body_stage(positions, *refit, config, mm)
@@ -467,7 +472,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
             pred = np.where(segment_used[..., None], pred,
                             bone_stage(positions, pred, pred_sd, boneset, config, mm, anchored,
                                        report_sd=report_sd, broken=broken, rates=rates, reach=reach,
-                                       stretched=stretched))
+                                       stretched=stretched, jobs=jobs))
         displaced = displaced_runs(positions, edge, edge_sd, config, mm)
         displaced[:, untrusted_used] = False  # a model on guessed neighbours does not overrule an observation
         fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate,
@@ -528,7 +533,8 @@ def anchor_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, r
 
 
 def spatial_stage(positions: np.ndarray, config: ModelConfig, mm: float, *,
-                  reference_frames: np.ndarray | None = None, reference_weights: np.ndarray | None = None):
+                  reference_frames: np.ndarray | None = None, reference_weights: np.ndarray | None = None,
+                  jobs: int = 1):
     """Stage 1: the local weighted PCA's prediction of every missing sample.
 
     positions (n_frames, n_markers, 3); mm data units per millimetre; reference_frames (n, n_markers, 3) or None.
@@ -536,7 +542,7 @@ def spatial_stage(positions: np.ndarray, config: ModelConfig, mm: float, *,
     no model), the reconstruction at observed frames next to gaps (n_frames, n_markers, 3) and its sd, and info
     (with ``config.extrapolation_sd`` and no refit to follow (``impute_passes`` 0), ``info["extrapolation"]``
     (n_frames, n_markers): how far each prediction's pose lies off its model's training poses, NaN where none;
-    :func:`reported_sd`).
+    :func:`reported_sd`).  ``jobs``: processes the local models are fitted on (the output does not depend on it).
     """
     n = len(positions)
     weighed = reference_frames is not None and reference_weights is not None
@@ -550,7 +556,8 @@ def spatial_stage(positions: np.ndarray, config: ModelConfig, mm: float, *,
                                        edge_frames=config.edge_frames,
                                        reference_frames=reference_frames if weighed else None,
                                        reference_weights=reference_weights if weighed else None,
-                                       extrapolation=config.extrapolation_sd and not config.impute_passes)
+                                       extrapolation=config.extrapolation_sd and not config.impute_passes,
+                                       jobs=jobs)
     if "extrapolation" in info:
         info["extrapolation"] = info["extrapolation"][:n]
     missing = np.isnan(positions).any(axis=2)
@@ -624,7 +631,8 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
                  reference_frames: np.ndarray | None = None, reference_weights: np.ndarray | None = None,
                  used_references: list | None = None, extrapolation: np.ndarray | None = None,
                  segment_used: np.ndarray | None = None, untrusted: tuple | None = None,
-                 untrusted_used: np.ndarray | None = None, disagreement: np.ndarray | None = None):
+                 untrusted_used: np.ndarray | None = None, disagreement: np.ndarray | None = None,
+                 jobs: int = 1):
     """Stage 4: the spatial model fitted again with the neighbours taken from the completed take.
 
     positions (n_frames, n_markers, 3) the input (NaN = missing); completed the same filled by stage 3, sd
@@ -638,7 +646,8 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
     predicted (:attr:`ModelConfig.segment_mm`).  ``untrusted`` (take, sd) or None, with
     :attr:`ModelConfig.refit_untrusted`: where fewer than 3 neighbours are trusted, a model on every near marker read
     from that take; ``untrusted_used`` (n_markers,) bool or None receives which markers got one; ``disagreement``
-    (n_frames, n_markers) or None receives the spread of the widths' predictions (:func:`reported_sd`).
+    (n_frames, n_markers) or None receives the spread of the widths' predictions (:func:`reported_sd`).  ``jobs``:
+    processes the models are fitted on (the output does not depend on it).
     """
     from ..engines.local_pca import reconstruct_completed
 
@@ -649,7 +658,8 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
         leverage_weight=config.leverage_weight, trust=config.impute_trust_mm * mm if config.impute_trust_mm else None,
         reference_weights=reference_weights, used_references=used_references, extrapolation=extrapolation,
         segment=config.segment_mm * mm if config.segment_mm else None, segment_used=segment_used,
-        parts=config.refit_parts, untrusted=untrusted, untrusted_used=untrusted_used, disagreement=disagreement)
+        parts=config.refit_parts, untrusted=untrusted, untrusted_used=untrusted_used, disagreement=disagreement,
+        jobs=jobs)
     return pred, pred_sd, edge, edge_sd
 
 
@@ -755,7 +765,7 @@ def prior_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, ed
 def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset, config: ModelConfig, mm: float,
                anchored: np.ndarray | None = None, *, report_sd: np.ndarray | None = None,
                broken: np.ndarray | None = None, rates: np.ndarray | None = None, reach=None,
-               stretched: np.ndarray | None = None) -> np.ndarray:
+               stretched: np.ndarray | None = None, jobs: int = 1) -> np.ndarray:
     """Stage 2: predictions (n_frames, n_markers, 3) moved to the most probable positions given the bones.
 
     sd (n_frames, n_markers) the predictions' standard deviations (NaN: not moved); boneset a BoneSet.  With
@@ -767,7 +777,8 @@ def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset,
     ``broken`` (n_frames, n_bones) bool or None receives where; ``rates`` the bones' break rates if already computed
     (:func:`bone_break_rates`; None: computed here).  ``reach`` (:func:`mocapfill.bones.reach.reaches`) or None:
     pairs that only a distance past their limit costs, held with the bones; ``stretched`` (n_frames, n_reaches) bool
-    or None receives where a prediction stretched one past its limit.
+    or None receives where a prediction stretched one past its limit.  ``jobs``: processes the frames' problems are
+    solved on (the output does not depend on it).
     """
     from ..bones.refinement import refine_bones
 
@@ -776,7 +787,7 @@ def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset,
         pred = np.where(anchored[..., None], np.nan, pred)
         return np.where(anchored[..., None], kept, bone_stage(positions, pred, sd, boneset, config, mm,
                                                               report_sd=report_sd, broken=broken, rates=rates,
-                                                              reach=reach, stretched=stretched))
+                                                              reach=reach, stretched=stretched, jobs=jobs))
 
     est = np.where(np.isnan(positions), pred, positions)
     spread = bone_spreads(positions, est, sd, boneset, config, mm) if config.bone_extrapolation else boneset.spread
@@ -794,7 +805,7 @@ def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset,
                                 axis=-1)
         one_sided = np.arange(len(pairs)) >= len(boneset)
     refined, info = refine_bones(est, positions, sd * config.bone_trust, pairs, lengths,
-                                 spread, spread_floor=config.spread_floor_mm * mm, one_sided=one_sided)
+                                 spread, spread_floor=config.spread_floor_mm * mm, one_sided=one_sided, jobs=jobs)
     if stretched is not None and one_sided is not None:
         stretched[:] = info["stretched"]
     return np.where(np.isfinite(pred), refined, np.nan)

@@ -9,6 +9,9 @@
 - :class:`DaskCluster` (a scheduler address or ``distributed.Client``): one Dask task per task
   (``Client.submit(pure=False)``), results as they complete (``distributed.as_completed``).
 
+Within one task, :func:`forked_map` spreads its independent parts (one fill's per-marker models) over forked
+processes: they inherit the arrays instead of receiving them, which a one-second fill could not afford to send.
+
 :func:`make_executor` turns the CLI's ``--jobs`` / ``--scheduler`` into one.  ``func`` must be picklable for the
 processes and the cluster (a module-level function, or a :func:`functools.partial` of one) and should handle its
 own errors; ``on_result(task, result)`` is called in the caller's process in completion order.  No scheduler of our
@@ -22,12 +25,13 @@ import contextlib
 import multiprocessing
 import os
 import signal
+import sys
 import uuid
 from multiprocessing.connection import wait as wait_connections
 from typing import Any, Callable, Sequence
 
 __all__ = ["Executor", "InProcess", "LocalProcesses", "DaskCluster", "make_executor", "resolve_jobs", "WorkerLost",
-           "SchedulerUnreachable", "WORKER_NAME", "CONNECT_TIMEOUT"]
+           "SchedulerUnreachable", "WORKER_NAME", "CONNECT_TIMEOUT", "forked_map", "can_fork"]
 
 #: Name of the local worker processes (``multiprocessing.active_children()`` shows it).
 WORKER_NAME = "mocapfill-worker"
@@ -294,3 +298,51 @@ def _run_dask(func: Callable[[Any], Any], tasks: Sequence[Any], scheduler: Any, 
     finally:
         if own:
             client.close()
+
+
+
+#: The function :func:`forked_map`'s workers run (set before they are forked, so they inherit it).
+_FORKED: Callable[[Any], Any] | None = None
+
+
+def _call_forked(item: Any) -> Any:
+    return _FORKED(item)  # type: ignore[misc]
+
+
+def can_fork() -> bool:
+    """Whether :func:`forked_map` may fork here: on Linux, from a process that may have children (not a daemonic
+    pool worker) and runs no other thread (a fork copies only the calling thread, and a lock another thread held
+    would stay locked in the child)."""
+    import threading
+
+    return (sys.platform.startswith("linux") and "fork" in multiprocessing.get_all_start_methods()
+            and not multiprocessing.current_process().daemon and threading.active_count() == 1)
+
+
+def forked_map(func: Callable[[Any], Any], items: Sequence[Any], jobs: int | None,
+               cost: Sequence[float] | None = None) -> list[Any]:
+    """``[func(item) for item in items]``, in the items' order, on up to ``jobs`` forked processes.
+
+    For the independent parts of one computation (the markers' models of one fill): the workers are forked from this
+    process, so ``func`` (a closure is fine) and the arrays it reads are inherited, not pickled; the items and the
+    results travel by pickle.  ``func`` must not rely on side effects: they stay in the worker.  ``jobs`` as
+    :func:`resolve_jobs`; here, one item after the other, where that gives 1, there are fewer than two items, or
+    :func:`can_fork` says no.  A worker's exception is raised here.  ``cost`` (one number per item) or None: the
+    costliest items are handed out first, so that no worker is left alone with a large one at the end.
+    """
+    global _FORKED
+    items = list(items)
+    jobs = resolve_jobs(jobs, len(items))
+    if jobs <= 1 or not can_fork():
+        return [func(item) for item in items]
+    order = list(range(len(items))) if cost is None else sorted(range(len(items)), key=lambda i: -cost[i])
+    _FORKED = func
+    try:
+        with multiprocessing.get_context("fork").Pool(jobs) as pool:
+            done = pool.map(_call_forked, [items[i] for i in order], chunksize=1)
+    finally:
+        _FORKED = None
+    out: list[Any] = [None] * len(items)
+    for i, result in zip(order, done):
+        out[i] = result
+    return out
