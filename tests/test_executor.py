@@ -69,3 +69,13 @@ def test_forked_map_raises_a_workers_exception():
 
     with pytest.raises(ValueError, match="three"):
         forked_map(fail_on_three, range(5), 2)
+
+
+def test_forked_map_says_when_a_worker_dies():
+    from mocapfill.errors import MocapfillError
+    from mocapfill.runtime.executor import can_fork, forked_map
+
+    if not can_fork():
+        pytest.skip("this process cannot fork")
+    with pytest.raises(MocapfillError, match="worker process died"):
+        forked_map(die_on_three, range(5), 2)

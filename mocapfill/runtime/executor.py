@@ -327,7 +327,8 @@ def forked_map(func: Callable[[Any], Any], items: Sequence[Any], jobs: int | Non
     process, so ``func`` (a closure is fine) and the arrays it reads are inherited, not pickled; the items and the
     results travel by pickle.  ``func`` must not rely on side effects: they stay in the worker.  ``jobs`` as
     :func:`resolve_jobs`; here, one item after the other, where that gives 1, there are fewer than two items, or
-    :func:`can_fork` says no.  A worker's exception is raised here.  ``cost`` (one number per item) or None: the
+    :func:`can_fork` says no.  A worker's exception is raised here; a worker that dies (killed, out of memory) raises
+    :class:`~mocapfill.errors.MocapfillError` (the command line's one-line error).  ``cost`` (one number per item) or None: the
     costliest items are handed out first, so that no worker is left alone with a large one at the end.
     """
     global _FORKED
@@ -335,11 +336,19 @@ def forked_map(func: Callable[[Any], Any], items: Sequence[Any], jobs: int | Non
     jobs = resolve_jobs(jobs, len(items))
     if jobs <= 1 or not can_fork():
         return [func(item) for item in items]
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+
     order = list(range(len(items))) if cost is None else sorted(range(len(items)), key=lambda i: -cost[i])
-    _FORKED = func
+    _FORKED = func  # the workers are forked at the first submit: they inherit it
     try:
-        with multiprocessing.get_context("fork").Pool(jobs) as pool:
-            done = pool.map(_call_forked, [items[i] for i in order], chunksize=1)
+        # (not multiprocessing.Pool: a killed worker would leave its map waiting for ever; here the map raises)
+        with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("fork")) as pool:
+            done = list(pool.map(_call_forked, [items[i] for i in order]))
+    except BrokenProcessPool:
+        from ..errors import MocapfillError
+
+        raise MocapfillError("a worker process died (killed, out of memory?); --jobs 1 fills in one process") from None
     finally:
         _FORKED = None
     out: list[Any] = [None] * len(items)
