@@ -331,7 +331,7 @@ def fill_auto(
     config : ModelConfig
     jobs : worker processes (None: 1, this one; 0: every core; the output does not depend on it): the windows of a
         take longer than :data:`~mocapfill.guards.windows.DEFAULT_WINDOW` frames run on them, and on a shorter take
-        the local models of stages 1 and 4, one marker's at a time
+        the local models of stages 1 and 4 (one marker's at a time) and the bone stage's problems
         (:func:`~mocapfill.runtime.executor.forked_map`: forked, so only on Linux).
 
     Markers that are exact copies of another (:mod:`mocapfill.guards.copies`) are filled once and copied back
@@ -384,7 +384,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
                reference_weights: np.ndarray | None = None, prior: Any = None, jobs: int = 1) -> FillResult:
     """The model on one (already validated) array: stages 1-6 of the module docstring (``prior``: a learned
     denoiser whose estimate :func:`prior_stage` fuses with every spatial prediction; ``jobs``: processes the
-    local models of stages 1 and 4 are fitted on, the output the same)."""
+    local models of stages 1 and 4 and the bone stage's problems run on, the output the same)."""
     mm = length_factor("mm", units)
     rate = float(rate) if rate and np.isfinite(rate) and rate > 0 else config.default_rate
     missing = np.isnan(positions).any(axis=2)
