@@ -169,6 +169,15 @@ def test_global_stage_predicts_a_marker_seen_in_a_few_frames_only():
     assert np.array_equal(out[4:296, 0], glob[4:296, 0])
     kept = np.isfinite(sd)
     assert np.array_equal(out_sd[kept], sd[kept])  # the local predictions stand where they exist
+    done = np.zeros(sd.shape, dtype=bool)
+    global_stage(gapped, pred, sd, glob, has, config, 1.0, globbed=done)
+    assert np.array_equal(done, np.isfinite(out_sd) & ~kept & np.isnan(gapped).any(axis=2))
+    # the gap's record says which model predicted it: the global PCA, not a local model
+    rec = fill_auto(gapped, rate=100.0, config=config).info["gap_methods"]
+    first = [r for r in rec if r["marker_index"] == 0]
+    assert [r["method"] for r in first] == ["global-pca+motion"]
+    assert "no local model could predict it: the global weighted PCA" in first[0]["reason"]
+    assert f"an sd of {config.global_sd_mm:g} mm" in first[0]["reason"]
 
 
 def test_gap_records_flag_uncertain_gaps_with_the_config_number():

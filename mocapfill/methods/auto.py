@@ -403,11 +403,11 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         info["prior"] = {"markers": int(np.isfinite(prior_est[1]).sum()),
                          "median_sd": float(np.nanmedian(prior_est[1])) if np.isfinite(prior_est[1]).any()
                          else None}
-    glob = None
+    glob, globbed = None, np.zeros(missing.shape, dtype=bool)  # the global PCA, and where it predicted
     if config.global_sd_mm and (missing & ~np.isfinite(pred_sd)).any():
         glob = global_prediction(positions, units)
         pred, pred_sd, edge, edge_sd, report_sd = joined(positions, pred, pred_sd, edge, edge_sd, report_sd, None,
-                                                         glob, config, mm)
+                                                         glob, config, mm, globbed=globbed)
     anchor, anchored = None, np.zeros(missing.shape, dtype=bool)
     if config.anchor and missing.any():
         from ..engines.body_anchor import body_anchor
@@ -462,7 +462,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         pred, pred_sd, edge, edge_sd = body_stage(positions, *refit, config, mm)
         pred, pred_sd, edge, edge_sd, report_sd = joined(positions, pred, pred_sd, edge, edge_sd,
                                                          reported_sd(pred_sd, off, spread), prior_est, glob, config, mm,
-                                                         anchor=anchor, anchored=anchored)
+                                                         anchor=anchor, anchored=anchored, globbed=globbed)
         # a model on guessed neighbours weighs how far they lie off the poses it learnt (the fill's sd is the
         # reported one there: :func:`reported_sd`)
         if untrusted_used.any():
@@ -483,9 +483,9 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
                                "used": int(sum(used_refs))} if config.impute_passes
                               else sinfo.get("references", {"frames": 0, "models": 0, "used": 0}))
     spatial = missing & np.isfinite(pred_sd)
-    info["gap_methods"] = gap_records(missing, sd, spatial & ~anchored, outliers, config, mm, labels, boneset, off,
-                                      displaced, segment_used, anchored, spread=spread, broken=broken, reach=reach,
-                                      stretched=stretched)
+    info["gap_methods"] = gap_records(missing, sd, spatial & ~anchored & ~globbed, outliers, config, mm, labels,
+                                      boneset, off, displaced, segment_used, anchored, spread=spread, broken=broken,
+                                      reach=reach, stretched=stretched, globbed=globbed)
     info["displaced"] = displaced_records(positions, displaced, edge, mm, labels)
     info["review"] = [i for i, r in enumerate(info["gap_methods"]) if r["review"]]
     return finish(positions, fill, std=sd, info=info)
@@ -493,10 +493,10 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
 
 def joined(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, edge: np.ndarray, edge_sd: np.ndarray,
            report_sd: np.ndarray, prior_est: tuple | None, glob: tuple | None, config: ModelConfig, mm: float,
-           anchor: Callable | None = None, anchored: np.ndarray | None = None):
+           anchor: Callable | None = None, anchored: np.ndarray | None = None, globbed: np.ndarray | None = None):
     """The learned denoiser's estimate (``prior_est``, :func:`prior_stage`), the global PCA's (``glob``,
-    :func:`global_stage`) and the body anchor's (``anchor``, :func:`anchor_stage`; ``anchored`` receives where it
-    predicted) joined to the spatial predictions, each where given, in both the sd the fill uses
+    :func:`global_stage`; ``globbed`` receives where it predicted) and the body anchor's (``anchor``,
+    :func:`anchor_stage`; ``anchored`` receives where it predicted) joined to the spatial predictions, each where given, in both the sd the fill uses
     (``pred_sd``) and the one it reports (``report_sd``, :func:`reported_sd`).  Arrays as :func:`spatial_stage`
     returns them; returns pred, pred_sd, edge, edge_sd, report_sd."""
     if prior_est is not None:
@@ -504,7 +504,7 @@ def joined(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, edge: n
         pred, pred_sd, edge, edge_sd = prior_stage(positions, pred, pred_sd, edge, edge_sd, *prior_est)
     if glob is not None:
         report_sd = global_stage(positions, pred, report_sd, *glob, config, mm)[1]
-        pred, pred_sd = global_stage(positions, pred, pred_sd, *glob, config, mm)
+        pred, pred_sd = global_stage(positions, pred, pred_sd, *glob, config, mm, globbed=globbed)
     if anchor is not None:
         pred, pred_sd, report_sd = anchor_stage(positions, pred, pred_sd, report_sd, anchor, anchored=anchored)
     return pred, pred_sd, edge, edge_sd, report_sd
@@ -616,12 +616,15 @@ def global_prediction(positions: np.ndarray, units: str) -> tuple[np.ndarray, np
 
 
 def global_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, glob: np.ndarray, has: np.ndarray,
-                 config: ModelConfig, mm: float) -> tuple[np.ndarray, np.ndarray]:
+                 config: ModelConfig, mm: float, *, globbed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Stage 1c: missing samples the local model could not predict (NaN ``sd``, (n_frames, n_markers)) take the
     global PCA's prediction ``glob`` (n_frames, n_markers, 3; ``has`` where it has one) with sd
     ``config.global_sd_mm``, so a marker seen in few frames still moves with the body; the smoother weighs it like
-    any spatial prediction.  Returns pred and sd with those samples filled."""
+    any spatial prediction.  Returns pred and sd with those samples filled; ``globbed`` (n_frames, n_markers) bool or
+    None receives where."""
     todo = np.isnan(positions).any(axis=2) & ~np.isfinite(sd) & has
+    if globbed is not None:
+        globbed[:] = todo
     if not todo.any():
         return pred, sd
     return np.where(todo[..., None], glob, pred), np.where(todo, config.global_sd_mm * mm, sd)
@@ -1122,7 +1125,8 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
                 config: ModelConfig, mm: float, labels, boneset, off: np.ndarray | None = None,
                 displaced: np.ndarray | None = None, segment: np.ndarray | None = None,
                 anchored: np.ndarray | None = None, spread: np.ndarray | None = None,
-                broken: np.ndarray | None = None, reach=None, stretched: np.ndarray | None = None) -> list[dict]:
+                broken: np.ndarray | None = None, reach=None, stretched: np.ndarray | None = None,
+                globbed: np.ndarray | None = None) -> list[dict]:
     """Stage 5: one JSON-ready record per gap (run of missing frames of one marker).
 
     missing / sd / spatial / outliers (n_frames, n_markers): the input's mask, the posterior sd, where the spatial
@@ -1132,7 +1136,8 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
     segment model predicted (:attr:`ModelConfig.segment_mm`); anchored (n_frames, n_markers) or None: where the body
     anchor predicted (:func:`anchor_stage`), not counted in ``spatial``; spread (n_frames, n_markers) or None: the
     variance of the spatial model's widths about their mix (:func:`reported_sd`); broken (n_frames, n_bones) or
-    None: where the bone stage left a bone of ``boneset`` out (:func:`bone_breaks`).  ``review`` is True when the gap's
+    None: where the bone stage left a bone of ``boneset`` out (:func:`bone_breaks`); globbed (n_frames, n_markers) or
+    None: where the global PCA predicted (:func:`global_stage`), not counted in ``spatial``.  ``review`` is True when the gap's
     largest sd exceeds ``config.review_sd_mm`` (or nothing could be filled) or a run judged displaced touches it;
     every number in ``reason`` comes from ``config`` or from the fill.
     """
@@ -1150,13 +1155,17 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
         worst = float(np.nanmax(sd[sl, m])) if np.isfinite(sd[sl, m]).any() else float("nan")
         share = float(spatial[sl, m].mean())
         by_anchor = 0.0 if anchored is None else float(anchored[sl, m].mean())
+        by_global = 0.0 if globbed is None else float(globbed[sl, m].mean())
         anchor_text = ("the body anchor (the position the markers seen with it give by their mean offsets, no "
                        f"rotation) predicted {by_anchor:.0%} of the frames")
-        if share == 0 and by_anchor > 0:
-            method = "anchor+motion"
-            reason = (f"no local model could predict it: {anchor_text}, fused with the white-jerk motion model by the "
-                      f"smoother")
-            if by_anchor < 1:
+        global_text = (f"the global weighted PCA (the `pca` method, weighed with an sd of {config.global_sd_mm:g} mm) "
+                       f"predicted {by_global:.0%} of the frames")
+        others = [text for text, part in ((global_text, by_global), (anchor_text, by_anchor)) if part > 0]
+        if share == 0 and others:
+            method = "global-pca+motion" if by_global > 0 else "anchor+motion"
+            reason = (f"no local model could predict it: {'; '.join(others)}, fused with the white-jerk motion model "
+                      f"by the smoother")
+            if by_anchor + by_global < 1:
                 reason += "; the motion model bridges the rest"
         elif share == 0:
             method = "motion"
@@ -1166,9 +1175,9 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
             method = "local-pca+motion"
             reason = (f"local weighted PCA predicted {share:.0%} of the frames, fused with the white-jerk motion "
                       f"model by the smoother")
-            if by_anchor > 0:
-                reason += f"; {anchor_text}"
-            if share + by_anchor < 1:
+            for text in others:
+                reason += f"; {text}"
+            if share + by_anchor + by_global < 1:
                 reason += "; the motion model bridges the rest"
             by_segment = segment is not None and bool(segment[sl, m].any())
             if by_segment:
