@@ -149,7 +149,7 @@ def test_edge_mask_equals_the_loop_over_runs():
 
 def _plain_group_model(positions, m, group, predictors, train, weights, align_weight, dist, scales, *, reach,
                        normalise, folds, knn, row_weight=None, used_references=None, max_predictors=None,
-                       extrapolation=None, disagreement=None):
+                       extrapolation=None, disagreement=None, split_by_time=False):
     """group_model as first written: a full-width (n, 3 n_markers) NaN array of local coordinates, the training
     block gathered by rows and columns, the nearest poses by a float64 argpartition (no reference rows, no bound on
     the predictors)."""
@@ -170,7 +170,8 @@ def _plain_group_model(positions, m, group, predictors, train, weights, align_we
         pred = predictors[dist[predictors] <= reach * width]
         if len(pred) < 3:
             pred = predictors[np.argsort(dist[predictors])[:3]]
-        curve = cv_curve(flat, tr, target, pred, w, normalise=normalise, folds=folds)
+        curve = cv_curve(flat, tr, target, pred, w, normalise=normalise, folds=folds,
+                         times=train if split_by_time else None)
         k, rms = (None, np.nan) if curve is None else (int(np.argmin(curve[0])) + 1, None)
         if curve is not None:
             rms = float(np.sqrt(curve[0, k - 1]))

@@ -95,3 +95,29 @@ def test_predictor_residual_is_zero_on_the_model_and_grows_off_it():
     on = predictor_residual(model, flat)
     off = predictor_residual(model, flat[:5] + rng.normal(size=(5, 12)) * 20)
     assert on.max() < 1e-3 and (off > 1.0).all()
+
+
+def test_few_rows_are_cross_validated_across_their_largest_time_gap():
+    """A marker seen only at a short take's two ends (10-19 frames: one ordinary block) is scored by holding out each
+    end in turn, as the gap between them would; an end of a single frame leaves nothing to score with."""
+    rng = np.random.default_rng(3)
+    base = rng.normal(size=(1, 5, 3)) * 100.0
+    drift = np.linspace(0.0, 1.0, 200)[:, None, None] * rng.normal(size=(1, 5, 3)) * 30.0
+    flat = (base + drift + rng.normal(size=(200, 5, 3))).reshape(200, -1)
+    two_ends = np.r_[0:4, 194:200]
+    assert cv_curve(flat, two_ends, np.array([0]), np.arange(1, 5), np.ones(5)) is None  # no times: one block
+    curve = cv_curve(flat, two_ends, np.array([0]), np.arange(1, 5), np.ones(5), times=two_ends)
+    expected = np.zeros((1, 15))
+    for held, fit in ((np.arange(4), np.arange(4, 10)), (np.arange(4, 10), np.arange(4))):
+        block = flat[np.ix_(two_ends, np.arange(15))]
+        model = fit_model(flat, two_ends[fit], np.array([0]), np.arange(1, 5), np.ones(5), components=15)
+        z = (block[held] - model.mean) / model.scale * model.weight
+        z[:, :3] = 0.0
+        scores = z @ model.basis
+        for k in range(1, 16):
+            recon = scores[:, :k] @ model.basis[:3, :k].T / model.weight[:3] * model.scale[:3] + model.mean[:3]
+            expected[0, k - 1] += ((recon - block[held, :3]) ** 2).sum()
+    # (beyond 3 components the 4-frame fold's basis is any basis of a null space: compare the first 3)
+    assert np.allclose(curve[:, :3], expected[:, :3] / 10 / 3)
+    one_end = np.r_[0, 189:200]  # the first end a single frame: nothing to fit when the other is held out
+    assert cv_curve(flat, one_end, np.array([0]), np.arange(1, 5), np.ones(5), times=one_end) is None

@@ -342,7 +342,8 @@ def _cols(markers: np.ndarray) -> list[int]:
 
 
 def _choose_rows(flat: np.ndarray, tr: np.ndarray, own: np.ndarray, rw: np.ndarray | None, target: np.ndarray,
-                 pred: np.ndarray, w: np.ndarray, normalise: bool, folds: int, residuals: bool = False
+                 pred: np.ndarray, w: np.ndarray, normalise: bool, folds: int, residuals: bool = False,
+                 times: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """Training rows, their weights and the cross-validation curve of one model, with or without reference rows.
 
@@ -352,9 +353,11 @@ def _choose_rows(flat: np.ndarray, tr: np.ndarray, own: np.ndarray, rw: np.ndarr
     scored on those blocks (references always in training) against the model on the capture's rows alone, and the
     better is kept; otherwise the references stay and every row is held out in turn.  The fourth value: the kept
     model's held-out predictor residual as a function of the number of components (``residuals``; else None).
+    ``times`` (n_train,) or None: each row's frame, for :func:`~.weighted_pca.cv_curve`'s split of few rows.
     """
     def curve_of(rows, **kw):
-        out = cv_curve(flat, rows, target, pred, w, normalise=normalise, folds=folds, residuals=residuals, **kw)
+        out = cv_curve(flat, rows, target, pred, w, normalise=normalise, folds=folds, residuals=residuals,
+                       times=None if times is None else times[rows], **kw)
         return (None, None) if out is None else out if residuals else (out, None)
 
     if rw is None or own.all():
@@ -373,7 +376,7 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
                 weights: list[np.ndarray], align_weight: np.ndarray, dist: np.ndarray, scales: tuple[float, ...], *,
                 reach: float, normalise: bool, folds: int, knn: int, row_weight: np.ndarray | None = None,
                 used_references: list | None = None, max_predictors: int | None = None,
-                extrapolation: list | None = None, disagreement: list | None = None):
+                extrapolation: list | None = None, disagreement: list | None = None, split_by_time: bool = False):
     """One local model of marker ``m``: fitted on ``train`` frames, evaluated on ``train`` then ``group`` frames.
 
     positions (n_frames, n_markers, 3) finite at ``m`` on ``train`` and at ``predictors`` on every frame used;
@@ -392,6 +395,8 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
     the held-out rows' mean one, :func:`~.weighted_pca.predictor_residual`), averaged with the widths' weights.
     ``disagreement`` (a list) receives the (n_train + n_group,) variance per coordinate of the widths' reconstructions
     about their mix, sum_s mix_s |est_s - est|^2 / 3: the mixture's variance beyond its members' own.
+    ``split_by_time``: fewer training frames than two cross-validation blocks are split at their largest time gap
+    (:func:`~.weighted_pca.cv_curve`'s ``times``) instead of leaving the model without an error (and so unused).
     """
     n_markers = positions.shape[1]
     needed = np.concatenate([[m], predictors])
@@ -421,7 +426,8 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
             own = None
         rows, row_w, curve, held = _choose_rows(flat, tr, np.ones(n_train, bool) if own is None else own,
                                                 None if own is None else row_weight[train], target, pred, w,
-                                                normalise, folds, residuals=extrapolation is not None)
+                                                normalise, folds, residuals=extrapolation is not None,
+                                                times=train if split_by_time else None)
         if curve is None:
             k, rms = None, np.nan
         else:
@@ -806,7 +812,7 @@ def reconstruct_completed(
             data, m, group, near, train, weights, align_weight, dist, scales, reach=reach,
             max_predictors=max_predictors, normalise=normalise, folds=folds, knn=knn, row_weight=row_weight,
             used_references=refs if row_weight is not None and used_references is not None else None,
-            extrapolation=off, disagreement=spread)
+            extrapolation=off, disagreement=spread, split_by_time=True)
         fit = RefitModel(group, near, train, est_all, leverage, rms_mix, sens, off[0] if off else None, False,
                          spread[0] if spread else None)
         close = segment_markers(near, dist, missing[group], segment) if segment else near[:0]
@@ -817,7 +823,7 @@ def reconstruct_completed(
             seg_all, seg_leverage, seg_rms, _, _, _, seg_sens = group_model(
                 data, m, group, close, train, seg_weights, seg_align, dist, (segment,), reach=np.inf,
                 normalise=normalise, folds=folds, knn=knn, row_weight=row_weight, extrapolation=seg_off,
-                disagreement=seg_spread)
+                disagreement=seg_spread, split_by_time=True)
             if prefer_segment(seg_rms, seg_off[0], rms_mix, fit.off):
                 fit = fit._replace(est=seg_all, leverage=seg_leverage, rms=seg_rms, sens=seg_sens, off=seg_off[0],
                                    segment=True, disagreement=seg_spread[0] if seg_spread else None)

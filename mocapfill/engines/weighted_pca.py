@@ -366,12 +366,16 @@ def cv_curve(
     row_weight: np.ndarray | None = None,
     holdout: np.ndarray | None = None,
     residuals: bool = False,
+    times: np.ndarray | None = None,
 ) -> np.ndarray | tuple[np.ndarray, Callable[[int], float]] | None:
     """Leave-one-block-out mean squared error per coordinate of the targets for every number of components.
 
-    Same splitting as :func:`cross_validated_rms`; one eigendecomposition per fold serves every truncation because
-    the reconstruction with k components is a cumulative sum over components.  Returns (n_targets, q) with
-    q = 3 (n_targets + n_predictors) (entry k-1 = error with k components), or None with too few frames.
+    Same splitting as :func:`cross_validated_rms`, except with ``times`` (n_train,), each row's frame, and fewer than
+    two blocks' worth of rows (``MIN_TRAINING_FRAMES`` <= n < twice that, which gave one block, no error and so no
+    model): then the rows on either side of their largest time gap are the two blocks, as a gap there would hide
+    them (each at least 2 rows).  One eigendecomposition per fold serves every truncation because the reconstruction
+    with k components is a cumulative sum over components.  Returns (n_targets, q) with q = 3 (n_targets +
+    n_predictors) (entry k-1 = error with k components), or None with too few frames.
 
     ``row_weight`` (n_train,): the weight of each training row in the sums (reference frames beside the capture's
     own, see :mod:`mocapfill.references`; default 1).  ``holdout`` (n_train,) bool: the rows that are held out in
@@ -383,7 +387,15 @@ def cv_curve(
     block_all = flat[np.ix_(train, columns)]
     s1, s2, n = weighted_sums(block_all, row_weight)
     rows_out = np.arange(len(train)) if holdout is None else np.flatnonzero(holdout)
-    blocks = [rows_out[b] for b in _blocks(len(rows_out), folds)]
+    n_out = len(rows_out)
+    if times is not None and MIN_TRAINING_FRAMES <= n_out < 2 * MIN_TRAINING_FRAMES:
+        # too few frames for two ordinary blocks (a marker seen a few frames of a short take): hold out the frames on
+        # either side of the largest time gap between them, what a gap there would hide, each side leaving the other
+        # at least 2 frames to fit (a covariance)
+        cut = int(np.argmax(np.diff(np.asarray(times)[rows_out]))) + 1
+        blocks = [rows_out[:cut], rows_out[cut:]] if min(cut, n_out - cut) >= 2 else []
+    else:
+        blocks = [rows_out[b] for b in _blocks(n_out, folds)]
     if len(blocks) < 2:
         return None
     nt = 3 * len(targets)
