@@ -96,7 +96,9 @@ def run_one(task: tuple) -> dict:
               "date": datetime.date.today().isoformat(), "frames": data.n_frames, "markers": data.n_markers,
               "rate": data.rate, "duration": data.n_frames / data.rate, "units": data.units,
               "missing": float(np.isnan(data.positions).any(axis=2).mean()), "to_fill": int(need.sum()),
-              "error": None, "config": config, "processes": resolve_jobs(fill_jobs) if can_fork() else 1}
+              "error": None, "config": config,
+              # (a method without ``jobs`` fills in this process, as fill_capture hands it none)
+              "processes": resolve_jobs(fill_jobs) if can_fork() and "jobs" in METHODS[method].parameters() else 1}
     cpu0 = _cpu_seconds()
     try:
         with warnings.catch_warnings(), single_blas_thread(), harness.auto_config(config):
@@ -253,8 +255,8 @@ def main(argv: list[str] | None = None) -> None:
                          _f(s["ratio_max"]), _f(s["p_observed"]), _f(s["p_filled"]), _f(s["ratio_percentile"]),
                          "PASS" if r["smooth_ok"] else "FAIL", r.get("worst", ""), r.get("left_missing", 0), note])
     columns = ["capture", "method", "frames x markers", "Hz", "s", "missing %", "filled samples", "fill s",
-               "processes", "CPU s", "fill / duration", "fast", "max acc observed", "max acc filled", "ratio", "p99.9 observed",
-               "p99.9 filled", "ratio", "smooth", "worst filled at", "left missing", "note"]
+               "processes", "CPU s", "fill / duration", "fast", "max acc observed", "max acc filled", "ratio",
+               "p99.9 observed", "p99.9 filled", "ratio", "smooth", "worst filled at", "left missing", "note"]
     print("\n## Speed and smoothness on the real gapped captures (accelerations in mm / frame^2)")
     print("| " + " | ".join(columns) + " |\n|" + "---|" * len(columns))
     for row in rows:

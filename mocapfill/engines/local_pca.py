@@ -614,7 +614,8 @@ def reconstruct_local(
             out.append((group, train, fitted, off[0] if off else None, with_refs))
         return out
 
-    for m, groups in zip(gap_markers, forked_map(marker_models, gap_markers, jobs, cost=missing[:, gap_markers].sum(axis=0))):
+    fitted_groups = forked_map(marker_models, gap_markers, jobs, cost=missing[:, gap_markers].sum(axis=0))
+    for m, groups in zip(gap_markers, fitted_groups):
         interpolated = None  # the marker's linear interpolation, once for all its groups that need it
         for entry in groups:
             group = entry[0]
@@ -871,9 +872,12 @@ def reconstruct_completed(
         candidates = candidates[np.argsort(dist[candidates], kind="stable")]
         trusted = candidates[sure[candidates]]
         if untrusted is not None and trust is not None and len(trusted) < 3:
-            u_take = u_data.copy()
-            u_take[:n_frames, m] = data[:n_frames, m]  # the marker's own samples stay as observed: its targets
-            fit = refit(m, gap_frames, candidates, dist, weights, align_weight, data=u_take, refs=refs)
+            own = u_data[:n_frames, m].copy()
+            u_data[:n_frames, m] = data[:n_frames, m]  # the marker's own samples stay as observed: its targets
+            try:  # (put back before returning: the next marker, here or in a worker, reads the take as it was)
+                fit = refit(m, gap_frames, candidates, dist, weights, align_weight, data=u_data, refs=refs)
+            finally:
+                u_data[:n_frames, m] = own
             return ([] if fit is None else [(fit, True)]), refs
         whole = refit(m, gap_frames, trusted, dist, weights, align_weight, refs=refs)
         if whole is None:

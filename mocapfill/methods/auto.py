@@ -496,9 +496,9 @@ def joined(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, edge: n
            anchor: Callable | None = None, anchored: np.ndarray | None = None, globbed: np.ndarray | None = None):
     """The learned denoiser's estimate (``prior_est``, :func:`prior_stage`), the global PCA's (``glob``,
     :func:`global_stage`; ``globbed`` receives where it predicted) and the body anchor's (``anchor``,
-    :func:`anchor_stage`; ``anchored`` receives where it predicted) joined to the spatial predictions, each where given, in both the sd the fill uses
-    (``pred_sd``) and the one it reports (``report_sd``, :func:`reported_sd`).  Arrays as :func:`spatial_stage`
-    returns them; returns pred, pred_sd, edge, edge_sd, report_sd."""
+    :func:`anchor_stage`; ``anchored`` receives where it predicted) joined to the spatial predictions, each where
+    given, in both the sd the fill uses (``pred_sd``) and the one it reports (``report_sd``, :func:`reported_sd`).
+    Arrays as :func:`spatial_stage` returns them; returns pred, pred_sd, edge, edge_sd, report_sd."""
     if prior_est is not None:
         report_sd = prior_stage(positions, pred, report_sd, edge, edge_sd, *prior_est)[1]
         pred, pred_sd, edge, edge_sd = prior_stage(positions, pred, pred_sd, edge, edge_sd, *prior_est)
@@ -616,7 +616,8 @@ def global_prediction(positions: np.ndarray, units: str) -> tuple[np.ndarray, np
 
 
 def global_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, glob: np.ndarray, has: np.ndarray,
-                 config: ModelConfig, mm: float, *, globbed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 config: ModelConfig, mm: float, *, globbed: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """Stage 1c: missing samples the local model could not predict (NaN ``sd``, (n_frames, n_markers)) take the
     global PCA's prediction ``glob`` (n_frames, n_markers, 3; ``has`` where it has one) with sd
     ``config.global_sd_mm``, so a marker seen in few frames still moves with the body; the smoother weighs it like
@@ -1137,9 +1138,9 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
     anchor predicted (:func:`anchor_stage`), not counted in ``spatial``; spread (n_frames, n_markers) or None: the
     variance of the spatial model's widths about their mix (:func:`reported_sd`); broken (n_frames, n_bones) or
     None: where the bone stage left a bone of ``boneset`` out (:func:`bone_breaks`); globbed (n_frames, n_markers) or
-    None: where the global PCA predicted (:func:`global_stage`), not counted in ``spatial``.  ``review`` is True when the gap's
-    largest sd exceeds ``config.review_sd_mm`` (or nothing could be filled) or a run judged displaced touches it;
-    every number in ``reason`` comes from ``config`` or from the fill.
+    None: where the global PCA predicted (:func:`global_stage`), not counted in ``spatial``.  ``review`` is True when
+    the gap's largest sd exceeds ``config.review_sd_mm`` (or nothing could be filled) or a run judged displaced
+    touches it; every number in ``reason`` comes from ``config`` or from the fill.
     """
     limit = config.review_sd_mm * mm
     out = []

@@ -300,7 +300,6 @@ def _run_dask(func: Callable[[Any], Any], tasks: Sequence[Any], scheduler: Any, 
             client.close()
 
 
-
 #: The function :func:`forked_map`'s workers run (set before they are forked, so they inherit it).
 _FORKED: Callable[[Any], Any] | None = None
 
@@ -328,8 +327,8 @@ def forked_map(func: Callable[[Any], Any], items: Sequence[Any], jobs: int | Non
     results travel by pickle.  ``func`` must not rely on side effects: they stay in the worker.  ``jobs`` as
     :func:`resolve_jobs`; here, one item after the other, where that gives 1, there are fewer than two items, or
     :func:`can_fork` says no.  A worker's exception is raised here; a worker that dies (killed, out of memory) raises
-    :class:`~mocapfill.errors.MocapfillError` (the command line's one-line error).  ``cost`` (one number per item) or None: the
-    costliest items are handed out first, so that no worker is left alone with a large one at the end.
+    :class:`~mocapfill.errors.MocapfillError` (the command line's one-line error).  ``cost`` (one number per item)
+    or None: the costliest items are handed out first, so that no worker is left alone with a large one at the end.
     """
     global _FORKED
     items = list(items)
