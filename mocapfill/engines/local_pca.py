@@ -40,6 +40,7 @@ from ..units import length_factor
 from .body_frame import nearest_rotation
 from .weighted_pca import (
     MIN_TRAINING_FRAMES,
+    PCAModel,
     cv_curve,
     weighted_sums,
     linear_fallback,
@@ -344,7 +345,7 @@ def _cols(markers: np.ndarray) -> list[int]:
 def _choose_rows(flat: np.ndarray, tr: np.ndarray, own: np.ndarray, rw: np.ndarray | None, target: np.ndarray,
                  pred: np.ndarray, w: np.ndarray, normalise: bool, folds: int, residuals: bool = False,
                  times: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+                 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None, PCAModel | None]:
     """Training rows, their weights and the cross-validation curve of one model, with or without reference rows.
 
     flat (n, 3 n_markers) local coordinates; tr (n_train,) training rows; own (n_train,) bool, the capture's own
@@ -353,23 +354,27 @@ def _choose_rows(flat: np.ndarray, tr: np.ndarray, own: np.ndarray, rw: np.ndarr
     scored on those blocks (references always in training) against the model on the capture's rows alone, and the
     better is kept; otherwise the references stay and every row is held out in turn.  The fourth value: the kept
     model's held-out predictor residual as a function of the number of components (``residuals``; else None).
-    ``times`` (n_train,) or None: each row's frame, for :func:`~.weighted_pca.cv_curve`'s split of few rows.
+    ``times`` (n_train,) or None: each row's frame, for :func:`~.weighted_pca.cv_curve`'s split of few rows.  The
+    fifth: the kept rows' model with every component (:func:`~.weighted_pca.cv_curve`'s ``fitted``), or None
+    without a curve.
     """
     def curve_of(rows, **kw):
+        fitted: list = []
         out = cv_curve(flat, rows, target, pred, w, normalise=normalise, folds=folds, residuals=residuals,
-                       times=None if times is None else times[rows], **kw)
-        return (None, None) if out is None else out if residuals else (out, None)
+                       times=None if times is None else times[rows], fitted=fitted, **kw)
+        full = fitted[0] if fitted else None
+        return (None, None, None) if out is None else (*out, full) if residuals else (out, None, full)
 
     if rw is None or own.all():
         return (tr, None, *curve_of(tr))
     enough = own.sum() >= 2 * MIN_TRAINING_FRAMES
-    curve, resid = curve_of(tr, row_weight=rw, holdout=own if enough else None)
+    curve, resid, full = curve_of(tr, row_weight=rw, holdout=own if enough else None)
     if not enough or curve is None:
-        return tr, rw, curve, resid
-    alone, alone_resid = curve_of(tr[own])
+        return tr, rw, curve, resid, full
+    alone, alone_resid, alone_full = curve_of(tr[own])
     if alone is not None and alone[0].min() <= curve[0].min():
-        return tr[own], None, alone, alone_resid
-    return tr, rw, curve, resid
+        return tr[own], None, alone, alone_resid, alone_full
+    return tr, rw, curve, resid, full
 
 
 def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np.ndarray, train: np.ndarray,
@@ -424,7 +429,7 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
         own = None if row_weight is None else row_weight[train] >= 1.0 - 1e-12
         if own is not None and own.all():
             own = None
-        rows, row_w, curve, held = _choose_rows(flat, tr, np.ones(n_train, bool) if own is None else own,
+        rows, row_w, curve, held, full = _choose_rows(flat, tr, np.ones(n_train, bool) if own is None else own,
                                                 None if own is None else row_weight[train], target, pred, w,
                                                 normalise, folds, residuals=extrapolation is not None,
                                                 times=train if split_by_time else None)
@@ -433,11 +438,14 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
         else:
             k = int(np.argmin(curve[0])) + 1
             rms = float(np.sqrt(curve[0, k - 1]))
-        cols = _cols(target) + _cols(pred)
-        # all training rows: a slice, not a gather of every row (the same block, C-ordered as the sums expect)
-        block = flat[:n_train].take(cols, axis=1) if rows is tr else flat[np.ix_(rows, cols)]
-        model = fit_model(flat, rows, target, pred, w, normalise=normalise, components=k,
-                          gram=weighted_sums(block, row_w))
+        if full is not None:  # the cross-validation's own fit on the kept rows, its first k components
+            model = full._replace(basis=full.basis[:, :k], singular=full.singular[:k])
+        else:
+            cols = _cols(target) + _cols(pred)
+            # all training rows: a slice, not a gather of every row (the same block, C-ordered as the sums expect)
+            block = flat[:n_train].take(cols, axis=1) if rows is tr else flat[np.ix_(rows, cols)]
+            model = fit_model(flat, rows, target, pred, w, normalise=normalise, components=k,
+                              gram=weighted_sums(block, row_w))
         est_local, leverage = predict(model, flat)
         if extrapolation is not None:  # the predicted rows only (a training row's pose is one the model learnt)
             scale = held(k) if k is not None and held is not None else 0.0

@@ -179,24 +179,43 @@ def fit_model(
         s1, s2, n = block.sum(axis=0), block.T @ block, len(train)
     else:
         s1, s2, n = gram
-    mean = s1 / n
-    cov = (s2 - n * np.outer(mean, mean)) / max(n - 1, 1)
-    cov = (cov + cov.T) / 2
-    std = np.sqrt(np.clip(np.diag(cov), 0, None))
+    weight = np.repeat(np.concatenate([marker_weight[targets], marker_weight[predictors]]), 3)
+    (model,) = _fit_stacked(columns, 3 * len(targets), np.asarray(s1)[None], np.asarray(s2)[None],
+                            np.array([float(n)]), weight, normalise=normalise, variance=variance,
+                            components=components)
+    return model
+
+
+def _fit_stacked(columns: np.ndarray, n_target: int, s1: np.ndarray, s2: np.ndarray, n: np.ndarray,
+                 weight: np.ndarray, *, normalise: bool, variance: float = 0.99, components: int | None = None
+                 ) -> list[PCAModel]:
+    """:func:`fit_model` from the raw sums of F training sets at once: s1 (F, q), s2 (F, q, q), n (F,) rows.
+
+    One stacked eigendecomposition for the F sets (cross-validation's folds): the same numbers per set as F calls,
+    every operation elementwise or per matrix, without F times the per-call overhead of small arrays.
+    """
+    mean = s1 / n[:, None]
+    dof = np.maximum(n - 1, 1)[:, None, None]
+    cov = (s2 - n[:, None, None] * (mean[:, :, None] * mean[:, None, :])) / dof
+    cov = (cov + np.swapaxes(cov, 1, 2)) / 2
+    std = np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None))
     if normalise:
         # A coordinate that never moves would divide by zero; leave it unscaled (it carries no correlation anyway).
-        scale = np.where(std > 1e-12 * max(std.max(), 1e-300), std, 1.0)
+        scale = np.where(std > 1e-12 * np.maximum(std.max(axis=1, keepdims=True), 1e-300), std, 1.0)
     else:
         scale = np.ones_like(std)
-    weight = np.repeat(np.concatenate([marker_weight[targets], marker_weight[predictors]]), 3)
     d = weight / scale
-    wcov = cov * np.outer(d, d) * max(n - 1, 1)  # Gram of the centred, normalised, weighted training matrix
+    wcov = cov * (d[:, :, None] * d[:, None, :]) * dof  # Gram of the centred, normalised, weighted training matrix
     evals, evecs = np.linalg.eigh(wcov)
-    order = np.argsort(evals)[::-1]
-    evals, evecs = np.clip(evals[order], 0, None), evecs[:, order]
-    singular = np.sqrt(evals)
-    k = _keep(singular, variance) if components is None else int(min(max(components, 1), len(singular)))
-    return PCAModel(columns, 3 * len(targets), mean, scale, weight, evecs[:, :k], singular[:k])
+    order = np.argsort(evals, axis=1)[:, ::-1]
+    out = []
+    for f, o in enumerate(order):
+        singular = np.sqrt(np.clip(evals[f][o], 0, None))
+        k = _keep(singular, variance) if components is None else int(min(max(components, 1), len(singular)))
+        # (the reordered eigenvectors come column-major, as a single fit's always did: a product's last bits can
+        # depend on its operands' layout)
+        out.append(PCAModel(columns, n_target, mean[f], scale[f], weight, evecs[f][:, o][:, :k], singular[:k]))
+    return out
 
 
 def predict(model: PCAModel, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -367,6 +386,7 @@ def cv_curve(
     holdout: np.ndarray | None = None,
     residuals: bool = False,
     times: np.ndarray | None = None,
+    fitted: list | None = None,
 ) -> np.ndarray | tuple[np.ndarray, Callable[[int], float]] | None:
     """Leave-one-block-out mean squared error per coordinate of the targets for every number of components.
 
@@ -382,6 +402,8 @@ def cv_curve(
     blocks (the capture's own); the others always stay in training.  Default: every row.  ``residuals``: also a
     function k -> the held-out rows' mean squared predictor residual with k components (:func:`_fold_residual`: the
     scale of :func:`predictor_residual` on poses a model did not learn from), returned as ``(curve, residual)``.
+    ``fitted`` (a list): receives the model on every row with every component, what :func:`fit_model` gives on the
+    same rows and weights (truncated to k components, it is that number's fit), from the folds' decomposition.
     """
     columns = np.concatenate([_columns(targets), _columns(predictors)])
     block_all = flat[np.ix_(train, columns)]
@@ -399,19 +421,27 @@ def cv_curve(
     if len(blocks) < 2:
         return None
     nt = 3 * len(targets)
-    sq = np.zeros((len(columns), nt))
-    kept = []  # (fold model, held-out sums) for the residual, once the number of components is chosen
-    count = 0
+    held_sums = []  # per fold: the held-out rows' sums as weighed in training, and as counted in the error
     for rows in blocks:
         held = block_all[rows]
         hw = None if row_weight is None else row_weight[rows]
-        h1, h2, hn = weighted_sums(held, hw)
-        gram = (s1 - h1, s2 - h2, n - hn)
-        model = fit_model(flat, train, targets, predictors, marker_weight, normalise=normalise, gram=gram,
-                          components=len(columns))
-        if hw is not None and not np.all(hw == 1.0):  # the error counts every held row once
-            h1, h2, hn = weighted_sums(held, None)
-        sq += _fold_errors(model, h1, h2, hn)
+        sums = weighted_sums(held, hw)
+        # the error counts every held row once
+        held_sums.append((sums, weighted_sums(held, None) if hw is not None and not np.all(hw == 1.0) else sums))
+    weight = np.repeat(np.concatenate([marker_weight[targets], marker_weight[predictors]]), 3)
+    # the folds' models and, last, the model on every row: one stacked decomposition
+    models = _fit_stacked(columns, nt, np.stack([s1 - h[0][0] for h in held_sums] + [s1]),
+                          np.stack([s2 - h[0][1] for h in held_sums] + [s2]),
+                          np.array([n - h[0][2] for h in held_sums] + [n], dtype=np.float64), weight,
+                          normalise=normalise, components=len(columns))
+    if fitted is not None:
+        fitted.append(models[-1])
+    models = models[:-1]
+    sq = np.zeros((len(columns), nt))
+    kept = []  # (fold model, held-out sums) for the residual, once the number of components is chosen
+    count = 0
+    for rows, model, (_, (h1, h2, hn)) in zip(blocks, models, held_sums):
+        sq += _fold_errors(model, h1, h2, hn)  # (per fold: numpy's stacked products of this size are slower)
         if residuals:
             kept.append((model, h1, h2, hn))
         count += len(rows)
