@@ -357,13 +357,32 @@ def test_the_reported_sd_grows_where_the_neighbours_take_unseen_poses_and_the_fi
     off = info["extrapolation"][:, 0]
     assert np.isnan(off[:90]).all() and (off[90:150] >= 1.0).all()
     assert off[115:125].min() > 50.0 and off[[90, 149]].max() < 10.0  # the knee bent most mid-gap
-    plain = fill_auto(gapped, config=ModelConfig(extrapolation_sd=False))
-    told = fill_auto(gapped)
+    plain = fill_auto(gapped, config=ModelConfig(extrapolation_sd=False, bone_move_sd=False))
+    told = fill_auto(gapped, config=ModelConfig(bone_move_sd=False))
     assert np.array_equal(told.positions, plain.positions)  # the mean keeps the cross-validated sd
     err = np.sqrt(np.mean((told.positions[90:150, 0] - pos[90:150, 0]) ** 2, axis=1))  # per coordinate
     assert err.max() > 10.0 * plain.std[90:150, 0].max()  # the sd it reported before: far too sure
     assert told.std[115:125, 0].min() > 10.0 * plain.std[115:125, 0].max()
     assert err.max() < 3.0 * told.std[90:150, 0].max()
+
+
+def test_the_reported_sd_grows_by_what_the_bones_moved_and_the_fill_stays():
+    """Marker 1 vanishes too while the knee bends far: its prediction is off by tens of mm and the bones pull it;
+    the reported sd takes in how far (ModelConfig.bone_move_sd), the fill does not change."""
+    pos = bent_knee()
+    gapped = pos.copy()
+    gapped[90:150, 0] = np.nan
+    gapped[100:130, 1] = np.nan
+    plain = fill_auto(gapped, config=ModelConfig(bone_move_sd=False))
+    told = fill_auto(gapped)
+    assert np.array_equal(told.positions, plain.positions)
+
+    def rms(x: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(x ** 2)))
+
+    err = rms(told.positions[100:130, 1] - pos[100:130, 1])  # per coordinate
+    assert err > 3.0 * rms(plain.std[100:130, 1])  # far too sure without it
+    assert rms(told.std[100:130, 1]) > 1.5 * rms(plain.std[100:130, 1])
 
 
 def test_a_bone_measured_while_its_ends_stood_still_lets_go_once_one_moves():

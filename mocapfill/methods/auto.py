@@ -279,6 +279,14 @@ class ModelConfig:
     #: trials (70 without); bench_default_captures' gaps needing review flagged 99 of 155 (88), at 265 flagged in
     #: all (212); the committed walk 37 of 43 (36), 53 flagged (51).
     width_spread_sd: bool = True
+    #: The reported sd grows by how far the refit's bone stage moved each prediction (its variance by |move|^2 / 3
+    #: per coordinate): a prediction the bones and reaches had to pull by d was off by about d, whatever its
+    #: cross-validated sd said (85_02, a forearm and wrist gone through a flip: 18-32 mm off per coordinate, reported
+    #: 3-5, the bones had pulled them 2-5 mm).  The fill's mean is unchanged.  Measured (2026-11-28, sixteenth
+    #: session; fills unchanged): bench_default's err/std inside 0.5-2 on 75 of 80 trials (74 without);
+    #: bench_default_captures' gaps needing review flagged 108 of 144 (99), at 291 flagged in all (260); the
+    #: committed walk unchanged (37 of 43, 54 flagged).
+    bone_move_sd: bool = True
     #: Frame rate assumed when the capture has none.
     default_rate: float = 100.0
     #: With a learned denoiser (``--model``, :func:`prior_stage`): observed frames per marker hidden to learn the
@@ -469,10 +477,13 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
             pred_sd = np.where(untrusted_used[None, :], report_sd, pred_sd)
         if holds:
             # a segment model's predictions ride on the markers observed throughout the gap: the bones stay off them
-            pred = np.where(segment_used[..., None], pred,
-                            bone_stage(positions, pred, pred_sd, boneset, config, mm, anchored,
-                                       report_sd=report_sd, broken=broken, rates=rates, reach=reach,
-                                       stretched=stretched, jobs=jobs))
+            boned = np.where(segment_used[..., None], pred,
+                             bone_stage(positions, pred, pred_sd, boneset, config, mm, anchored,
+                                        report_sd=report_sd, broken=broken, rates=rates, reach=reach,
+                                        stretched=stretched, jobs=jobs))
+            if config.bone_move_sd:  # (NaN where there is no prediction: nothing moved)
+                report_sd = np.sqrt(report_sd ** 2 + np.nan_to_num(np.sum((boned - pred) ** 2, axis=2)) / 3.0)
+            pred = boned
         displaced = displaced_runs(positions, edge, edge_sd, config, mm)
         displaced[:, untrusted_used] = False  # a model on guessed neighbours does not overrule an observation
         fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate,
