@@ -606,12 +606,12 @@ def global_prediction(positions: np.ndarray, units: str) -> tuple[np.ndarray, np
     faster than its marker was seen to (:func:`mocapfill.guards.plausibility.implausible`), or accelerates more than
     anything observed in the capture, is no prediction (``pca``'s fill can be metres off where few markers are
     seen)."""
+    from ..engines.weighted_pca import reconstruct, weight_width
     from ..evaluation.smoothness import accelerations
     from ..guards.plausibility import implausible, observed_speed
-    from .pca import fill_pca
 
-    res = fill_pca(positions, units=units)
-    glob = res.positions
+    # ``pca``'s fill (fill_pca's defaults) without its cross-validated sd: this prediction's sd is global_sd_mm
+    glob = finish(positions, reconstruct(positions, scale=weight_width(units, None), uncertainty=False)[0]).positions
     has = np.isfinite(glob).all(axis=2)
     acc = np.full(has.shape, np.inf)
     acc[1:-1] = accelerations(glob)
