@@ -608,19 +608,30 @@ def reconstruct_local(
         other_idx = np.flatnonzero(others)
         near = other_idx[np.isfinite(dist[other_idx]) & (dist[other_idx] <= reach * max(scales))]
         near = near[np.argsort(dist[near], kind="stable")]
-        out: list[tuple] = []
-        for group, predictors, train in observed_groups(miss, m, frames, near, max_patterns, min_train, row_weight):
-            if len(predictors) < 3 or len(train) < MIN_TRAINING_FRAMES:
-                out.append((group,))
-                continue
+        groups = observed_groups(miss, m, frames, near, max_patterns, min_train, row_weight)
+        # groups that came out with the same predictors and training frames (on a capture with gaps everywhere, a
+        # third of them) are one model: fitted once on all their frames, its rows handed back to each
+        shared: dict[tuple[bytes, bytes], list[int]] = {}
+        for i, (_, predictors, train) in enumerate(groups):
+            if len(predictors) >= 3 and len(train) >= MIN_TRAINING_FRAMES:
+                shared.setdefault((predictors.tobytes(), train.tobytes()), []).append(i)
+        fits: dict[int, tuple] = {}
+        for members_of in shared.values():
+            _, predictors, train = groups[members_of[0]]
+            together = np.sort(np.concatenate([groups[i][0] for i in members_of]))
             with_refs: list[bool] = []
             off: list | None = [] if extrapolation else None
-            fitted = group_model(
-                src, m, group, predictors, train, weights, align_weight, dist, scales, reach=reach,
+            est_all, leverage, *rest = group_model(
+                src, m, together, predictors, train, weights, align_weight, dist, scales, reach=reach,
                 max_predictors=max_predictors, normalise=normalise, folds=folds, knn=knn, row_weight=row_weight,
                 used_references=with_refs, extrapolation=off)
-            out.append((group, train, fitted, off[0] if off else None, with_refs))
-        return out
+            n_train = len(train)
+            for i in members_of:
+                at = np.searchsorted(together, groups[i][0])  # this group's rows among the model's predicted ones
+                rows = np.concatenate([np.arange(n_train), n_train + at])
+                fits[i] = ((est_all[rows], leverage[rows], *rest), off[0][at] if off else None, with_refs)
+        return [(group,) if i not in fits else (group, train, *fits[i])
+                for i, (group, _, train) in enumerate(groups)]
 
     fitted_groups = forked_map(marker_models, gap_markers, jobs, cost=missing[:, gap_markers].sum(axis=0))
     for m, groups in zip(gap_markers, fitted_groups):
