@@ -195,6 +195,11 @@ def test_gap_records_flag_uncertain_gaps_with_the_config_number():
     recs = gap_records(missing, sd, spatial, np.zeros_like(missing), config, 1.0, ["a", "b"], None, off)
     assert recs[0]["extrapolation"] == 16.0 and "4.0x" in recs[0]["reason"]
     assert recs[1]["extrapolation"] == 1.0 and "never learnt" not in recs[1]["reason"]
+    moved = np.zeros(missing.shape)
+    moved[12, 0], moved[31, 1] = 90.0, 90.0  # the bones pulled a prediction 90 mm (52 mm per coordinate > 40)
+    recs = gap_records(missing, sd, spatial, np.zeros_like(missing), config, 1.0, ["a", "b"], None, off, moved=moved)
+    assert "moved its predictions by up to 90.0 mm" in recs[0]["reason"]
+    assert "moved" not in recs[1]["reason"]  # named only in a gap flagged for review
 
 
 def test_fill_keeps_observed_samples_and_gives_std():

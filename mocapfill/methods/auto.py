@@ -280,9 +280,10 @@ class ModelConfig:
     #: all (212); the committed walk 37 of 43 (36), 53 flagged (51).
     width_spread_sd: bool = True
     #: The reported sd grows by how far the refit's bone stage moved each prediction (its variance by |move|^2 / 3
-    #: per coordinate): a prediction the bones and reaches had to pull by d was off by about d, whatever its
-    #: cross-validated sd said (85_02, a forearm and wrist gone through a flip: 18-32 mm off per coordinate, reported
-    #: 3-5, the bones had pulled them 2-5 mm).  The fill's mean is unchanged.  Measured (2026-11-28, sixteenth
+    #: per coordinate): a correction drawn from soft bones between uncertain estimates is itself uncertain by about
+    #: its size, and a prediction the bones had to pull far was not as sure as its cross-validation said (85_02, a
+    #: forearm and wrist gone through a flip: 18-32 mm off per coordinate, reported 3-5, pulled 2-5 mm).  The fill's
+    #: mean is unchanged.  Measured (2026-11-28, sixteenth
     #: session; fills unchanged): bench_default's err/std inside 0.5-2 on 75 of 80 trials (74 without);
     #: bench_default_captures' gaps needing review flagged 108 of 144 (99), at 291 flagged in all (260); the
     #: committed walk unchanged (37 of 43, 54 flagged).
@@ -453,12 +454,14 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
                                         believed=believed, white_only=anchored)
     segment_used = None  # where the last refit's segment models predicted (none without a refit)
     spread = None  # the spread of the last refit's widths (:func:`reported_sd`)
+    moved = None  # how far the last refit's bone stage moved each prediction (:attr:`ModelConfig.bone_move_sd`)
     for k in range(config.impute_passes):
         last = k == config.impute_passes - 1
         if used_refs is not None:
             used_refs.clear()  # the last pass's models make the prediction: they are the ones reported
         off = np.full(missing.shape, np.nan) if config.extrapolation_sd and last else None
         spread = np.full(missing.shape, np.nan) if config.width_spread_sd and last else None
+        moved = None
         segment_used = np.zeros(missing.shape, dtype=bool)
         untrusted_used = np.zeros(missing.shape[1], dtype=bool)
         refit = impute_stage(positions, fill, sd, config, mm, reference_frames=reference_frames,
@@ -482,7 +485,9 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
                                         report_sd=report_sd, broken=broken, rates=rates, reach=reach,
                                         stretched=stretched, jobs=jobs))
             if config.bone_move_sd:  # (NaN where there is no prediction: nothing moved)
-                report_sd = np.sqrt(report_sd ** 2 + np.nan_to_num(np.sum((boned - pred) ** 2, axis=2)) / 3.0)
+                moved_sq = np.nan_to_num(np.sum((boned - pred) ** 2, axis=2))
+                report_sd = np.sqrt(report_sd ** 2 + moved_sq / 3.0)
+                moved = np.sqrt(moved_sq)
             pred = boned
         displaced = displaced_runs(positions, edge, edge_sd, config, mm)
         displaced[:, untrusted_used] = False  # a model on guessed neighbours does not overrule an observation
@@ -496,7 +501,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     spatial = missing & np.isfinite(pred_sd)
     info["gap_methods"] = gap_records(missing, sd, spatial & ~anchored & ~globbed, outliers, config, mm, labels,
                                       boneset, off, displaced, segment_used, anchored, spread=spread, broken=broken,
-                                      reach=reach, stretched=stretched, globbed=globbed)
+                                      reach=reach, stretched=stretched, globbed=globbed, moved=moved)
     info["displaced"] = displaced_records(positions, displaced, edge, mm, labels)
     info["review"] = [i for i, r in enumerate(info["gap_methods"]) if r["review"]]
     return finish(positions, fill, std=sd, info=info)
@@ -1138,7 +1143,7 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
                 displaced: np.ndarray | None = None, segment: np.ndarray | None = None,
                 anchored: np.ndarray | None = None, spread: np.ndarray | None = None,
                 broken: np.ndarray | None = None, reach=None, stretched: np.ndarray | None = None,
-                globbed: np.ndarray | None = None) -> list[dict]:
+                globbed: np.ndarray | None = None, moved: np.ndarray | None = None) -> list[dict]:
     """Stage 5: one JSON-ready record per gap (run of missing frames of one marker).
 
     missing / sd / spatial / outliers (n_frames, n_markers): the input's mask, the posterior sd, where the spatial
@@ -1149,7 +1154,9 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
     anchor predicted (:func:`anchor_stage`), not counted in ``spatial``; spread (n_frames, n_markers) or None: the
     variance of the spatial model's widths about their mix (:func:`reported_sd`); broken (n_frames, n_bones) or
     None: where the bone stage left a bone of ``boneset`` out (:func:`bone_breaks`); globbed (n_frames, n_markers) or
-    None: where the global PCA predicted (:func:`global_stage`), not counted in ``spatial``.  ``review`` is True when
+    None: where the global PCA predicted (:func:`global_stage`), not counted in ``spatial``; moved (n_frames,
+    n_markers) or None: how far the refit's bone stage moved each prediction (:attr:`ModelConfig.bone_move_sd`).
+    ``review`` is True when
     the gap's largest sd exceeds ``config.review_sd_mm`` (or nothing could be filled) or a run judged displaced
     touches it; every number in ``reason`` comes from ``config`` or from the fill.
     """
@@ -1216,6 +1223,10 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
         if uncertain and apart > limit:
             reason += (f" (the spatial model's {len(config.scales_mm)} widths disagree there by up to "
                        f"{apart / mm:.1f} mm per coordinate)")
+        pulled = float(np.max(moved[sl, m])) if moved is not None else 0.0
+        if uncertain and pulled / np.sqrt(3.0) > limit:
+            reason += (f" (the bones and reaches moved its predictions by up to {pulled / mm:.1f} mm, a correction "
+                       f"its sd counts as uncertain by as much)")
         # (lengths, not frame numbers: a long take's windows shift the records' starts, not their texts)
         beside = [] if displaced is None else [
             (side, int(np.argmin(np.append(displaced[a::step, m], False))))  # the run's length from its edge
