@@ -134,6 +134,12 @@ def _columns(markers: np.ndarray) -> np.ndarray:
     return (3 * markers[:, None] + np.arange(3)[None, :]).ravel()
 
 
+def _layout(targets: np.ndarray, predictors: np.ndarray, marker_weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A model's coordinate columns (q,) in the flattened data, targets first, and each column's weight (q,)."""
+    columns = np.concatenate([_columns(targets), _columns(predictors)])
+    return columns, np.repeat(np.concatenate([marker_weight[targets], marker_weight[predictors]]), 3)
+
+
 def _keep(singular: np.ndarray, variance: float) -> int:
     """Number of components whose cumulative singular values first reach ``variance`` of their sum."""
     total = singular.sum()
@@ -173,13 +179,12 @@ def fit_model(
     components : int, optional
         Keep exactly this many components instead of applying the ``variance`` rule.
     """
-    columns = np.concatenate([_columns(targets), _columns(predictors)])
+    columns, weight = _layout(targets, predictors, marker_weight)
     if gram is None:
         block = flat[np.ix_(train, columns)]
         s1, s2, n = block.sum(axis=0), block.T @ block, len(train)
     else:
         s1, s2, n = gram
-    weight = np.repeat(np.concatenate([marker_weight[targets], marker_weight[predictors]]), 3)
     (model,) = _fit_stacked(columns, 3 * len(targets), np.asarray(s1)[None], np.asarray(s2)[None],
                             np.array([float(n)]), weight, normalise=normalise, variance=variance,
                             components=components)
@@ -405,7 +410,7 @@ def cv_curve(
     ``fitted`` (a list): receives the model on every row with every component, what :func:`fit_model` gives on the
     same rows and weights (truncated to k components, it is that number's fit), from the folds' decomposition.
     """
-    columns = np.concatenate([_columns(targets), _columns(predictors)])
+    columns, weight = _layout(targets, predictors, marker_weight)
     block_all = flat[np.ix_(train, columns)]
     s1, s2, n = weighted_sums(block_all, row_weight)
     rows_out = np.arange(len(train)) if holdout is None else np.flatnonzero(holdout)
@@ -428,7 +433,6 @@ def cv_curve(
         sums = weighted_sums(held, hw)
         # the error counts every held row once
         held_sums.append((sums, weighted_sums(held, None) if hw is not None and not np.all(hw == 1.0) else sums))
-    weight = np.repeat(np.concatenate([marker_weight[targets], marker_weight[predictors]]), 3)
     # the folds' models and, last, the model on every row: one stacked decomposition
     models = _fit_stacked(columns, nt, np.stack([s1 - h[0][0] for h in held_sums] + [s1]),
                           np.stack([s2 - h[0][1] for h in held_sums] + [s2]),

@@ -283,10 +283,9 @@ class ModelConfig:
     #: per coordinate): a correction drawn from soft bones between uncertain estimates is itself uncertain by about
     #: its size, and a prediction the bones had to pull far was not as sure as its cross-validation said (85_02, a
     #: forearm and wrist gone through a flip: 18-32 mm off per coordinate, reported 3-5, pulled 2-5 mm).  The fill's
-    #: mean is unchanged.  Measured (2026-11-28, sixteenth
-    #: session; fills unchanged): bench_default's err/std inside 0.5-2 on 75 of 80 trials (74 without);
-    #: bench_default_captures' gaps needing review flagged 108 of 144 (99), at 291 flagged in all (260); the
-    #: committed walk unchanged (37 of 43, 54 flagged).
+    #: mean is unchanged.  Measured (2026-11-28, sixteenth session; fills unchanged): bench_default's err/std inside
+    #: 0.5-2 on 75 of 80 trials (74 without); bench_default_captures' gaps needing review flagged 108 of 144 (99), at
+    #: 291 flagged in all (260); the committed walk unchanged (37 of 43, 54 flagged).
     bone_move_sd: bool = True
     #: Frame rate assumed when the capture has none.
     default_rate: float = 100.0
@@ -1156,9 +1155,8 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
     None: where the bone stage left a bone of ``boneset`` out (:func:`bone_breaks`); globbed (n_frames, n_markers) or
     None: where the global PCA predicted (:func:`global_stage`), not counted in ``spatial``; moved (n_frames,
     n_markers) or None: how far the refit's bone stage moved each prediction (:attr:`ModelConfig.bone_move_sd`).
-    ``review`` is True when
-    the gap's largest sd exceeds ``config.review_sd_mm`` (or nothing could be filled) or a run judged displaced
-    touches it; every number in ``reason`` comes from ``config`` or from the fill.
+    ``review`` is True when the gap's largest sd exceeds ``config.review_sd_mm`` (or nothing could be filled) or a
+    run judged displaced touches it; every number in ``reason`` comes from ``config`` or from the fill.
     """
     limit = config.review_sd_mm * mm
     out = []
