@@ -149,11 +149,12 @@ def test_edge_mask_equals_the_loop_over_runs():
 
 def _plain_group_model(positions, m, group, predictors, train, weights, align_weight, dist, scales, *, reach,
                        normalise, folds, knn, row_weight=None, used_references=None, max_predictors=None,
-                       extrapolation=None, disagreement=None, split_by_time=False):
+                       extrapolation=None, disagreement=None, split_by_time=False, max_rms=None):
     """group_model as first written: a full-width (n, 3 n_markers) NaN array of local coordinates, the training
     block gathered by rows and columns, the nearest poses by a float64 argpartition (no reference rows, no bound on
     the predictors)."""
     assert row_weight is None and max_predictors is None and extrapolation is None and disagreement is None
+    assert max_rms is None
     n_markers = positions.shape[1]
     needed = np.concatenate([[m], predictors])
     anchors = lp._anchor_set(predictors, align_weight)

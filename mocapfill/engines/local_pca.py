@@ -381,7 +381,8 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
                 weights: list[np.ndarray], align_weight: np.ndarray, dist: np.ndarray, scales: tuple[float, ...], *,
                 reach: float, normalise: bool, folds: int, knn: int, row_weight: np.ndarray | None = None,
                 used_references: list | None = None, max_predictors: int | None = None,
-                extrapolation: list | None = None, disagreement: list | None = None, split_by_time: bool = False):
+                extrapolation: list | None = None, disagreement: list | None = None, split_by_time: bool = False,
+                max_rms: float | None = None):
     """One local model of marker ``m``: fitted on ``train`` frames, evaluated on ``train`` then ``group`` frames.
 
     positions (n_frames, n_markers, 3) finite at ``m`` on ``train`` and at ``predictors`` on every frame used;
@@ -389,7 +390,8 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
     reconstruction (n_train + n_group, 3) in the laboratory frame, the leverage (n_train + n_group,), the mixed
     cross-validated RMS, components and RMS per width, the anchor markers of the local frame and the sensitivity
     (n_markers,): an error of variance v per coordinate in marker j's sample adds sensitivity[j] v to the variance
-    per coordinate of the reconstruction (rotations and the nearest-pose correction left out).
+    per coordinate of the reconstruction (rotations and the nearest-pose correction left out); None where
+    ``max_rms`` rejects it.
 
     ``row_weight`` (n_frames,) or None: the weight of each frame of ``positions`` as a training row, 1 for the
     capture's own frames and below 1 for reference frames; with it each width keeps the reference rows only where
@@ -402,6 +404,8 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
     about their mix, sum_s mix_s |est_s - est|^2 / 3: the mixture's variance beyond its members' own.
     ``split_by_time``: fewer training frames than two cross-validation blocks are split at their largest time gap
     (:func:`~.weighted_pca.cv_curve`'s ``times``) instead of leaving the model without an error (and so unused).
+    ``max_rms`` or None: where the mixed cross-validated RMS is not at most this, None, before any prediction (the
+    widths' fits and curves come first, their predictions after).
     """
     n_markers = positions.shape[1]
     needed = np.concatenate([[m], predictors])
@@ -418,6 +422,7 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
     tr = np.arange(n_train)
     target = np.array([0])
     ests, rmss, levs, ks, sens, offs = [], [], [], [], [], []
+    fitted = []  # per width: its model, components, training rows, own rows and held-out residual
     for w_all, width in zip(weights, scales):
         # markers beyond ``reach`` widths weigh < 0.012: leaving them out changed no median, only the cost
         pred = predictors[dist[predictors] <= reach * width]
@@ -446,6 +451,20 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
             block = flat[:n_train].take(cols, axis=1) if rows is tr else flat[np.ix_(rows, cols)]
             model = fit_model(flat, rows, target, pred, w, normalise=normalise, components=k,
                               gram=weighted_sums(block, row_w))
+        fitted.append((model, k, rows, own, held))
+        rmss.append(rms)
+    rmss_a = np.asarray(rmss)
+    rms_mix = np.nan
+    if np.isfinite(rmss_a).all() and (rmss_a > 0).all():
+        mix = 1.0 / rmss_a ** 2
+    else:
+        mix = np.ones(len(rmss))
+    mix = mix / mix.sum()
+    if np.isfinite(rmss_a).all():
+        rms_mix = float(np.dot(mix, rmss_a))
+    if max_rms is not None and not rms_mix <= max_rms:
+        return None
+    for model, k, rows, own, held in fitted:
         est_local, leverage = predict(model, flat)
         if extrapolation is not None:  # the predicted rows only (a training row's pose is one the model learnt)
             scale = held(k) if k is not None and held is not None else 0.0
@@ -461,7 +480,6 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
         if used_references is not None and own is not None:
             used_references.append(bool((~own[rows]).any()))
         ests.append(est_local)
-        rmss.append(rms)
         levs.append(leverage)
         ks.append(int(model.basis.shape[1]))
         # d target / d predictor coordinate (q_p, 3): how an error in a predictor moves the reconstruction
@@ -471,12 +489,6 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
         full = np.zeros((3 * n_markers, 3))
         full[full_cols[model.columns[nt:]]] = gain
         sens.append(full)
-    rmss_a = np.asarray(rmss)
-    if np.isfinite(rmss_a).all() and (rmss_a > 0).all():
-        mix = 1.0 / rmss_a ** 2
-    else:
-        mix = np.ones(len(ests))
-    mix = mix / mix.sum()
     stacked = np.stack(ests)
     est_local = np.einsum("s,std->td", mix, stacked)
     if disagreement is not None:  # (a rotation keeps lengths: the local frame's spread is the laboratory's)
@@ -484,7 +496,6 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
     leverage = np.einsum("s,st->t", mix, np.stack(levs))
     if extrapolation is not None:
         extrapolation.append(np.einsum("s,st->t", mix, np.stack(offs)))
-    rms_mix = float(np.dot(mix, rmss_a)) if np.isfinite(rmss_a).all() else np.nan
     # back to the laboratory frame: x = local R^T + centre
     est_all = (rot @ est_local[:, :, None])[:, :, 0] + centre
     sensitivity = (np.einsum("s,sqc->qc", mix, np.stack(sens)) ** 2).reshape(n_markers, 9).sum(axis=1) / 3.0
