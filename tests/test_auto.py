@@ -618,6 +618,61 @@ def test_the_refit_without_trusted_neighbours_models_on_every_one_when_asked():
     assert np.isnan(est_sd[150:160, m]).all() and np.isfinite(est_sd[100:150, m]).all()
 
 
+def test_trusted_runs_group_a_markers_gaps_by_the_neighbours_trusted_over_each():
+    """Each run of the marker's gaps takes the candidates whose mean variance over it is within trust^2; runs with
+    the same such set are one group (frames ascending, predictors in the candidates' order); fewer than 3: none;
+    past the most groups, the smaller ones merge on the candidates trusted over all of them."""
+    from mocapfill.engines.local_pca import trusted_runs
+
+    gaps = np.zeros(20, dtype=bool)
+    gaps[2:5] = gaps[8:10] = gaps[14:18] = True
+    var = np.zeros((20, 6))
+    var[8:10, 4] = 400.0  # candidate 4 filled uncertainly in the second run only
+    var[14:18, 1:4] = np.inf  # the third run: three candidates without a value
+    candidates = np.array([4, 1, 2, 3, 5])
+    got = [(f.tolist(), p.tolist()) for f, p in trusted_runs(gaps, var, candidates, 10.0, 3)]
+    assert got == [([2, 3, 4], [4, 1, 2, 3, 5]), ([8, 9], [1, 2, 3, 5])]
+    # at most 2 groups: the largest keeps its own, the rest share the candidates trusted over all of them
+    gaps[0] = True
+    var[0, 5] = 400.0
+    got = [(f.tolist(), p.tolist()) for f, p in trusted_runs(gaps, var, candidates, 10.0, 2)]
+    assert got == [([2, 3, 4], [4, 1, 2, 3, 5]), ([0, 8, 9], [1, 2, 3])]
+
+
+def test_the_refit_models_a_gap_on_the_neighbours_trusted_there_when_no_whole_gap_model_exists():
+    """reconstruct_completed: every neighbour filled with a large sd during one gap of the marker is untrusted over
+    its gaps together, so the marker gets no whole-gap model; ``run_scales`` gives its other gap, where they are
+    observed, a model of its own (the gap where they were filled stays without one)."""
+    from pathlib import Path
+    from mocapfill import read
+    from mocapfill.engines.local_pca import reconstruct_completed
+
+    data = read(Path(__file__).parents[1] / "sample_data" / "85_02.c3d")
+    truth = data.positions[:400]
+    m = 5
+    pos = truth.copy()
+    pos[100:160, m] = np.nan
+    pos[250:280, m] = np.nan
+    sd = np.zeros(truth.shape[:2])
+    sd[100:160] = 50.0
+    sd[100:160, m] = 0.0
+    kw = dict(scales=(150.0, 3000.0), align_scale=200.0, knn=20, edge_frames=3, trust=10.0)
+    est, est_sd = reconstruct_completed(pos, truth, sd, **kw)[:2]
+    assert np.isnan(est_sd[100:160, m]).all() and np.isnan(est_sd[250:280, m]).all()
+    est, est_sd = reconstruct_completed(pos, truth, sd, run_scales=(200.0,), **kw)[:2]
+    assert np.isnan(est_sd[100:160, m]).all()
+    assert np.isfinite(est_sd[250:280, m]).all()
+    assert np.sqrt(np.mean(np.sum((est[250:280, m] - truth[250:280, m]) ** 2, axis=1))) < 10.0
+    # a model no surer than the trust bar is not kept (here: a marker 2 m off every neighbour's pose, moved about)
+    wild = truth.copy()
+    wild[:, m] += np.random.default_rng(0).normal(0.0, 200.0, (len(truth), 3))
+    wild_pos = wild.copy()
+    wild_pos[100:160, m] = wild_pos[250:280, m] = np.nan
+    est, est_sd = reconstruct_completed(wild_pos, np.where(np.isnan(wild_pos), truth, wild), sd, run_scales=(200.0,),
+                                        **kw)[:2]
+    assert np.isnan(est_sd[250:280, m]).all()
+
+
 def test_reported_sd_grows_by_the_square_root_of_the_extrapolation_factor():
     """reported_sd: the variance times the factor, never below the cross-validated one; NaN or no factor: 1."""
     from mocapfill.methods.auto import reported_sd

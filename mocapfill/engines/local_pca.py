@@ -32,7 +32,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..errors import MethodError
-from ..gaps import end_blend, members, unique_rows
+from ..gaps import end_blend, members, runs, unique_rows
 from ..methods.base import FillResult, finish
 from ..runtime.blas import single_blas_thread
 from ..runtime.executor import forked_map
@@ -145,8 +145,6 @@ def edge_corrected(
     (including the observed frames next to the gaps); frames (g,) the missing frames to correct.  Returns the
     corrected (g, 3) and the variance factor (g,) from :func:`edge_shift`.
     """
-    from ..gaps import runs
-
     n_frames = len(observed)
     out = predicted.copy()
     factor = np.ones(n_frames)
@@ -769,6 +767,8 @@ def reconstruct_completed(
     untrusted: tuple[np.ndarray, np.ndarray] | None = None,
     untrusted_used: np.ndarray | None = None,
     disagreement: np.ndarray | None = None,
+    run_scales: tuple[float, ...] | None = None,
+    run_knn: int = 0,
     jobs: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The local model refitted on a completed take (one EM-style imputation step).
@@ -806,7 +806,13 @@ def reconstruct_completed(
     sample), and it predicts only at the gap frames where one of its predictors is observed; ``untrusted_used``
     (n_markers,) bool or None receives which markers got one.  ``disagreement`` (n_frames, n_markers) or None
     receives at each estimated sample the variance per coordinate of its model's widths about their mix
-    (:func:`group_model`; 0 for a segment model, which has one width).  ``jobs`` as in :func:`reconstruct_local`.
+    (:func:`group_model`; 0 for a segment model, which has one width).  ``run_scales`` (with ``trust``) or None: a
+    marker left without a whole-gap model (fewer than 3 neighbours trusted over all its gaps, or too few training
+    frames) gets one model with these widths and ``run_knn`` nearest poses per group of its gap runs with the same
+    trusted neighbours over the run (:func:`trusted_runs`, at most ``parts`` groups), each kept where its
+    cross-validated rms is at most ``trust`` (as sure as a neighbour it would trust): a neighbour that vanished with
+    the marker in one gap no longer leaves every other gap without a model.  ``jobs`` as in
+    :func:`reconstruct_local`.
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
@@ -830,24 +836,31 @@ def reconstruct_completed(
 
     def refit(m: int, group: np.ndarray, near: np.ndarray, dist: np.ndarray, weights: list[np.ndarray],
               align_weight: np.ndarray, min_train: int = MIN_TRAINING_FRAMES, data: np.ndarray = data,
-              refs: list | None = None) -> RefitModel | None:
+              refs: list | None = None, max_rms: float | None = None, scales: tuple[float, ...] = scales,
+              knn: int = knn) -> RefitModel | None:
         """One model of marker ``m`` on the predictors ``near`` for its missing ``group`` frames (None: fewer than
-        3 predictors or ``min_train`` training frames): its reconstruction of the training then the group's frames,
-        and what :func:`store` and :func:`prefer_segment` need (``data``: the take its predictors are read from)."""
+        3 predictors or ``min_train`` training frames, or a cross-validated rms not at most ``max_rms``): its
+        reconstruction of the training then the group's frames, and what :func:`store` and :func:`prefer_segment`
+        need (``data``: the take its predictors are read from; ``weights`` one per width in ``scales``)."""
         train = np.flatnonzero(known[:, m] & finite[:, near].all(axis=1)) if len(near) else np.zeros(0, int)
         if len(near) < 3 or len(train) < min_train:
             return None
+        close = segment_markers(near, dist, missing[group], segment) if segment else near[:0]
+        with_segment = 3 <= len(close) < len(near)
         off: list | None = [] if extrapolation is not None or segment else None
         spread: list | None = [] if disagreement is not None else None
-        est_all, leverage, rms_mix, _, _, _, sens = group_model(
+        fitted = group_model(
             data, m, group, near, train, weights, align_weight, dist, scales, reach=reach,
             max_predictors=max_predictors, normalise=normalise, folds=folds, knn=knn, row_weight=row_weight,
             used_references=refs if row_weight is not None and used_references is not None else None,
-            extrapolation=off, disagreement=spread, split_by_time=True)
+            extrapolation=off, disagreement=spread, split_by_time=True,
+            max_rms=None if with_segment else max_rms)  # (a segment model may still pass where this one fails)
+        if fitted is None:
+            return None
+        est_all, leverage, rms_mix, _, _, _, sens = fitted
         fit = RefitModel(group, near, train, est_all, leverage, rms_mix, sens, off[0] if off else None, False,
                          spread[0] if spread else None)
-        close = segment_markers(near, dist, missing[group], segment) if segment else near[:0]
-        if 3 <= len(close) < len(near):
+        if with_segment:
             seg_weights, seg_align = marker_weights(dist, m, (segment,), align_scale, missing_weight)
             seg_off: list = []
             seg_spread: list | None = None if spread is None else []
@@ -858,7 +871,7 @@ def reconstruct_completed(
             if prefer_segment(seg_rms, seg_off[0], rms_mix, fit.off):
                 fit = fit._replace(est=seg_all, leverage=seg_leverage, rms=seg_rms, sens=seg_sens, off=seg_off[0],
                                    segment=True, disagreement=seg_spread[0] if seg_spread else None)
-        return fit
+        return None if max_rms is not None and not fit.rms <= max_rms else fit
 
     def store(m: int, fit: RefitModel, var: np.ndarray = var) -> None:
         """Write one model's prediction of marker ``m`` at its group's frames (and at the observed frames next to
@@ -911,7 +924,12 @@ def reconstruct_completed(
             return ([] if fit is None else [(fit, True)]), refs
         whole = refit(m, gap_frames, trusted, dist, weights, align_weight, refs=refs)
         if whole is None:
-            return [], refs
+            if run_scales is None or trust is None:
+                return [], refs
+            run_weights, run_align = marker_weights(dist, m, run_scales, align_scale, missing_weight)
+            fits = (refit(m, frames, near, dist, run_weights, run_align, refs=refs, max_rms=trust, scales=run_scales,
+                          knn=run_knn) for frames, near in trusted_runs(missing[:, m], var, candidates, trust, parts))
+            return [(fit, False) for fit in fits if fit is not None], refs
         out = [(whole, False)]
         # the parts of the gaps where a left-out neighbour is seen: a model of their own with it, in place of the
         # whole-gap model's where it predicts the smaller variance there (CV rms^2 times the mean pose-residual
@@ -946,6 +964,33 @@ def reconstruct_completed(
             if untrusted_used is not None:
                 untrusted_used[m] = True
     return estimate, std, info["edge_estimate"], info["edge_std"]
+
+
+def trusted_runs(gaps: np.ndarray, var: np.ndarray, candidates: np.ndarray, trust: float, max_groups: int
+                 ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """One marker's gap runs grouped by the neighbours trusted over each: [(frames, predictors)].
+
+    gaps (n_frames,) bool, the marker's missing frames; var (n_frames, n_markers) the completed take's variance per
+    coordinate (0 observed, inf where it has no value); candidates (p,) its near markers, nearest first.  A
+    candidate is trusted over a run where its mean variance there is at most ``trust ** 2``; runs with fewer than 3
+    are left out, runs with the same trusted candidates form one group.  At most ``max_groups`` groups (each a model
+    to fit): the ``max_groups - 1`` with the most frames keep theirs, the other runs form one group on the
+    candidates trusted over every one of them (left out if fewer than 3).  Frames ascending, predictors in
+    ``candidates``' order.
+    """
+    groups: dict[tuple, list[np.ndarray]] = {}
+    for start, length in runs(gaps):
+        with np.errstate(invalid="ignore"):
+            sure = np.nan_to_num(var[start:start + length][:, candidates].mean(axis=0), nan=np.inf) <= trust ** 2
+        if sure.sum() >= 3:
+            groups.setdefault(tuple(sure.tolist()), []).append(np.arange(start, start + length))
+    found = sorted(((np.array(k), np.concatenate(v)) for k, v in groups.items()), key=lambda g: -len(g[1]))
+    if len(found) > max_groups:
+        keep = max(max_groups - 1, 0)
+        rest = found[keep:]
+        found = found[:keep] + [(np.logical_and.reduce([k for k, _ in rest]),
+                                 np.sort(np.concatenate([f for _, f in rest])))]
+    return [(frames, candidates[sure]) for sure, frames in found if sure.sum() >= 3]
 
 
 def refit_parts(missing: np.ndarray, gap_frames: np.ndarray, candidates: np.ndarray, sure: np.ndarray,

@@ -208,6 +208,19 @@ class ModelConfig:
     #: as fast as without the option, but the basket sprint 118 mm again).  With the body anchor (eleventh session):
     #: mean 24.3 -> 15.6 mm, but duplicate_labels 46 -> 78 (the bones move the forearm's predictions off).
     refit_untrusted: bool = False
+    #: Where the refit has no model for a marker over all its gaps (a neighbour trusted in none of them: one that
+    #: vanished with it once and was filled with a large sd is untrusted for every gap), fit one per group of its
+    #: gaps with the same neighbours trusted over the gap (:func:`~mocapfill.engines.local_pca.trusted_runs`, at
+    #: most ``refit_parts`` per marker), as the first pass fits (``seed_scales_mm``, ``seed_knn``), kept where its
+    #: cross-validated rms is at most ``impute_trust_mm`` (as sure as a neighbour the refit trusts).  Measured
+    #: (2026-11-28, seventeenth session): ``bench_real_hidden.py`` mean pooled RMSE 23.11 -> 20.86 mm, 7 captures
+    #: better, none worse, no draw worse (Gait.trc 39.5 -> 22.1, now ahead of ``bolero-sc``; Walking_Hybrid_1_1
+    #: 86.3 -> 63.2; VER4C3D 60.3 -> 52.7); the accuracy benchmarks' clips unchanged (their refit always has a
+    #: model).  With the refit's four widths and nearest poses instead: 20.46 (VER4C3D 40.6), at four times the
+    #: cost (btk's Gait.trc +0.65 s against +0.17 s).  With no bound on the rms: duplicate_labels 45.8 -> 46.7 and
+    #: the basket sprint 69.8 -> 76.4 (a sync marker and a wheelchair's predicted from markers they do not move
+    #: with, rms 250-300 mm, drew the fill further off than the global PCA had).
+    refit_by_run: bool = True
     #: Fit the spatial model again on the completed take (EM-style imputation) this many times.
     impute_passes: int = 1
     #: Radius (mm) of a marker's segment model in the refit: the markers this close that are observed throughout its
@@ -657,7 +670,8 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
     positions (n_frames, n_markers, 3) the input (NaN = missing); completed the same filled by stage 3, sd
     (n_frames, n_markers) its posterior sd (0 observed).  One model per marker with gaps, trained on every frame
     where it is observed, every near marker a predictor (:func:`mocapfill.engines.local_pca.reconstruct_completed`;
-    a filled neighbour's sd is propagated into the prediction's).  Returns pred, sd, edge, edge_sd as
+    a filled neighbour's sd is propagated into the prediction's; with :attr:`ModelConfig.refit_by_run`, a marker
+    without one model for all its gaps gets one per group of gaps with the same trusted neighbours).  Returns pred, sd, edge, edge_sd as
     :func:`spatial_stage` (NaN where the refit has no model; :func:`body_stage` runs after it, and with
     :attr:`ModelConfig.seed_where_no_refit`, :func:`seed_elsewhere` before that); ``extrapolation`` (n_frames,
     n_markers) or None receives how far each prediction's pose lies off its model's training poses
@@ -678,7 +692,8 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
         reference_weights=reference_weights, used_references=used_references, extrapolation=extrapolation,
         segment=config.segment_mm * mm if config.segment_mm else None, segment_used=segment_used,
         parts=config.refit_parts, untrusted=untrusted, untrusted_used=untrusted_used, disagreement=disagreement,
-        jobs=jobs)
+        run_scales=tuple(np.asarray(config.seed_scales_mm) * mm) if config.refit_by_run else None,
+        run_knn=config.seed_knn, jobs=jobs)
     return pred, pred_sd, edge, edge_sd
 
 
