@@ -215,7 +215,7 @@ class ModelConfig:
     #: cross-validated rms is at most ``impute_trust_mm`` (as sure as a neighbour the refit trusts).  Measured
     #: (2026-11-28, seventeenth session): ``bench_real_hidden.py`` mean pooled RMSE 23.11 -> 20.86 mm, 7 captures
     #: better, none worse, no draw worse (Gait.trc 39.5 -> 22.1, now ahead of ``bolero-sc``; Walking_Hybrid_1_1
-    #: 86.3 -> 63.2; VER4C3D 60.3 -> 52.7); the accuracy benchmarks' clips unchanged (their refit always has a
+    #: 86.3 -> 63.2; VER4C3D 60.3 -> 52.8); the accuracy benchmarks' clips unchanged (their refit always has a
     #: model).  With the refit's four widths and nearest poses instead: 20.46 (VER4C3D 40.6), at four times the
     #: cost (btk's Gait.trc +0.65 s against +0.17 s).  With no bound on the rms: duplicate_labels 45.8 -> 46.7 and
     #: the basket sprint 69.8 -> 76.4 (a sync marker and a wheelchair's predicted from markers they do not move
