@@ -586,23 +586,31 @@ def test_rough_variance_measures_a_prediction_that_jumps():
     assert np.all(v[:98] < 0.01) and np.all(v[103:] < 0.01)
 
 
+def _neighbours_filled_uncertainly(frames: int, *gaps: slice) -> tuple:
+    """85_02's first ``frames`` frames with marker 5 missing in ``gaps`` and every other marker filled with an sd of
+    50 mm (above the trust of 10) during the first of them: (truth, positions, sd, the marker,
+    reconstruct_completed's options)."""
+    from pathlib import Path
+    from mocapfill import read
+
+    truth = read(Path(__file__).parents[1] / "sample_data" / "85_02.c3d").positions[:frames]
+    m = 5
+    pos = truth.copy()
+    for gap in gaps:
+        pos[gap, m] = np.nan
+    sd = np.zeros(truth.shape[:2])
+    sd[gaps[0]] = 50.0
+    sd[gaps[0], m] = 0.0
+    return truth, pos, sd, m, dict(scales=(150.0, 3000.0), align_scale=200.0, knn=20, edge_frames=3, trust=10.0)
+
+
 def test_the_refit_without_trusted_neighbours_models_on_every_one_when_asked():
     """reconstruct_completed: every neighbour of a marker filled with an sd (50 mm) above ``trust`` during its gap
     leaves it without a model; with ``untrusted`` it gets one on all of them, read from that take, which predicts
     where one of them is observed."""
-    from pathlib import Path
-    from mocapfill import read
     from mocapfill.engines.local_pca import reconstruct_completed
 
-    data = read(Path(__file__).parents[1] / "sample_data" / "85_02.c3d")
-    truth = data.positions[:300]
-    m = 5
-    pos = truth.copy()
-    pos[100:160, m] = np.nan
-    sd = np.zeros(truth.shape[:2])
-    sd[100:160] = 50.0
-    sd[100:160, m] = 0.0
-    kw = dict(scales=(150.0, 3000.0), align_scale=200.0, knn=20, edge_frames=3, trust=10.0)
+    truth, pos, sd, m, kw = _neighbours_filled_uncertainly(300, slice(100, 160))
     est, est_sd = reconstruct_completed(pos, truth, sd, **kw)[:2]
     assert np.isnan(est_sd[100:160, m]).all()
     used = np.zeros(truth.shape[1], dtype=bool)
@@ -643,20 +651,9 @@ def test_the_refit_models_a_gap_on_the_neighbours_trusted_there_when_no_whole_ga
     """reconstruct_completed: every neighbour filled with a large sd during one gap of the marker is untrusted over
     its gaps together, so the marker gets no whole-gap model; ``run_scales`` gives its other gap, where they are
     observed, a model of its own (the gap where they were filled stays without one)."""
-    from pathlib import Path
-    from mocapfill import read
     from mocapfill.engines.local_pca import reconstruct_completed
 
-    data = read(Path(__file__).parents[1] / "sample_data" / "85_02.c3d")
-    truth = data.positions[:400]
-    m = 5
-    pos = truth.copy()
-    pos[100:160, m] = np.nan
-    pos[250:280, m] = np.nan
-    sd = np.zeros(truth.shape[:2])
-    sd[100:160] = 50.0
-    sd[100:160, m] = 0.0
-    kw = dict(scales=(150.0, 3000.0), align_scale=200.0, knn=20, edge_frames=3, trust=10.0)
+    truth, pos, sd, m, kw = _neighbours_filled_uncertainly(400, slice(100, 160), slice(250, 280))
     est, est_sd = reconstruct_completed(pos, truth, sd, **kw)[:2]
     assert np.isnan(est_sd[100:160, m]).all() and np.isnan(est_sd[250:280, m]).all()
     est, est_sd = reconstruct_completed(pos, truth, sd, run_scales=(200.0,), **kw)[:2]
