@@ -656,17 +656,17 @@ def test_the_refit_models_a_gap_on_the_neighbours_trusted_there_when_no_whole_ga
     truth, pos, sd, m, kw = _neighbours_filled_uncertainly(400, slice(100, 160), slice(250, 280))
     est, est_sd = reconstruct_completed(pos, truth, sd, **kw)[:2]
     assert np.isnan(est_sd[100:160, m]).all() and np.isnan(est_sd[250:280, m]).all()
-    est, est_sd = reconstruct_completed(pos, truth, sd, run_scales=(200.0,), **kw)[:2]
+    est, est_sd = reconstruct_completed(pos, truth, sd, run_scales=(200.0,), run_max_rms=25.0, **kw)[:2]
     assert np.isnan(est_sd[100:160, m]).all()
     assert np.isfinite(est_sd[250:280, m]).all()
     assert np.sqrt(np.mean(np.sum((est[250:280, m] - truth[250:280, m]) ** 2, axis=1))) < 10.0
-    # a model no surer than the trust bar is not kept (here: a marker 2 m off every neighbour's pose, moved about)
+    # a model whose cross-validated rms is above run_max_rms is not kept (a marker moved about at random)
     wild = truth.copy()
     wild[:, m] += np.random.default_rng(0).normal(0.0, 200.0, (len(truth), 3))
     wild_pos = wild.copy()
     wild_pos[100:160, m] = wild_pos[250:280, m] = np.nan
     est, est_sd = reconstruct_completed(wild_pos, np.where(np.isnan(wild_pos), truth, wild), sd, run_scales=(200.0,),
-                                        **kw)[:2]
+                                        run_max_rms=25.0, **kw)[:2]
     assert np.isnan(est_sd[250:280, m]).all()
 
 

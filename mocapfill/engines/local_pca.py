@@ -769,6 +769,7 @@ def reconstruct_completed(
     disagreement: np.ndarray | None = None,
     run_scales: tuple[float, ...] | None = None,
     run_knn: int = 0,
+    run_max_rms: float = np.inf,
     jobs: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The local model refitted on a completed take (one EM-style imputation step).
@@ -810,8 +811,8 @@ def reconstruct_completed(
     marker left without a whole-gap model (fewer than 3 neighbours trusted over all its gaps, or too few training
     frames) gets one model with these widths and ``run_knn`` nearest poses per group of its gap runs with the same
     trusted neighbours over the run (:func:`trusted_runs`, at most ``parts`` groups), each kept where its
-    cross-validated rms is at most ``trust`` (as sure as a neighbour it would trust): a neighbour that vanished with
-    the marker in one gap no longer leaves every other gap without a model.  ``jobs`` as in
+    cross-validated rms is at most ``run_max_rms`` (data units): a neighbour that vanished with the marker in one
+    gap no longer leaves every other gap without a model.  ``jobs`` as in
     :func:`reconstruct_local`.
     """
     n_frames, n_markers, _ = positions.shape
@@ -927,8 +928,9 @@ def reconstruct_completed(
             if run_scales is None or trust is None:
                 return [], refs
             run_weights, run_align = marker_weights(dist, m, run_scales, align_scale, missing_weight)
-            fits = (refit(m, frames, near, dist, run_weights, run_align, refs=refs, max_rms=trust, scales=run_scales,
-                          knn=run_knn) for frames, near in trusted_runs(missing[:, m], var, candidates, trust, parts))
+            fits = (refit(m, frames, near, dist, run_weights, run_align, refs=refs, max_rms=run_max_rms,
+                          scales=run_scales, knn=run_knn)
+                    for frames, near in trusted_runs(missing[:, m], var, candidates, trust, parts))
             return [(fit, False) for fit in fits if fit is not None], refs
         out = [(whole, False)]
         # the parts of the gaps where a left-out neighbour is seen: a model of their own with it, in place of the
