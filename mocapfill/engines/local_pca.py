@@ -812,8 +812,7 @@ def reconstruct_completed(
     frames) gets one model with these widths and ``run_knn`` nearest poses per group of its gap runs with the same
     trusted neighbours over the run (:func:`trusted_runs`, at most ``parts`` groups), each kept where its
     cross-validated rms is at most ``run_max_rms`` (data units): a neighbour that vanished with the marker in one
-    gap no longer leaves every other gap without a model.  ``jobs`` as in
-    :func:`reconstruct_local`.
+    gap no longer leaves every other gap without a model.  ``jobs`` as in :func:`reconstruct_local`.
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
