@@ -452,14 +452,12 @@ def group_model(positions: np.ndarray, m: int, group: np.ndarray, predictors: np
         fitted.append((model, k, rows, own, held))
         rmss.append(rms)
     rmss_a = np.asarray(rmss)
-    rms_mix = np.nan
     if np.isfinite(rmss_a).all() and (rmss_a > 0).all():
         mix = 1.0 / rmss_a ** 2
     else:
         mix = np.ones(len(rmss))
     mix = mix / mix.sum()
-    if np.isfinite(rmss_a).all():
-        rms_mix = float(np.dot(mix, rmss_a))
+    rms_mix = float(np.dot(mix, rmss_a)) if np.isfinite(rmss_a).all() else np.nan
     if max_rms is not None and not rms_mix <= max_rms:
         return None
     for model, k, rows, own, held in fitted:
@@ -907,8 +905,7 @@ def reconstruct_completed(
         if trust is not None:
             # a neighbour filled with little certainty during this marker's gaps (it vanished with it) is no
             # predictor: the model and its cross-validated error are those of the markers still known there
-            with np.errstate(invalid="ignore"):
-                sure = np.nan_to_num(var[gap_frames].mean(axis=0), nan=np.inf) <= trust ** 2
+            sure = trusted_over(var[gap_frames], trust)
         others = np.flatnonzero(np.arange(n_markers) != m)
         candidates = others[np.isfinite(dist[others]) & (dist[others] <= reach * max(scales))
                             & finite[gap_frames][:, others].all(axis=0)]
@@ -967,22 +964,27 @@ def reconstruct_completed(
     return estimate, std, info["edge_estimate"], info["edge_std"]
 
 
+def trusted_over(var: np.ndarray, trust: float) -> np.ndarray:
+    """(k,) bool: which of k neighbours the refit trusts over some frames, var (n, k) their completed variance per
+    coordinate there (0 observed, inf without a value): a mean variance of at most ``trust ** 2``."""
+    with np.errstate(invalid="ignore"):
+        return np.nan_to_num(var.mean(axis=0), nan=np.inf) <= trust ** 2
+
+
 def trusted_runs(gaps: np.ndarray, var: np.ndarray, candidates: np.ndarray, trust: float, max_groups: int
                  ) -> list[tuple[np.ndarray, np.ndarray]]:
     """One marker's gap runs grouped by the neighbours trusted over each: [(frames, predictors)].
 
     gaps (n_frames,) bool, the marker's missing frames; var (n_frames, n_markers) the completed take's variance per
     coordinate (0 observed, inf where it has no value); candidates (p,) its near markers, nearest first.  A
-    candidate is trusted over a run where its mean variance there is at most ``trust ** 2``; runs with fewer than 3
-    are left out, runs with the same trusted candidates form one group.  At most ``max_groups`` groups (each a model
-    to fit): the ``max_groups - 1`` with the most frames keep theirs, the other runs form one group on the
-    candidates trusted over every one of them (left out if fewer than 3).  Frames ascending, predictors in
-    ``candidates``' order.
+    candidate is trusted over a run as :func:`trusted_over` says; runs with fewer than 3 are left out, runs with the
+    same trusted candidates form one group.  At most ``max_groups`` groups (each a model to fit): the
+    ``max_groups - 1`` with the most frames keep theirs, the other runs form one group on the candidates trusted over
+    every one of them (left out if fewer than 3).  Frames ascending, predictors in ``candidates``' order.
     """
     groups: dict[tuple, list[np.ndarray]] = {}
     for start, length in runs(gaps):
-        with np.errstate(invalid="ignore"):
-            sure = np.nan_to_num(var[start:start + length][:, candidates].mean(axis=0), nan=np.inf) <= trust ** 2
+        sure = trusted_over(var[start:start + length][:, candidates], trust)
         if sure.sum() >= 3:
             groups.setdefault(tuple(sure.tolist()), []).append(np.arange(start, start + length))
     found = sorted(((np.array(k), np.concatenate(v)) for k, v in groups.items()), key=lambda g: -len(g[1]))

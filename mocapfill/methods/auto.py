@@ -673,10 +673,10 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
     (n_frames, n_markers) its posterior sd (0 observed).  One model per marker with gaps, trained on every frame
     where it is observed, every near marker a predictor (:func:`mocapfill.engines.local_pca.reconstruct_completed`;
     a filled neighbour's sd is propagated into the prediction's; with :attr:`ModelConfig.refit_by_run`, a marker
-    without one model for all its gaps gets one per group of gaps with the same trusted neighbours).  Returns pred, sd, edge, edge_sd as
-    :func:`spatial_stage` (NaN where the refit has no model; :func:`body_stage` runs after it, and with
-    :attr:`ModelConfig.seed_where_no_refit`, :func:`seed_elsewhere` before that); ``extrapolation`` (n_frames,
-    n_markers) or None receives how far each prediction's pose lies off its model's training poses
+    without one model for all its gaps gets one per group of gaps with the same trusted neighbours).  Returns pred,
+    sd, edge, edge_sd as :func:`spatial_stage` (NaN where the refit has no model; :func:`body_stage` runs after it,
+    and with :attr:`ModelConfig.seed_where_no_refit`, :func:`seed_elsewhere` before that); ``extrapolation``
+    (n_frames, n_markers) or None receives how far each prediction's pose lies off its model's training poses
     (:func:`reported_sd`); ``segment_used`` (n_frames, n_markers) bool or None receives where a segment model
     predicted (:attr:`ModelConfig.segment_mm`).  ``untrusted`` (take, sd) or None, with
     :attr:`ModelConfig.refit_untrusted`: where fewer than 3 neighbours are trusted, a model on every near marker read
