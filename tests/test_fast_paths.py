@@ -58,8 +58,9 @@ def test_nearest_rotation_equals_svd_kabsch():
 
 
 def test_nearest_rotation_of_planar_shapes_equals_svd_kabsch():
-    """Three anchors (a planar shape: the cross-covariance has rank 2) take the completed Newton iteration, not the
-    SVD, and give the SVD's proper rotation, rotated shapes and reflected ones alike."""
+    """Three anchors (a planar shape: the cross-covariance has rank 2) take the quaternion eigenvector, not the SVD
+    (the largest eigenvalue stays apart from the next), and give the SVD's proper rotation, rotated shapes and
+    reflected ones alike."""
     from mocapfill.engines.body_frame import nearest_rotation
 
     rng = np.random.default_rng(3)
@@ -72,3 +73,18 @@ def test_nearest_rotation_of_planar_shapes_equals_svd_kabsch():
     A = np.swapaxes(moved, 1, 2) @ shape
     assert np.all(np.abs(np.linalg.det(A)) <= 1e-6 * np.linalg.norm(A, axis=(1, 2)) ** 3)
     np.testing.assert_allclose(nearest_rotation(A), _svd_rotation(A), atol=1e-10)
+
+
+def test_nearest_rotation_of_nearly_collinear_shapes_equals_svd_kabsch():
+    """A nearly collinear shape (the rotation about its axis barely determined) takes the SVD; the answer is the
+    SVD's either way."""
+    from mocapfill.engines.body_frame import nearest_rotation
+
+    rng = np.random.default_rng(4)
+    line = np.outer(np.linspace(-1.0, 1.0, 5), [100.0, 20.0, -50.0]) + rng.normal(size=(5, 3)) * 1e-3
+    line -= line.mean(axis=0)
+    rot = np.linalg.qr(rng.normal(size=(100, 3, 3)))[0]
+    rot *= np.sign(np.linalg.det(rot))[:, None, None]
+    moved = line[None] @ rot + rng.normal(size=(100, 5, 3)) * 1e-3
+    A = np.swapaxes(moved - moved.mean(axis=1, keepdims=True), 1, 2) @ line
+    np.testing.assert_allclose(nearest_rotation(A), _svd_rotation(A), atol=1e-9)
