@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import signal
+import time
 
 import pytest
 
@@ -48,13 +49,18 @@ def test_a_dead_worker_ends_only_its_task():
 def test_forked_map_keeps_the_items_order_and_runs_closures_elsewhere():
     from mocapfill.runtime.executor import can_fork, forked_map
 
-    offset = 10  # a closure: the forked workers inherit it, nothing is pickled but items and results
+    offset = 10  # a closure: the forked process inherits it and the items, nothing is pickled but the results
     items = list(range(7))
     here = os.getpid()
-    out = forked_map(lambda x: (x + offset, os.getpid()), items, 2, cost=[1, 5, 2, 9, 0, 3, 3])
+
+    def slow(x):
+        time.sleep(0.05)  # (long enough for the forked process to start and take items too)
+        return x + offset, os.getpid()
+
+    out = forked_map(slow, items, 2, cost=[1, 5, 2, 9, 0, 3, 3])
     assert [v for v, _ in out] == [x + offset for x in items]  # the costliest first, the results in order
-    if can_fork():
-        assert all(pid != here for _, pid in out)
+    if can_fork():  # this process and a forked one each took items
+        assert {pid == here for _, pid in out} == {True, False}
     assert forked_map(lambda x: os.getpid(), items, 1) == [here] * len(items)  # jobs 1: here
     assert forked_map(lambda x: x, [], 2) == []
 
@@ -77,5 +83,14 @@ def test_forked_map_says_when_a_worker_dies():
 
     if not can_fork():
         pytest.skip("this process cannot fork")
+    here = os.getpid()
+
+    def die_if_forked(x):
+        time.sleep(0.02)
+        if os.getpid() != here:  # (this process takes items too: it must live to report)
+            os.kill(os.getpid(), signal.SIGKILL)
+        return x
+
     with pytest.raises(MocapfillError, match="worker process died"):
-        forked_map(die_on_three, range(5), 2)
+        forked_map(die_if_forked, range(5), 2)
+    assert forked_map(lambda x: x, range(5), 2) == list(range(5))  # and the next call works

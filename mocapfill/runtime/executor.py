@@ -9,8 +9,8 @@
 - :class:`DaskCluster` (a scheduler address or ``distributed.Client``): one Dask task per task
   (``Client.submit(pure=False)``), results as they complete (``distributed.as_completed``).
 
-Within one task, :func:`forked_map` spreads its independent parts (one fill's per-marker models) over forked
-processes: they inherit the arrays instead of receiving them, which a one-second fill could not afford to send.
+Within one task, :func:`forked_map` spreads its independent parts (one fill's per-marker models) over this process
+and forked ones: they inherit the arrays instead of receiving them, which a one-second fill could not afford to send.
 
 :func:`make_executor` turns the CLI's ``--jobs`` / ``--scheduler`` into one.  ``func`` must be picklable for the
 processes and the cluster (a module-level function, or a :func:`functools.partial` of one) and should handle its
@@ -300,14 +300,6 @@ def _run_dask(func: Callable[[Any], Any], tasks: Sequence[Any], scheduler: Any, 
             client.close()
 
 
-#: The function :func:`forked_map`'s workers run (set before they are forked, so they inherit it).
-_FORKED: Callable[[Any], Any] | None = None
-
-
-def _call_forked(item: Any) -> Any:
-    return _FORKED(item)  # type: ignore[misc]
-
-
 def can_fork() -> bool:
     """Whether :func:`forked_map` may fork here: on Linux, from a process that may have children (not a daemonic
     pool worker) and runs no other thread (a fork copies only the calling thread, and a lock another thread held
@@ -320,37 +312,103 @@ def can_fork() -> bool:
 
 def forked_map(func: Callable[[Any], Any], items: Sequence[Any], jobs: int | None,
                cost: Sequence[float] | None = None) -> list[Any]:
-    """``[func(item) for item in items]``, in the items' order, on up to ``jobs`` forked processes.
+    """``[func(item) for item in items]``, in the items' order, on this process and up to ``jobs - 1`` forked ones.
 
-    For the independent parts of one computation (the markers' models of one fill): the workers are forked from this
-    process, so ``func`` (a closure is fine) and the arrays it reads are inherited, not pickled; the items and the
-    results travel by pickle.  ``func`` must not rely on side effects: they stay in the worker.  ``jobs`` as
-    :func:`resolve_jobs`; here, one item after the other, where that gives 1, there are fewer than two items, or
-    :func:`can_fork` says no.  A worker's exception is raised here; a worker that dies (killed, out of memory) raises
-    :class:`~mocapfill.errors.MocapfillError` (the command line's one-line error).  ``cost`` (one number per item)
-    or None: the costliest items are handed out first, so that no worker is left alone with a large one at the end.
+    For the independent parts of one computation (the markers' models of one fill): the other processes are forked
+    from this one, so ``func`` (a closure is fine), the items and the arrays they read are inherited, not pickled;
+    only the results travel back (by pickle, through a pipe).  Every process, this one included, takes the next item
+    from a shared counter until none is left, so no process idles while another works, and no pool, queue or
+    manager thread is set up for a call that often lasts a tenth of a second.  ``func`` must not rely on side
+    effects: they stay in the process that ran it.  ``jobs`` as :func:`resolve_jobs`; here, one item after the
+    other, where that gives 1, there are fewer than two items, or :func:`can_fork` says no.  The first exception
+    ``func`` raises (here or in a forked process) is raised here once every process has stopped; a forked process
+    that dies (killed, out of memory) raises :class:`~mocapfill.errors.MocapfillError` (the command line's one-line
+    error).  ``cost`` (one number per item) or None: the costliest items are taken first, so that no process is left
+    alone with a large one at the end.
     """
-    global _FORKED
     items = list(items)
-    jobs = resolve_jobs(jobs, len(items))
+    n = len(items)
+    jobs = resolve_jobs(jobs, n)
     if jobs <= 1 or not can_fork():
         return [func(item) for item in items]
-    from concurrent.futures import ProcessPoolExecutor
-    from concurrent.futures.process import BrokenProcessPool
+    import pickle
 
-    order = list(range(len(items))) if cost is None else sorted(range(len(items)), key=lambda i: -cost[i])
-    _FORKED = func  # the workers are forked at the first submit: they inherit it
+    order = list(range(n)) if cost is None else sorted(range(n), key=lambda i: -cost[i])
+    context = multiprocessing.get_context("fork")
+    counter, lock = context.RawValue("l", 0), context.Lock()
+
+    def take(stop: bool = False) -> int:
+        """The next item's place in ``order`` (n: none left); ``stop``: leave none for anyone (an error)."""
+        with lock:
+            i = counter.value
+            counter.value = n if stop else i + 1
+        return i
+
+    def work(results: list, failed: list) -> None:
+        while (i := take()) < n:
+            try:
+                results.append((order[i], func(items[order[i]])))
+            except BaseException as exc:  # (KeyboardInterrupt too: every process stops)
+                failed.append(exc)
+                take(stop=True)
+                return
+
+    children: list[tuple[int, int]] = []  # (pid, read end of its pipe)
     try:
-        # (not multiprocessing.Pool: a killed worker would leave its map waiting for ever; here the map raises)
-        with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("fork")) as pool:
-            done = list(pool.map(_call_forked, [items[i] for i in order]))
-    except BrokenProcessPool:
-        from ..errors import MocapfillError
+        for _ in range(jobs - 1):
+            read_end, write_end = os.pipe()
+            pid = os.fork()
+            if pid == 0:  # pragma: no cover - the forked process (its coverage is not collected)
+                status = 1
+                try:
+                    os.close(read_end)
+                    results: list = []
+                    failed: list = []
+                    work(results, failed)
+                    try:
+                        data = pickle.dumps((results, failed), protocol=pickle.HIGHEST_PROTOCOL)
+                    except Exception as exc:  # an unpicklable result or exception
+                        data = pickle.dumps(([], [RuntimeError(f"a worker's result cannot be sent back: {exc}")]))
+                    with os.fdopen(write_end, "wb") as pipe:
+                        pipe.write(data)
+                    status = 0
+                finally:
+                    os._exit(status)  # (no atexit handlers, no flushing of the buffers inherited from the caller)
+            os.close(write_end)
+            children.append((pid, read_end))
+        out: list[Any] = [None] * n
+        got = 0
+        results, failed = [], []
+        work(results, failed)
+        lost = False
+        while children:
+            pid, read_end = children[0]
+            with os.fdopen(read_end, "rb") as pipe:
+                data = pipe.read()
+            os.waitpid(pid, 0)
+            children.pop(0)
+            try:
+                theirs, their_failures = pickle.loads(data)
+            except Exception:  # nothing, or part of it: the process died before it had written it all
+                lost = True
+                continue
+            results.extend(theirs)
+            failed.extend(their_failures)
+        if failed:
+            raise failed[0]
+        for i, value in results:
+            out[i] = value
+            got += 1
+        if lost or got < n:
+            from ..errors import MocapfillError
 
-        raise MocapfillError("a worker process died (killed, out of memory?); --jobs 1 fills in one process") from None
+            raise MocapfillError("a worker process died (killed, out of memory?); --jobs 1 fills in one process")
+        return out
     finally:
-        _FORKED = None
-    out: list[Any] = [None] * len(items)
-    for i, result in zip(order, done):
-        out[i] = result
-    return out
+        for pid, read_end in children:  # interrupted here: no forked process is left working
+            with contextlib.suppress(OSError):
+                os.close(read_end)
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+            with contextlib.suppress(OSError):
+                os.waitpid(pid, 0)
