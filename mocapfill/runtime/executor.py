@@ -384,6 +384,7 @@ def forked_map(func: Callable[[Any], Any], items: Sequence[Any], jobs: int | Non
         while children:
             pid, read_end = children[0]
             with os.fdopen(read_end, "rb") as pipe:
+                children[0] = (pid, -1)  # (the file object closes the pipe now: never closed twice)
                 data = pipe.read()
             os.waitpid(pid, 0)
             children.pop(0)
@@ -406,8 +407,9 @@ def forked_map(func: Callable[[Any], Any], items: Sequence[Any], jobs: int | Non
         return out
     finally:
         for pid, read_end in children:  # interrupted here: no forked process is left working
-            with contextlib.suppress(OSError):
-                os.close(read_end)
+            if read_end >= 0:
+                with contextlib.suppress(OSError):
+                    os.close(read_end)
             with contextlib.suppress(OSError):
                 os.kill(pid, signal.SIGKILL)
             with contextlib.suppress(OSError):
