@@ -376,8 +376,6 @@ def forked_map(func: Callable[[Any], Any], items: Sequence[Any], jobs: int | Non
                     os._exit(status)  # (no atexit handlers, no flushing of the buffers inherited from the caller)
             os.close(write_end)
             children.append((pid, read_end))
-        out: list[Any] = [None] * n
-        got = 0
         results, failed = [], []
         work(results, failed)
         lost = False
@@ -397,13 +395,13 @@ def forked_map(func: Callable[[Any], Any], items: Sequence[Any], jobs: int | Non
             failed.extend(their_failures)
         if failed:
             raise failed[0]
-        for i, value in results:
-            out[i] = value
-            got += 1
-        if lost or got < n:
+        if lost or len(results) < n:
             from ..errors import MocapfillError
 
             raise MocapfillError("a worker process died (killed, out of memory?); --jobs 1 fills in one process")
+        out: list[Any] = [None] * n
+        for i, value in results:
+            out[i] = value
         return out
     finally:
         for pid, read_end in children:  # interrupted here: no forked process is left working
