@@ -1,0 +1,161 @@
+"""Issue 21, "fast": where the default's time goes, stage by stage, on every real capture with gaps.
+
+For each real capture with gaps (``harness.gapped_captures``: ``sample_data/``, ``tests/data/``, ``../shared/data``;
+``--only`` a path substring), the default fills it as ``mocapfill fill`` does (:func:`mocapfill.pipeline.fill_capture`
+on ``mocapfill fill``'s default processes, ``--fill-jobs`` to choose), once to warm up and ``--repeat`` times more.
+For the fastest of those fills: its wall time against issue 21's bound (0.25 x the capture's duration, or 1 s where
+that is larger) and the wall time of each stage of :mod:`mocapfill.methods.auto` in it (the outermost calls of the
+stage functions, so a stage that calls itself counts once; ``rest``: the fill's time outside them).  The stages run
+their local models and bone problems on the fill's processes, so a stage's wall time is what the user waits for.
+
+The stages (the module docstring of :mod:`mocapfill.methods.auto` says what each does): ``spatial`` (stage 1's local
+PCA and the body stage), ``global`` (the global PCA's prediction), ``anchor``, ``bones`` (the bone set, its break
+rates and the reaches, once per fill), ``bone`` (stage 2, both passes), ``temporal`` (stage 3, both passes),
+``refit`` (stage 4's models), ``records`` (the gap records).
+
+Run from the repository root, nothing else running (it measures time)::
+
+    python benchmarks/bench_stages.py [--only sample_26] [--repeat 2]
+
+Writes ``benchmarks/results/bench_stages.json`` (table ``stages``).
+"""
+
+from __future__ import annotations
+
+import harness
+
+harness.pin_blas()
+
+import argparse  # noqa: E402
+import contextlib  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+import warnings  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from mocapfill.io import read  # noqa: E402
+from mocapfill.pipeline import FillSettings, fill_capture  # noqa: E402
+from mocapfill.runtime.blas import single_blas_thread  # noqa: E402
+from mocapfill.runtime.executor import resolve_jobs  # noqa: E402
+
+#: Issue 21's bound: the fill takes at most this share of the capture's duration, or this many seconds if larger.
+SPEED_SHARE, SPEED_FLOOR_S = 0.25, 1.0
+
+#: Column -> the functions timed for it, as (module, attribute): the stage functions of ``mocapfill.methods.auto``
+#: (model_fill looks them up as module globals when it calls them) and the bones' set-up, imported at call time.
+STAGES: dict[str, tuple[tuple[str, str], ...]] = {
+    "spatial": (("mocapfill.methods.auto", "spatial_stage"),),
+    "global": (("mocapfill.methods.auto", "global_prediction"),),
+    "anchor": (("mocapfill.methods.auto", "anchor_stage"),),
+    "bones": (("mocapfill.bones.boneset", "resolve_bones"), ("mocapfill.methods.auto", "bone_break_rates"),
+              ("mocapfill.bones.reach", "reaches")),
+    "bone": (("mocapfill.methods.auto", "bone_stage"),),
+    "temporal": (("mocapfill.methods.auto", "temporal_stage"),),
+    "refit": (("mocapfill.methods.auto", "impute_stage"),),
+    "records": (("mocapfill.methods.auto", "gap_records"),),
+}
+
+
+@contextlib.contextmanager
+def stage_clock(seconds: dict[str, float]):
+    """Within the block, each function of :data:`STAGES` adds its wall time to ``seconds[column]`` (outermost calls
+    only: a stage called inside a timed one, or inside itself, is not counted twice); restored on exit."""
+    import importlib
+
+    depth = [0]
+    saved = []
+
+    def timed(column: str, func):
+        def wrapper(*args, **kwargs):
+            if depth[0]:
+                return func(*args, **kwargs)
+            depth[0] += 1
+            start = time.perf_counter()
+            try:
+                return func(*args, **kwargs)
+            finally:
+                seconds[column] = seconds.get(column, 0.0) + time.perf_counter() - start
+                depth[0] -= 1
+        return wrapper
+
+    for column, targets in STAGES.items():
+        for module_name, attr in targets:
+            module = importlib.import_module(module_name)
+            saved.append((module, attr, getattr(module, attr)))
+            setattr(module, attr, timed(column, getattr(module, attr)))
+    try:
+        yield
+    finally:
+        for module, attr, func in reversed(saved):
+            setattr(module, attr, func)
+
+
+def measure(path: Path, repeat: int, fill_jobs: int) -> dict:
+    """The fastest of ``repeat`` fills (after one to warm up) of one capture, with its stages' seconds."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        data = read(path)
+    settings = FillSettings(method="auto").check()
+    best: dict | None = None
+    for attempt in range(repeat + 1):
+        seconds: dict[str, float] = {}
+        with warnings.catch_warnings(), single_blas_thread(), stage_clock(seconds):
+            warnings.simplefilter("ignore")
+            outcome = fill_capture(data, settings, jobs=fill_jobs)
+        if attempt and (best is None or outcome.seconds < best["fill"]):
+            best = {"fill": outcome.seconds, **seconds}
+    duration = data.n_frames / data.rate
+    assert best is not None
+    best["rest"] = max(best["fill"] - sum(best.get(c, 0.0) for c in STAGES), 0.0)
+    return {"file": harness.capture_name(path), "frames": data.n_frames, "markers": data.n_markers,
+            "duration": duration, "bound": max(SPEED_SHARE * duration, SPEED_FLOOR_S), **best}
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--only", default="", help="only files whose path contains this text")
+    parser.add_argument("--repeat", type=int, default=1, help="timed fills per capture after a warm-up (best kept)")
+    parser.add_argument("--fill-jobs", type=int, default=None,
+                        help="processes of each fill (default: mocapfill fill's default, 0 = every core)")
+    harness.add_results_argument(parser)
+    args = parser.parse_args(argv)
+    if args.repeat < 1:
+        raise SystemExit("--repeat must be at least 1")
+    from bench_default_real import cli_jobs
+
+    fill_jobs = cli_jobs() if args.fill_jobs is None else args.fill_jobs
+    results = harness.Results(__file__, argv, args.results, note=args.note)
+    print(f"# {Path(__file__).name} ({harness.machine()})", file=sys.stderr)
+    captures, _ = harness.gapped_captures()
+    if args.only:
+        captures = [(p, d) for p, d in captures if args.only in str(p)]
+    rows = []
+    columns = ["fill", *STAGES, "rest"]
+    print(f"{'capture':44s} {'x bound':>7s} " + " ".join(f"{c:>8s}" for c in columns), file=sys.stderr)
+    for path, _ in captures:
+        r = measure(path, args.repeat, fill_jobs)
+        rows.append(r)
+        print(f"{r['file'][-44:]:44s} {r['fill'] / r['bound']:7.2f} "
+              + " ".join(f"{r.get(c, 0.0):8.3f}" for c in columns), file=sys.stderr, flush=True)
+    rows.sort(key=lambda r: -r["fill"] / r["bound"])
+    results.table(
+        "stages",
+        f"The default's wall time by stage (seconds; the fastest of {args.repeat} fill(s) after a warm-up, on "
+        f"{resolve_jobs(fill_jobs)} process(es)), captures by their fill's share of issue 21's bound",
+        ["capture", "frames x markers", "bound s", "fill s", "x bound", *STAGES, "rest"],
+        [[r["file"], f"{r['frames']} x {r['markers']}", round(r["bound"], 2), round(r["fill"], 2),
+          round(r["fill"] / r["bound"], 2), *(round(r.get(c, 0.0), 2) for c in STAGES), round(r["rest"], 2)]
+         for r in rows])
+    total = sum(r["fill"] for r in rows)
+    results.figure("fills_seconds", total, "s")
+    results.figure("over_bound", sum(r["fill"] > r["bound"] for r in rows), "captures")
+    print(f"{len(rows)} captures, {total:.1f} s of fills; over the bound: "
+          + (", ".join(r["file"] for r in rows if r["fill"] > r["bound"]) or "none"), file=sys.stderr)
+    for column in columns[1:]:
+        share = sum(r.get(column, 0.0) for r in rows) / total if total else 0.0
+        print(f"  {column:9s} {100 * share:5.1f} % of the fills' time", file=sys.stderr)
+    results.write()
+
+
+if __name__ == "__main__":
+    main()
