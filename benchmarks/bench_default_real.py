@@ -77,13 +77,6 @@ def _cpu_seconds() -> float:
     return time.process_time() + kids.ru_utime + kids.ru_stime
 
 
-def cli_jobs() -> int:
-    """``mocapfill fill``'s default ``--jobs`` (the processes a fill runs on when the user says nothing)."""
-    from mocapfill.cli.fill import fill_command
-
-    return next(p.default for p in fill_command.params if p.name == "jobs")
-
-
 def run_one(task: tuple) -> dict:
     """Fill one capture with one method as ``mocapfill fill`` does; time it and measure its smoothness."""
     path, digest, method, cache, commit, config, fill_jobs = task
@@ -163,7 +156,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--fill-jobs", type=int, default=None,
                         help="processes of each fill (default: mocapfill fill's default, 0 = every core)")
     args = parser.parse_args(argv)
-    fill_jobs = cli_jobs() if args.fill_jobs is None else args.fill_jobs
+    fill_jobs = harness.cli_jobs() if args.fill_jobs is None else args.fill_jobs
     config = json.loads(args.config) if args.config else {}
     if config and args.out == str(RESULTS):  # a variant's figures are not the default's
         print("--config: no results file written unless --out names one", file=sys.stderr)

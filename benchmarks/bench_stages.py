@@ -121,9 +121,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     if args.repeat < 1:
         raise SystemExit("--repeat must be at least 1")
-    from bench_default_real import cli_jobs
-
-    fill_jobs = cli_jobs() if args.fill_jobs is None else args.fill_jobs
+    fill_jobs = harness.cli_jobs() if args.fill_jobs is None else args.fill_jobs
     results = harness.Results(__file__, argv, args.results, note=args.note)
     print(f"# {Path(__file__).name} ({harness.machine()})", file=sys.stderr)
     captures, _ = harness.gapped_captures()

@@ -349,6 +349,13 @@ def gapped_captures() -> tuple[list[tuple[Path, str]], list[str]]:
     return found, skipped
 
 
+def cli_jobs() -> int:
+    """``mocapfill fill``'s default ``--jobs`` (the processes a fill runs on when the user says nothing)."""
+    from mocapfill.cli.fill import fill_command
+
+    return next(p.default for p in fill_command.params if p.name == "jobs")
+
+
 def config_tag(config: dict | None) -> str:
     """The cache files' suffix for a run of ``auto`` with :class:`~mocapfill.methods.auto.ModelConfig` fields changed
     (``--config``): "" for the default, else "_" and a hash of the fields, so a variant's fills are cached apart."""
