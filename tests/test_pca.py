@@ -13,6 +13,7 @@ from mocapfill.engines.weighted_pca import (
     gaussian_weights,
     mean_distances,
     pattern_groups,
+    ranked_groups,
     weight_width,
 )
 from mocapfill.methods.pca import fill_pca
@@ -116,6 +117,19 @@ def test_pattern_groups_are_bounded():
     assert sorted(np.concatenate([g for g, _ in groups])) == list(frames)
     for g, predictors in groups:  # predictors are observed in every frame of their group
         assert not missing[np.ix_(g, predictors)].any()
+
+
+def test_ranked_groups_rank_by_summed_size_and_merge_the_rest_on_the_or_of_their_keys():
+    """Equal rows are one group; the groups come largest summed size first (between equal sums, the later key in
+    lexicographic order first); past ``max_groups`` the rest are one group, last, keyed by the OR of theirs."""
+    keys = np.array([[0, 1, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 0, 0], [0, 0, 0]], dtype=bool)
+    got = [(rows.tolist(), key.astype(int).tolist()) for rows, key in ranked_groups(keys, None, 4)]
+    assert got == [([1, 4], [1, 0, 0]), ([0, 2], [0, 1, 0]), ([3], [0, 0, 1]), ([5], [0, 0, 0])]
+    got = [(rows.tolist(), key.astype(int).tolist()) for rows, key in ranked_groups(keys, None, 3)]
+    assert got == [([1, 4], [1, 0, 0]), ([0, 2], [0, 1, 0]), ([3, 5], [0, 0, 1])]
+    sizes = np.array([1.0, 1.0, 1.0, 9.0, 1.0, 1.0])  # the single row of key 001 now outweighs the pairs
+    got = [(rows.tolist(), key.astype(int).tolist()) for rows, key in ranked_groups(keys, sizes, 2)]
+    assert got == [([3], [0, 0, 1]), ([0, 1, 2, 4, 5], [1, 1, 0])]
 
 
 def test_bad_options_raise_method_errors():

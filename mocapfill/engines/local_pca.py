@@ -50,6 +50,7 @@ from .weighted_pca import (
     mean_distances,
     pattern_groups,
     predict,
+    ranked_groups,
     predictor_residual,
 )
 
@@ -980,20 +981,18 @@ def trusted_runs(gaps: np.ndarray, var: np.ndarray, candidates: np.ndarray, trus
     candidate is trusted over a run as :func:`trusted_over` says; runs with fewer than 3 are left out, runs with the
     same trusted candidates form one group.  At most ``max_groups`` groups (each a model to fit): the
     ``max_groups - 1`` with the most frames keep theirs, the other runs form one group on the candidates trusted over
-    every one of them (left out if fewer than 3).  Frames ascending, predictors in ``candidates``' order.
+    every one of them (left out if fewer than 3) (:func:`~.weighted_pca.ranked_groups`).  Frames ascending,
+    predictors in ``candidates``' order.
     """
-    groups: dict[tuple, list[np.ndarray]] = {}
-    for start, length in runs(gaps):
-        sure = trusted_over(var[start:start + length][:, candidates], trust)
-        if sure.sum() >= 3:
-            groups.setdefault(tuple(sure.tolist()), []).append(np.arange(start, start + length))
-    found = sorted(((np.array(k), np.concatenate(v)) for k, v in groups.items()), key=lambda g: -len(g[1]))
-    if len(found) > max_groups:
-        keep = max(max_groups - 1, 0)
-        rest = found[keep:]
-        found = found[:keep] + [(np.logical_and.reduce([k for k, _ in rest]),
-                                 np.sort(np.concatenate([f for _, f in rest])))]
-    return [(frames, candidates[sure]) for sure, frames in found if sure.sum() >= 3]
+    spans = [(start, length, trusted_over(var[start:start + length][:, candidates], trust))
+             for start, length in runs(gaps)]
+    spans = [span for span in spans if span[2].sum() >= 3]
+    if not spans:
+        return []
+    untrusted = ~np.array([sure for _, _, sure in spans])
+    lengths = np.array([length for _, length, _ in spans])
+    return [(np.concatenate([np.arange(spans[i][0], spans[i][0] + spans[i][1]) for i in items]), candidates[~key])
+            for items, key in ranked_groups(untrusted, lengths, max_groups) if (~key).sum() >= 3]
 
 
 def refit_parts(missing: np.ndarray, gap_frames: np.ndarray, candidates: np.ndarray, sure: np.ndarray,

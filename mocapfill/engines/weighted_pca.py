@@ -456,23 +456,37 @@ def cv_curve(
     return curve, lambda k: sum(_fold_residual(*fold, k) for fold in kept) / count
 
 
+def ranked_groups(keys: np.ndarray, sizes: np.ndarray | None, max_groups: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Rows of ``keys`` (n, p) bool grouped by equal row, at most ``max_groups`` groups: [(rows ascending, key (p,))].
+
+    The groups are ranked by their rows' summed ``sizes`` (n,) (None: 1 each), largest first (between equal sums, the
+    later key in lexicographic order first); with more than ``max_groups``, the largest ``max_groups - 1`` keep their
+    key and the other rows form one group, last, keyed by the OR of theirs.  The one split behind
+    :func:`pattern_groups` (a marker's frames by their missing predictors) and
+    :func:`~.local_pca.trusted_runs` (its gap runs by their untrusted neighbours).
+    """
+    patterns, inverse, counts = unique_rows(keys)
+    totals = counts if sizes is None else np.bincount(inverse, weights=sizes, minlength=len(patterns))
+    order = np.argsort(totals, kind="stable")[::-1]
+    keep = order if len(order) <= max_groups else order[:max(max_groups - 1, 0)]
+    rows = members(inverse, len(patterns))
+    out = [(rows[p], patterns[p]) for p in keep]
+    if len(keep) < len(order):
+        rest = np.flatnonzero(~np.isin(inverse, keep))
+        out.append((rest, keys[rest].any(axis=0)))
+    return out
+
+
 def pattern_groups(missing: np.ndarray, frames: np.ndarray, near: np.ndarray, max_patterns: int
                    ) -> list[tuple[np.ndarray, np.ndarray]]:
     """Split one marker's gap ``frames`` into (frames, predictors) groups, at most ``max_patterns`` of them.
 
     ``near`` (p,) are the candidate predictor markers; a group's predictors are those observed in all its frames.
     Frames with the same pattern of observed candidates form a group; when there are more than ``max_patterns``
-    patterns, the largest ``max_patterns - 1`` keep theirs and the rest are merged.
+    patterns, the largest ``max_patterns - 1`` keep theirs and the rest are merged (:func:`ranked_groups`).
     """
-    patterns, inverse, counts = unique_rows(missing[np.ix_(frames, near)])
-    order = np.argsort(counts, kind="stable")[::-1]
-    keep = order if len(order) <= max_patterns else order[:max(max_patterns - 1, 0)]
-    rows = members(inverse, len(patterns))
-    out = [(frames[rows[p]], near[~patterns[p]]) for p in keep]
-    if len(keep) < len(order):
-        rest = frames[~np.isin(inverse, keep)]
-        out.append((rest, near[~missing[np.ix_(rest, near)].any(axis=0)]))
-    return out
+    return [(frames[rows], near[~key])
+            for rows, key in ranked_groups(missing[np.ix_(frames, near)], None, max_patterns)]
 
 
 def linear_fallback(series: np.ndarray, missing: np.ndarray) -> np.ndarray:
