@@ -362,3 +362,33 @@ def test_refine_bones_takes_spreads_per_frame():
     free, _ = refine_bones(estimate, positions, std, pairs, lengths, tiled, spread_floor=1.0)
     assert np.allclose(free[:30], estimate[:30], atol=1e-3)
     assert np.array_equal(free[30:], out[30:])
+
+
+def test_refine_bones_reuses_the_problems_a_memo_holds(monkeypatch):
+    """With a memo shared between two calls, the second solves only the problems whose inputs changed, and both give
+    what calls without it give, bit for bit (the info too)."""
+    import mocapfill.bones.refinement as refinement
+
+    estimate, positions, std, pairs, lengths, spread = _loose_limbs()
+    plain, plain_info = refine_bones(estimate, positions, std, pairs, lengths, spread, spread_floor=1.0)
+    moved = estimate.copy()
+    moved[40:] += 5.0  # the later frames' fill changed (a refit there), the earlier ones' not
+    plain2, plain2_info = refine_bones(moved, positions, std, pairs, lengths, spread, spread_floor=1.0)
+
+    solved = []
+    real = refinement.forked_map
+
+    def counting(func, items, jobs, cost=None):
+        items = list(items)
+        solved.append(len(items))
+        return real(func, items, jobs, cost=cost)
+
+    monkeypatch.setattr(refinement, "forked_map", counting)
+    memo: dict = {}
+    out, info = refine_bones(estimate, positions, std, pairs, lengths, spread, spread_floor=1.0, memo=memo)
+    again, again_info = refine_bones(estimate, positions, std, pairs, lengths, spread, spread_floor=1.0, memo=memo)
+    out2, info2 = refine_bones(moved, positions, std, pairs, lengths, spread, spread_floor=1.0, memo=memo)
+    assert np.array_equal(out, plain) and np.array_equal(again, plain) and np.array_equal(out2, plain2)
+    assert info == plain_info == again_info and info2 == plain2_info
+    assert solved[0] == len(memo) - solved[2] and solved[1] == 0  # the same inputs: nothing solved again
+    assert 0 < solved[2] < solved[0]  # only the problems with a frame from 40 on

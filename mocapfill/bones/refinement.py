@@ -29,6 +29,7 @@ components of those bones, and each component is solved alone, batched over ever
 
 from __future__ import annotations
 
+import hashlib
 from math import lgamma
 
 import numpy as np
@@ -146,6 +147,7 @@ def refine_bones(
     tolerance: float = 0.01,
     one_sided: np.ndarray | None = None,
     jobs: int | None = None,
+    memo: dict | None = None,
 ) -> tuple[np.ndarray, dict]:
     """Move each frame's missing markers to the most probable positions given the fill and the bones.
 
@@ -176,6 +178,12 @@ def refine_bones(
     jobs : int or None
         Processes the independent problems (a component's markers over the frames where they are one) are solved
         on (:func:`~mocapfill.runtime.executor.forked_map`; None or 1: this one); the output does not depend on it.
+    memo : dict or None
+        Results of problems solved before, by a digest of everything a problem reads (its frames, markers, bones and
+        spreads, the fill and the bones' ends there, the fill's sds): a problem found in it is not solved again, and
+        the ones solved here are added.  The default's two passes share one, so the problems whose inputs the refit
+        left as they were (a blackout's markers, predicted by the global PCA in both) are solved once: the output
+        is the same as without it.
 
     Returns
     -------
@@ -220,10 +228,10 @@ def refine_bones(
         for comp in comps:
             problems.setdefault(tuple(comp.tolist()), []).append(rows)
 
-    def solve(item: tuple[tuple, list[np.ndarray]]) -> tuple:
-        """One problem (a component's markers, the frames where they are one): its frames, markers, refined
-        positions (n, k, 3), summed cost, frames still moving, and the summed |bone error| before / after and their
-        count (pure: the problems share no moved sample, so they may be solved in any process)."""
+    def setup(item: tuple[tuple, list[np.ndarray]]) -> tuple:
+        """Everything one problem (a component's markers, the frames where they are one) reads: its frames,
+        markers, bones (pairs, lengths, which are reaches or None, spreads), the bones' ends and the markers' fill
+        at its frames, and the fill's sds there."""
         key, parts = item
         rows, markers = np.sort(np.concatenate(parts)), np.array(key)
         touch = np.isin(pairs, markers).any(axis=1)
@@ -236,18 +244,24 @@ def refine_bones(
             on = ~two[col]
             bs[:, on] = np.where(stretched[rows][:, np.searchsorted(reach, col[on])], bs[:, on], np.inf)
         bp, bl = pairs[touch], lengths[touch]
-        k = len(markers)
         hinge = ~two[touch]  # the reaches among its terms
         if not hinge.any():
             hinge = None
-        slot = -np.ones(out.shape[1], dtype=int)
-        slot[markers] = np.arange(k)
-        ia, ib = slot[bp[:, 0]], slot[bp[:, 1]]  # -1 where the end is fixed
         fixed = out[rows]  # (n, M, 3): fixed ends come from here (observed, or filled and not moved)
         # (the arrays keep the memory layouts of these expressions: the sums below add in layout order)
         fixed_a, fixed_b = fixed[:, bp[:, 0]], fixed[:, bp[:, 1]]  # (n, nb, 3), once, not per cost evaluation
-        target = fixed[:, markers]  # (n, k, 3)
-        prec = 1.0 / std[rows][:, markers] ** 2  # (n, k) per-coordinate precision
+        return rows, markers, bp, bl, hinge, bs, fixed_a, fixed_b, fixed[:, markers], std[rows][:, markers]
+
+    def solve(problem: tuple) -> tuple:
+        """One problem as :func:`setup` gives it: its frames, markers, refined positions (n, k, 3), summed cost,
+        frames still moving, and the summed |bone error| before / after and their count (pure: the problems share
+        no moved sample, so they may be solved in any process)."""
+        rows, markers, bp, bl, hinge, bs, fixed_a, fixed_b, target, sd = problem
+        k = len(markers)
+        slot = -np.ones(out.shape[1], dtype=int)
+        slot[markers] = np.arange(k)
+        ia, ib = slot[bp[:, 0]], slot[bp[:, 1]]  # -1 where the end is fixed
+        prec = 1.0 / sd ** 2  # (n, k) per-coordinate precision
         prec3 = np.repeat(prec, 3, axis=1)
         bw = 1.0 / bs ** 2  # (nb,) or per frame (n, nb)
 
@@ -320,9 +334,15 @@ def refine_bones(
 
     before_sum = after_sum = 0.0
     count = unconverged = 0
-    size = [sum(map(len, parts)) * len(key) ** 2 for key, parts in problems.items()]  # frames x the solve's size
-    for rows, markers, y, cost_sum, moving, before, after, n_terms in forked_map(solve, problems.items(), jobs,
-                                                                                  cost=size):
+    prepared = [setup(item) for item in problems.items()]
+    digests = [_digest(problem) for problem in prepared] if memo is not None else [None] * len(prepared)
+    todo = [i for i, d in enumerate(digests) if memo is None or d not in memo]
+    size = [len(prepared[i][0]) * len(prepared[i][1]) ** 2 for i in todo]  # frames x the solve's size
+    solved = dict(zip(todo, forked_map(solve, [prepared[i] for i in todo], jobs, cost=size)))
+    if memo is not None:
+        memo.update((digests[i], result) for i, result in solved.items())
+    for i in range(len(prepared)):
+        rows, markers, y, cost_sum, moving, before, after, n_terms = solved[i] if i in solved else memo[digests[i]]
         unconverged += moving
         info["cost"] += cost_sum
         out[np.ix_(rows, markers)] = y
@@ -335,6 +355,20 @@ def refine_bones(
         info["bone_error_before"] = before_sum / count
         info["bone_error_after"] = after_sum / count
     return out, info
+
+
+def _digest(arrays: tuple) -> bytes:
+    """A 128-bit digest of a tuple of arrays (or None), their dtypes, shapes and bytes: the key of a solved problem
+    in :func:`refine_bones`'s ``memo``."""
+    h = hashlib.blake2b(digest_size=16)
+    for a in arrays:
+        if a is None:
+            h.update(b"none;")
+            continue
+        a = np.ascontiguousarray(a)
+        h.update(f"{a.dtype}{a.shape};".encode())
+        h.update(a.tobytes())
+    return h.digest()
 
 
 def miss_log_densities(r: np.ndarray, v: np.ndarray, lengths: np.ndarray, dof: float) -> tuple[np.ndarray, np.ndarray]:

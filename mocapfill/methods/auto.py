@@ -440,6 +440,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     broken = None  # (n_frames, n_bones): where the last bone stage left a bone out (:func:`bone_breaks`)
     reach, stretched = None, None  # the reaches, and where the last bone stage found a prediction past one
     holds = False  # whether the bone stage has anything to hold a prediction with
+    solved: dict = {}  # the bone problems solved so far: the refit's bone stage reuses those it left as they were
     if refine and bones is not False:
         from ..bones.boneset import resolve_bones
         boneset = resolve_bones(positions, bones, units=units, labels=labels)
@@ -455,7 +456,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         holds = bool(len(boneset)) or (reach is not None and bool(len(reach.pairs)))
         if holds and np.isfinite(pred_sd).any():
             pred = bone_stage(positions, pred, pred_sd, boneset, config, mm, anchored, report_sd=report_sd,
-                              broken=broken, rates=rates, reach=reach, stretched=stretched, jobs=jobs)
+                              broken=broken, rates=rates, reach=reach, stretched=stretched, jobs=jobs, memo=solved)
     info["bones"] = 0 if boneset is None else int(len(boneset))
     info["reaches"] = 0 if reach is None else int(len(reach.pairs))
     model = motion_model(positions, missing, config, mm, rate)
@@ -497,7 +498,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
             boned = np.where(segment_used[..., None], pred,
                              bone_stage(positions, pred, pred_sd, boneset, config, mm, anchored,
                                         report_sd=report_sd, broken=broken, rates=rates, reach=reach,
-                                        stretched=stretched, jobs=jobs))
+                                        stretched=stretched, jobs=jobs, memo=solved))
             if config.bone_move_sd:  # (NaN where there is no prediction: nothing moved)
                 moved_sq = np.nan_to_num(np.sum((boned - pred) ** 2, axis=2))
                 report_sd = np.sqrt(report_sd ** 2 + moved_sq / 3.0)
@@ -801,7 +802,7 @@ def prior_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, ed
 def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset, config: ModelConfig, mm: float,
                anchored: np.ndarray | None = None, *, report_sd: np.ndarray | None = None,
                broken: np.ndarray | None = None, rates: np.ndarray | None = None, reach=None,
-               stretched: np.ndarray | None = None, jobs: int = 1) -> np.ndarray:
+               stretched: np.ndarray | None = None, jobs: int = 1, memo: dict | None = None) -> np.ndarray:
     """Stage 2: predictions (n_frames, n_markers, 3) moved to the most probable positions given the bones.
 
     sd (n_frames, n_markers) the predictions' standard deviations (NaN: not moved); boneset a BoneSet.  With
@@ -814,7 +815,8 @@ def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset,
     (:func:`bone_break_rates`; None: computed here).  ``reach`` (:func:`mocapfill.bones.reach.reaches`) or None:
     pairs that only a distance past their limit costs, held with the bones; ``stretched`` (n_frames, n_reaches) bool
     or None receives where a prediction stretched one past its limit.  ``jobs``: processes the frames' problems are
-    solved on (the output does not depend on it).
+    solved on (the output does not depend on it).  ``memo`` (a dict) or None: problems solved by an earlier bone
+    stage of the same fill, reused where their inputs are the same (:func:`~mocapfill.bones.refinement.refine_bones`).
     """
     from ..bones.refinement import refine_bones
 
@@ -823,7 +825,8 @@ def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset,
         pred = np.where(anchored[..., None], np.nan, pred)
         return np.where(anchored[..., None], kept, bone_stage(positions, pred, sd, boneset, config, mm,
                                                               report_sd=report_sd, broken=broken, rates=rates,
-                                                              reach=reach, stretched=stretched, jobs=jobs))
+                                                              reach=reach, stretched=stretched, jobs=jobs,
+                                                              memo=memo))
 
     est = np.where(np.isnan(positions), pred, positions)
     spread = bone_spreads(positions, est, sd, boneset, config, mm) if config.bone_extrapolation else boneset.spread
@@ -841,7 +844,8 @@ def bone_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, boneset,
                                 axis=-1)
         one_sided = np.arange(len(pairs)) >= len(boneset)
     refined, info = refine_bones(est, positions, sd * config.bone_trust, pairs, lengths,
-                                 spread, spread_floor=config.spread_floor_mm * mm, one_sided=one_sided, jobs=jobs)
+                                 spread, spread_floor=config.spread_floor_mm * mm, one_sided=one_sided, jobs=jobs,
+                                 memo=memo)
     if stretched is not None and one_sided is not None:
         stretched[:] = info["stretched"]
     return np.where(np.isfinite(pred), refined, np.nan)
