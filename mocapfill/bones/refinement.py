@@ -335,7 +335,9 @@ def refine_bones(
     before_sum = after_sum = 0.0
     count = unconverged = 0
     prepared = [setup(item) for item in problems.items()]
-    digests = [_digest(problem) for problem in prepared] if memo is not None else [None] * len(prepared)
+    settings = np.array([max_iter, tolerance], dtype=float)  # (a memo shared by calls with other settings)
+    digests = ([_digest((*problem, settings)) for problem in prepared] if memo is not None
+               else [None] * len(prepared))
     todo = [i for i, d in enumerate(digests) if memo is None or d not in memo]
     size = [len(prepared[i][0]) * len(prepared[i][1]) ** 2 for i in todo]  # frames x the solve's size
     solved = dict(zip(todo, forked_map(solve, [prepared[i] for i in todo], jobs, cost=size)))
