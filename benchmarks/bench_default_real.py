@@ -63,10 +63,6 @@ from mocapfill.units import length_factor  # noqa: E402
 SCRIPT = Path(__file__).name
 RESULTS = REPO / "benchmarks" / "results" / f"{Path(__file__).stem}.json"
 CACHE = REPO / "benchmarks" / ".cache" / Path(__file__).stem
-#: Issue 21's speed bound: the fill takes at most this share of the capture's duration ...
-SPEED_SHARE = 0.25
-#: ... or this many seconds where that is larger.
-SPEED_FLOOR_S = 1.0
 
 
 def _cpu_seconds() -> float:
@@ -219,7 +215,7 @@ def main(argv: list[str] | None = None) -> None:
                     fails[m].append(r["file"])
                 continue
             s = r["smooth"]
-            bound = max(SPEED_SHARE * r["duration"], SPEED_FLOOR_S)
+            bound = harness.speed_bound(r["duration"])
             fast = r["seconds"] <= bound
             ratio = r["seconds"] / r["duration"]
             worst_ratio[m] = max(worst_ratio[m], ratio)

@@ -38,9 +38,6 @@ from mocapfill.pipeline import FillSettings, fill_capture  # noqa: E402
 from mocapfill.runtime.blas import single_blas_thread  # noqa: E402
 from mocapfill.runtime.executor import resolve_jobs  # noqa: E402
 
-#: Issue 21's bound: the fill takes at most this share of the capture's duration, or this many seconds if larger.
-SPEED_SHARE, SPEED_FLOOR_S = 0.25, 1.0
-
 #: Column -> the functions timed for it, as (module, attribute): the stage functions of ``mocapfill.methods.auto``
 #: (model_fill looks them up as module globals when it calls them) and the bones' set-up, imported at call time.
 STAGES: dict[str, tuple[tuple[str, str], ...]] = {
@@ -108,7 +105,7 @@ def measure(path: Path, repeat: int, fill_jobs: int) -> dict:
     assert best is not None
     best["rest"] = max(best["fill"] - sum(best.get(c, 0.0) for c in STAGES), 0.0)
     return {"file": harness.capture_name(path), "frames": data.n_frames, "markers": data.n_markers,
-            "duration": duration, "bound": max(SPEED_SHARE * duration, SPEED_FLOOR_S), **best}
+            "duration": duration, "bound": harness.speed_bound(duration), **best}
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -349,6 +349,12 @@ def gapped_captures() -> tuple[list[tuple[Path, str]], list[str]]:
     return found, skipped
 
 
+def speed_bound(duration: float) -> float:
+    """Issue 21's bound on a fill's seconds for a capture of ``duration`` seconds: 0.25 x its duration, or 1 s where
+    that is larger."""
+    return max(0.25 * duration, 1.0)
+
+
 def cli_jobs() -> int:
     """``mocapfill fill``'s default ``--jobs`` (the processes a fill runs on when the user says nothing)."""
     from mocapfill.cli.fill import fill_command
