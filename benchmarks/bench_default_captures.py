@@ -66,7 +66,7 @@ from mocapfill.evaluation import make_occlusions, score  # noqa: E402
 from mocapfill.io import read  # noqa: E402
 from mocapfill.markers import MarkerData  # noqa: E402
 from mocapfill.methods import METHODS, get_method  # noqa: E402
-from mocapfill.methods.auto import DEFAULT_CONFIG  # noqa: E402
+from mocapfill.methods.auto_config import DEFAULT_CONFIG  # noqa: E402
 from mocapfill.units import length_factor  # noqa: E402
 
 SHARED = harness.SHARED_DATA

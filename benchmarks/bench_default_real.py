@@ -22,7 +22,7 @@ marker point that is observed elsewhere, in a frame where another marker is obse
 
 Results are cached per (file content, method) in ``--cache``; ``--rerun auto`` fills again with the default only.
 Writes ``benchmarks/results/bench_default_real.json``.  ``--config JSON`` fills ``auto`` with those
-:class:`~mocapfill.methods.auto.ModelConfig` fields changed (e.g. ``'{"refit_untrusted": true}'``), cached apart,
+:class:`~mocapfill.methods.auto_config.ModelConfig` fields changed (e.g. ``'{"refit_untrusted": true}'``), cached apart,
 and writes no results file unless ``--out`` names one.
 
 Run from the repository root (a single process measures the fills one at a time; keep ``--jobs 1`` for timing)::

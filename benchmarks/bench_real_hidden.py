@@ -13,7 +13,7 @@ RMSE and how many captures each method is best on; the check that the default's 
 ``bolero-sc``'s on every capture.  Results are cached per (file content, method, draw) in ``--cache``; ``--rerun
 auto`` fills again with the default only.
 
-``--config JSON`` fills ``auto`` with those :class:`~mocapfill.methods.auto.ModelConfig` fields changed (e.g.
+``--config JSON`` fills ``auto`` with those :class:`~mocapfill.methods.auto_config.ModelConfig` fields changed (e.g.
 ``'{"seed_where_no_refit": true}'``), cached apart from the default's.
 
 Run from the repository root (``--jobs 2``: a draw per worker; nothing here is timed)::
@@ -70,7 +70,7 @@ def run_one(task: tuple) -> dict:
         try:
             options = {}
             if method == "auto" and config:
-                from mocapfill.methods.auto import ModelConfig
+                from mocapfill.methods.auto_config import ModelConfig
 
                 options["config"] = ModelConfig(**config)
             out = fill(data.with_positions(cut), method, **options)

@@ -363,8 +363,9 @@ def cli_jobs() -> int:
 
 
 def config_tag(config: dict | None) -> str:
-    """The cache files' suffix for a run of ``auto`` with :class:`~mocapfill.methods.auto.ModelConfig` fields changed
-    (``--config``): "" for the default, else "_" and a hash of the fields, so a variant's fills are cached apart."""
+    """The cache files' suffix for a run of ``auto`` with :class:`~mocapfill.methods.auto_config.ModelConfig` fields
+    changed (``--config``): "" for the default, else "_" and a hash of the fields, so a variant's fills are cached
+    apart."""
     import hashlib
 
     return "_" + hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()[:8] if config else ""
@@ -379,9 +380,10 @@ def auto_config(config: dict | None):
         yield
         return
     from mocapfill.methods import auto
+    from mocapfill.methods.auto_config import ModelConfig
 
     before = auto.fill_auto.__kwdefaults__["config"]
-    auto.fill_auto.__kwdefaults__["config"] = auto.ModelConfig(**config)
+    auto.fill_auto.__kwdefaults__["config"] = ModelConfig(**config)
     try:
         yield
     finally:

@@ -14,10 +14,10 @@ from synthetic import tumbling_body
 from synthetic import moving_body, rot_x, rot_z
 from mocapfill.methods import get_method
 from mocapfill.engines.local_pca import prefer_segment, refit_parts, rigid_prediction, segment_markers
-from mocapfill.methods.auto import (DEFAULT_CONFIG, ModelConfig, body_stage, displaced_runs, fill_auto, gap_records,
-                                         global_prediction, global_stage,
-                                         motion_model, rough_variance, seed_elsewhere, spatial_stage,
-                                         temporal_stage)
+from mocapfill.methods.auto import (body_stage, displaced_runs, fill_auto, gap_records, global_prediction,
+                                   global_stage, motion_model, rough_variance, seed_elsewhere, spatial_stage,
+                                   temporal_stage)
+from mocapfill.methods.auto_config import DEFAULT_CONFIG, ModelConfig
 
 
 def model(n_series: int, q: float = 1e-3, gain=None) -> MotionModel:

@@ -166,7 +166,8 @@ def test_bad_model_files_and_missing_model(tmp_path, cmu):
 def test_the_model_is_a_prior_of_the_default(tiny, cmu, tmp_path):
     """``fill --model M`` with the candidate default: the network's estimate joins the spatial model (its sd learnt
     from hiding observed samples with a gap frame's missing markers), the observed samples come back bit-identical and the report says so."""
-    from mocapfill.methods.auto import DEFAULT_CONFIG, prior_estimate
+    from mocapfill.methods.auto import prior_estimate
+    from mocapfill.methods.auto_config import DEFAULT_CONFIG
 
     model, path = tiny
     gappy = cmu.positions.copy()

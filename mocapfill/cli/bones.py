@@ -126,7 +126,8 @@ def estimate_bones_command(input_path: str, output: str | None, fmt: str | None,
     # The data is written before the table: a reader of stderr that goes away must not cost the output.
     breaks = None
     if not quiet and len(bones):
-        from ..methods.auto import DEFAULT_CONFIG, bone_break_rates
+        from ..methods.auto import bone_break_rates
+        from ..methods.auto_config import DEFAULT_CONFIG
         from ..units import length_factor
 
         breaks = bone_break_rates(data.positions, bones, DEFAULT_CONFIG, length_factor("mm", data.units))
