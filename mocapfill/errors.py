@@ -7,6 +7,8 @@ value at fault.  The CLI turns every one of them into a one-line ``Error: ...`` 
 
 from __future__ import annotations
 
+import warnings
+
 
 class MocapfillError(Exception):
     """Base class of every error mocapfill raises on purpose."""
@@ -55,3 +57,9 @@ def one_line(problem: BaseException | object, where: str | None = None) -> str |
     else:
         text = str(problem)
     return " ".join(text.split())
+
+
+def warning_line(item: warnings.WarningMessage) -> str:
+    """The user's one-line text for a caught warning: its category, then its message (the message is the warning
+    object, whose :func:`one_line` would name the category again)."""
+    return f"{item.category.__name__}: {one_line(str(item.message))}"

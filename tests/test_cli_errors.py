@@ -167,3 +167,14 @@ def test_write_refuses_to_overwrite_the_input(sample_data, tmp_path):
     with pytest.raises(InputError, match=r"in\.c3d: output is the same file as the input"):
         mocapfill.write(data, src)
     assert src.read_bytes() == (sample_data / "85_02.c3d").read_bytes()
+
+
+def test_a_caught_warning_is_worded_once_with_its_category():
+    import warnings
+
+    from mocapfill.errors import DataWarning, warning_line
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        warnings.warn("take.c3d: 3 sample(s)\n  not written", DataWarning)
+    assert warning_line(caught[0]) == "DataWarning: take.c3d: 3 sample(s) not written"

@@ -112,6 +112,7 @@ def test_convergence_warning_is_one_line(runner, gappy, tmp_path):
     lines = [line for line in result.stderr.splitlines() if "ConvergenceWarning" in line]
     assert len(lines) == 1 and "Traceback" not in result.stderr
     assert "not converged" in result.stderr
+    assert lines[0].count("ConvergenceWarning") == 1  # the category once, not again from the message object
     quiet = runner.invoke(cli, ["fill", str(gappy), str(tmp_path / "o2.c3d"), "-m", "dynammo", "--max-iter", "2",
                                 "-q"])
     assert quiet.exit_code == 0 and quiet.stderr == ""

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..errors import one_line
+from ..errors import one_line, warning_line
 from ..pipeline import FillSettings
 from .resume import file_digest
 
@@ -159,7 +159,7 @@ def _fill_file(task: FileTask, row: BatchRow) -> None:
                 row.left_samples = 0 if outcome.left is None else int((outcome.left != 0).sum())
                 row.status = "filled"
             finally:
-                notes += [f"{item.category.__name__}: {one_line(item.message)}" for item in caught]
+                notes += [warning_line(item) for item in caught]
     except Exception as exc:  # MemoryError included; a bug of ours on one file must not stop the others
         row.error = one_line(exc, where=task.input)
     row.warnings = tuple(dict.fromkeys(notes))

@@ -11,7 +11,7 @@ from typing import Callable, NamedTuple
 import click
 from rich.console import Console
 
-from ..errors import ConvergenceWarning, DataWarning, MethodError, one_line
+from ..errors import ConvergenceWarning, DataWarning, MethodError, warning_line
 
 from ..io import READ_FORMATS, WRITE_FORMATS
 
@@ -240,7 +240,7 @@ def show_warnings(caught: list[warnings.WarningMessage], quiet: bool) -> None:
     for item in caught:
         if not _ours(item):
             continue
-        text = f"{item.category.__name__}: {one_line(item.message)}"
+        text = warning_line(item)
         if text in seen:
             continue
         seen.add(text)
