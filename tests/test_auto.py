@@ -647,6 +647,48 @@ def test_trusted_runs_group_a_markers_gaps_by_the_neighbours_trusted_over_each()
     assert got == [([2, 3, 4], [4, 1, 2, 3, 5]), ([0, 8, 9], [1, 2, 3])]
 
 
+def test_beside_blackouts_judges_a_gap_running_into_a_blackout_on_its_frames_outside_it():
+    """A gap run that :func:`trusted_runs` leaves out because it runs into a whole-body blackout (every candidate
+    unknown there, so none is trusted over the run) is judged again on its frames outside the blackout; runs that
+    touch no blackout, or keep their trusted candidates, are :func:`trusted_runs`' alone."""
+    from mocapfill.engines.local_pca import beside_blackouts, trusted_runs
+
+    gaps = np.zeros(30, dtype=bool)
+    gaps[2:5] = gaps[12:30] = True  # the second run ends in the blackout
+    blackout = np.zeros(30, dtype=bool)
+    blackout[20:] = True
+    var = np.zeros((30, 6))
+    var[blackout] = 1e6  # every marker filled with a large sd there
+    candidates = np.array([4, 1, 2, 3, 5])
+    assert [f.tolist() for f, _ in trusted_runs(gaps, var, candidates, 10.0, 3)] == [[2, 3, 4]]
+    got = [(f.tolist(), p.tolist()) for f, p in beside_blackouts(gaps, var, candidates, 10.0, 3, blackout)]
+    assert got == [(list(range(12, 20)), [4, 1, 2, 3, 5])]
+    # without the blackout's frames there is nothing to judge again
+    assert beside_blackouts(gaps, var, candidates, 10.0, 3, np.zeros(30, dtype=bool)) == []
+    # frames beside it whose candidates are themselves unsure stay without a model
+    var[12:20, 1:4] = 400.0
+    assert beside_blackouts(gaps, var, candidates, 10.0, 3, blackout) == []
+
+
+def test_a_gap_running_into_a_whole_body_blackout_is_predicted_where_its_neighbours_are_seen():
+    """85_02: the right knee marker vanishes 60 frames before every marker does (a subject leaving the capture
+    volume).  Trusted over the whole run, which the blackout dominates, no neighbour was, and the global PCA filled
+    those 60 frames 109 mm off (RMS); judged on its frames outside the blackout, a local model predicts them."""
+    from pathlib import Path
+    from mocapfill import read
+
+    data = read(Path(__file__).parents[1] / "sample_data" / "85_02.c3d")
+    j = data.labels.index("Male:RKNE")
+    cut = data.positions.copy()
+    cut[640:, j] = np.nan
+    cut[700:] = np.nan
+    out = fill_auto(cut, units=data.units, labels=data.labels, rate=data.rate, bones=None, refine=True)
+    err = np.linalg.norm(out.positions[640:700, j] - data.positions[640:700, j], axis=1)
+    assert np.sqrt(np.mean(err ** 2)) < 20.0
+    (record,) = [g for g in out.info["gap_methods"] if g["marker_index"] == j]
+    assert record["method"].startswith("local-pca") and "local weighted PCA predicted" in record["reason"]
+
+
 def test_the_refit_models_a_gap_on_the_neighbours_trusted_there_when_no_whole_gap_model_exists():
     """reconstruct_completed: every neighbour filled with a large sd during one gap of the marker is untrusted over
     its gaps together, so the marker gets no whole-gap model; ``run_scales`` gives its other gap, where they are

@@ -811,7 +811,9 @@ def reconstruct_completed(
     frames) gets one model with these widths and ``run_knn`` nearest poses per group of its gap runs with the same
     trusted neighbours over the run (:func:`trusted_runs`, at most ``parts`` groups), each kept where its
     cross-validated rms is at most ``run_max_rms`` (data units): a neighbour that vanished with the marker in one
-    gap no longer leaves every other gap without a model.  ``jobs`` as in :func:`reconstruct_local`.
+    gap no longer leaves every other gap without a model; a gap run that runs into a whole-body blackout, where
+    nothing is trusted over the run, is judged again on its frames outside the blackout (:func:`beside_blackouts`),
+    its models kept only within ``trust``.  ``jobs`` as in :func:`reconstruct_local`.
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
@@ -826,6 +828,7 @@ def reconstruct_completed(
     finite = np.isfinite(data).all(axis=2)
     estimate, std, info = empty_estimates(n_frames, n_markers)
     known_distances = distances_to(np.where(known[..., None], data, np.nan))  # once, not per marker
+    blackout = ~known[:n_frames].any(axis=1)  # frames where nothing is observed
     if untrusted is not None:
         u_data = np.array(untrusted[0], dtype=np.float64) if reference is None else np.concatenate(
             [untrusted[0], reference])
@@ -925,9 +928,15 @@ def reconstruct_completed(
             if run_scales is None or trust is None:
                 return [], refs
             run_weights, run_align = marker_weights(dist, m, run_scales, align_scale, missing_weight)
-            fits = (refit(m, frames, near, dist, run_weights, run_align, refs=refs, max_rms=run_max_rms,
+            fits = [refit(m, frames, near, dist, run_weights, run_align, refs=refs, max_rms=run_max_rms,
                           scales=run_scales, knn=run_knn)
-                    for frames, near in trusted_runs(missing[:, m], var, candidates, trust, parts))
+                    for frames, near in trusted_runs(missing[:, m], var, candidates, trust, parts)]
+            # a gap that runs into a whole-body blackout, judged on its frames outside it; kept only as sure as a
+            # trusted neighbour (weaker models there drew other markers off through the bones)
+            fits += [refit(m, frames, near, dist, run_weights, run_align, refs=refs, max_rms=trust,
+                           scales=run_scales, knn=run_knn)
+                     for frames, near in beside_blackouts(missing[:, m], var, candidates, trust, parts,
+                                                          blackout)]
             return [(fit, False) for fit in fits if fit is not None], refs
         out = [(whole, False)]
         # the parts of the gaps where a left-out neighbour is seen: a model of their own with it, in place of the
@@ -993,6 +1002,19 @@ def trusted_runs(gaps: np.ndarray, var: np.ndarray, candidates: np.ndarray, trus
     lengths = np.array([length for _, length, _ in spans])
     return [(np.concatenate([np.arange(spans[i][0], spans[i][0] + spans[i][1]) for i in items]), candidates[~key])
             for items, key in ranked_groups(untrusted, lengths, max_groups) if (~key).sum() >= 3]
+
+
+def beside_blackouts(gaps: np.ndarray, var: np.ndarray, candidates: np.ndarray, trust: float, max_groups: int,
+                     blackout: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The gap runs :func:`trusted_runs` leaves out (fewer than 3 neighbours trusted over the run) because they run
+    into a whole-body blackout (``blackout`` (n_frames,) bool: no marker observed), judged again on their frames
+    outside it, grouped as :func:`trusted_runs` groups: [(frames, predictors)]."""
+    kept = np.zeros_like(gaps)
+    for start, length in runs(gaps):
+        run = slice(start, start + length)
+        if blackout[run].any() and trusted_over(var[run][:, candidates], trust).sum() < 3:
+            kept[run] = True
+    return trusted_runs(kept & ~blackout, var, candidates, trust, max_groups) if kept.any() else []
 
 
 def refit_parts(missing: np.ndarray, gap_frames: np.ndarray, candidates: np.ndarray, sure: np.ndarray,
