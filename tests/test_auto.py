@@ -509,17 +509,42 @@ def test_refit_parts_carry_a_knee_on_a_thigh_seen_for_part_of_its_gap():
 
 
 def test_seed_elsewhere_keeps_the_first_pass_where_the_refit_has_no_model():
-    missing = np.array([[True, False], [True, True]])
+    """Where the refit has no prediction, the first pass's stands if its sd is within ``max_sd`` and its
+    reconstruction of the observed samples beside the gap run (edge estimates) misses none by more than ``max_z``
+    sds; the refit's elsewhere; observed samples are not predictions."""
+    positions = np.zeros((2, 2, 3))
+    positions[:, 0] = np.nan  # marker 0 missing in both frames, marker 1 in the second
+    positions[1, 1] = np.nan
     refit = (np.full((2, 2, 3), 1.0), np.array([[np.nan, np.nan], [2.0, np.nan]]),
              np.full((2, 2, 3), 3.0), np.array([[np.nan, 4.0], [np.nan, np.nan]]))
     seed = (np.full((2, 2, 3), 5.0), np.array([[6.0, 6.0], [6.0, np.nan]]),
             np.full((2, 2, 3), 7.0), np.array([[8.0, 8.0], [np.nan, np.nan]]))
-    pred, sd, edge, edge_sd = seed_elsewhere(missing, refit, seed)
-    # missing without a refit: the seed's; with one: the refit's; observed samples are not predictions
+    kw = dict(max_z=3.0, edge_frames=3)
+    pred, sd, edge, edge_sd = seed_elsewhere(positions, refit, seed, max_sd=10.0, **kw)
     np.testing.assert_array_equal(sd, [[6.0, np.nan], [2.0, np.nan]])
     np.testing.assert_array_equal(pred[:, :, 0], [[5.0, 1.0], [1.0, 1.0]])
     np.testing.assert_array_equal(edge_sd, [[8.0, 4.0], [np.nan, np.nan]])
     np.testing.assert_array_equal(edge[:, :, 0], [[7.0, 3.0], [3.0, 3.0]])
+    # a first pass less sure than max_sd: nothing kept
+    assert np.isnan(seed_elsewhere(positions, refit, seed, max_sd=5.0, **kw)[1][0, 0])
+
+
+def test_seed_elsewhere_drops_a_gap_run_whose_first_pass_misses_the_samples_beside_it():
+    """One marker, a gap at frames 5-9 between observed frames: the first pass's reconstruction of the frames beside
+    it (edge, sd 1) within 3 sds keeps its prediction in the gap; 10 sds off the frame before the gap drops it."""
+    positions = np.zeros((15, 1, 3))
+    positions[5:10] = np.nan
+    refit = (np.full((15, 1, 3), np.nan), np.full((15, 1), np.nan), np.full((15, 1, 3), np.nan),
+             np.full((15, 1), np.nan))
+    edge = np.full((15, 1, 3), np.nan)
+    edge_sd = np.full((15, 1), np.nan)
+    edge[[2, 3, 4, 10, 11, 12]] = 1.0  # 1 mm off the observed zeros
+    edge_sd[[2, 3, 4, 10, 11, 12]] = 1.0
+    seed = (np.full((15, 1, 3), 0.5), np.full((15, 1), 2.0), edge, edge_sd)
+    kw = dict(max_sd=10.0, max_z=3.0, edge_frames=3)
+    assert np.isfinite(seed_elsewhere(positions, refit, seed, **kw)[1][5:10]).all()
+    edge[4] = 10.0
+    assert np.isnan(seed_elsewhere(positions, refit, seed, **kw)[1][5:10]).all()
 
 
 def _toe_without_trusted_neighbours():
@@ -547,14 +572,13 @@ def _toe_fill(config: ModelConfig) -> tuple[float, list, np.ndarray, np.ndarray]
     return float(np.sqrt(np.mean(err ** 2))), methods, res.positions, hidden
 
 
-def test_a_marker_the_refit_cannot_model_keeps_its_first_pass_prediction():
-    """The toe case: with no filled neighbour trusted, the refit has no model for the toe; with
-    ``seed_where_no_refit`` the first pass (conditioned on the markers seen at each frame) predicts it, without it
-    the motion model and the body anchor bridge the gap (35.7 mm RMS with the motion alone, 24.6 with both)."""
-    kept = _toe_fill(ModelConfig(impute_trust_mm=1e-6, seed_where_no_refit=True))
-    bridged = _toe_fill(ModelConfig(impute_trust_mm=1e-6))
-    assert kept[0] < 5.0 and kept[1] == ["local-pca+motion"]
-    assert bridged[0] > 20.0 and bridged[1] == ["anchor+motion"]
+def test_a_marker_the_refit_cannot_model_is_bridged_where_the_first_pass_is_not_sure():
+    """The toe case: with no filled neighbour trusted (``impute_trust_mm`` 1e-6), the refit has no model for the
+    toe, and the first pass is not as sure as a trusted neighbour, so the motion model and the body anchor bridge
+    the gap (35.7 mm RMS with the motion alone, 24.6 with both); with ``seed_where_no_refit`` off, the same."""
+    for config in (ModelConfig(impute_trust_mm=1e-6), ModelConfig(impute_trust_mm=1e-6, seed_where_no_refit=False)):
+        bridged = _toe_fill(config)
+        assert bridged[0] > 20.0 and bridged[1] == ["anchor+motion"]
 
 
 def test_a_marker_without_trusted_neighbours_gets_a_model_on_all_of_them():

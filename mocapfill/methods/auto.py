@@ -39,9 +39,10 @@ The model (equations in ``ARCHITECTURE.md``, "The default's model"), each stage 
    variance propagated into the prediction's; a neighbour filled with an sd above ``impute_trust_mm`` during the
    marker's gaps is no predictor), and step 3 runs again on its predictions.  (The first pass then only
    seeds it: one weight width, no nearest-pose correction.)  Where the refit has no model for a marker (fewer than
-   3 trusted neighbours: on captures with gaps everywhere, most markers), the motion model and the global PCA
-   bridge the gap, or, with :attr:`ModelConfig.seed_where_no_refit` (off, as measured), the first pass's
-   prediction stands (:func:`seed_elsewhere`), or, with :attr:`ModelConfig.refit_untrusted` (off, as measured), a
+   3 trusted neighbours: on captures with gaps everywhere, most markers), the first pass's prediction stands
+   where it is sure and fits the frames beside the gap (:attr:`ModelConfig.seed_where_no_refit`,
+   :func:`seed_elsewhere`); elsewhere the motion model and the global PCA bridge the gap, or, with
+   :attr:`ModelConfig.refit_untrusted` (off, as measured), a
    model on every near marker predicts it (its predictions' roughness measured as white error,
    :func:`rough_variance`).
 
@@ -239,7 +240,8 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
                              extrapolation=off, segment_used=segment_used, untrusted=believed,
                              untrusted_used=untrusted_used, disagreement=spread, jobs=jobs)
         if config.seed_where_no_refit:
-            refit = seed_elsewhere(missing, refit, seed)
+            refit = seed_elsewhere(positions, refit, seed, max_sd=config.impute_trust_mm * mm, max_z=config.outlier,
+                                   edge_frames=config.edge_frames)
         pred, pred_sd, edge, edge_sd = body_stage(positions, *refit, config, mm)
         pred, pred_sd, edge, edge_sd, report_sd = joined(positions, pred, pred_sd, edge, edge_sd,
                                                          reported_sd(pred_sd, off, spread), prior_est, glob, config, mm,
@@ -455,22 +457,37 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
     return pred, pred_sd, edge, edge_sd
 
 
-def seed_elsewhere(missing: np.ndarray, refit: tuple, seed: tuple) -> tuple:
-    """Stage 4's predictions where its refit has a model, stage 1's elsewhere.
+def seed_elsewhere(positions: np.ndarray, refit: tuple, seed: tuple, *, max_sd: float, max_z: float,
+                   edge_frames: int) -> tuple:
+    """Stage 4's predictions where its refit has a model, stage 1's elsewhere where stage 1 is sure of them.
 
-    missing (n_frames, n_markers); refit and seed are (pred (n_frames, n_markers, 3), sd (n_frames, n_markers),
-    edge, edge_sd) as :func:`impute_stage` and :func:`spatial_stage` return them (NaN sd: no prediction).  The refit
-    has no model for a marker with fewer than 3 trusted neighbours (filled with an sd above
+    positions (n_frames, n_markers, 3), NaN = missing; refit and seed are (pred (n_frames, n_markers, 3), sd
+    (n_frames, n_markers), edge, edge_sd) as :func:`impute_stage` and :func:`spatial_stage` return them (NaN sd: no
+    prediction).  The refit has no model for a marker with fewer than 3 trusted neighbours (filled with an sd above
     :attr:`ModelConfig.impute_trust_mm` during its gaps: on a capture with gaps everywhere, most of them); the first
-    pass conditioned only on the neighbours observed where it predicts, so its prediction is still the best the
-    capture gives there.  Without it such samples are bridged by the motion model and the global PCA alone
-    (``bench_real_hidden.py``: kineticstoolkit's c3d_sample 376 mm RMSE against 64 with it).  Used with
-    :attr:`ModelConfig.seed_where_no_refit` (off, as measured: see there).  Stage 1's arrays hold
-    :func:`body_stage`'s rigid predictions where its local PCA had none, so the order is: the refit, the first
-    pass's local PCA, the body.  Returns the four arrays.
+    pass conditioned only on the neighbours observed where it predicts, and where it is as sure as a neighbour the
+    refit trusts (its sd at most ``max_sd``) its prediction is the best the capture gives there: Walking_Hybrid_1_1's
+    thigh marker, hidden for 395 frames before a gap to the take's end, predicted by its three cluster neighbours at
+    1.3 mm rms, which the refit, trusting no three of them over the run, left to the global PCA 112 mm off.  A gap
+    run keeps none of it where the first pass's reconstruction of the observed samples beside it (up to
+    ``edge_frames`` either side) misses them by more than ``max_z`` sds (RMS per coordinate): a model that does not
+    fit the frames next to the gap is not one to bend the fill to (VER4C3D: a toe reconstructed 60-110 mm off the
+    three frames before its take-end gap with an sd of 8.4 mm swung the fill 40.8 mm/frame^2 against 27.1
+    observed).  Stage 1's arrays hold :func:`body_stage`'s rigid predictions where its local PCA had none, so the
+    order is: the refit, the first pass's local PCA, the body.  Returns the four arrays.
     """
     pred, sd, edge, edge_sd = refit
-    use = missing & ~np.isfinite(sd) & np.isfinite(seed[1])
+    missing = np.isnan(positions).any(axis=2)
+    use = missing & ~np.isfinite(sd) & (np.nan_to_num(seed[1], nan=np.inf) <= max_sd)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        miss_by = np.sqrt(np.sum((positions - seed[2]) ** 2, axis=2) / 3.0) / seed[3]  # (observed, edge frames)
+    for m in np.flatnonzero(use.any(axis=0)):
+        for start, length in runs(missing[:, m]):
+            if not use[start:start + length, m].any():
+                continue
+            beside = miss_by[max(start - edge_frames, 0):start + length + edge_frames, m]
+            if (beside[np.isfinite(beside)] > max_z).any():
+                use[start:start + length, m] = False
     at_edge = ~np.isfinite(edge_sd) & np.isfinite(seed[3])
     return (np.where(use[..., None], seed[0], pred), np.where(use, seed[1], sd),
             np.where(at_edge[..., None], seed[2], edge), np.where(at_edge, seed[3], edge_sd))

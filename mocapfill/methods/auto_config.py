@@ -72,8 +72,8 @@ class ModelConfig:
     impute_trust_mm: float = 10.0
     #: Refit models per marker over parts where a left-out neighbour is seen (1: one per marker).
     refit_parts: int = 3
-    #: Keep the first pass's prediction where the refit has none (off, as measured: more accurate but jerky).
-    seed_where_no_refit: bool = False
+    #: Keep the first pass's prediction where the refit has none, where it is sure and fits the frames beside the gap.
+    seed_where_no_refit: bool = True
     #: Where the refit trusts < 3 neighbours, a model on every near one (off, as measured: 3x the cost on messy takes).
     refit_untrusted: bool = False
     #: Where no model covers all its gaps, one per group of gaps with the same trusted ones, kept within review_sd_mm.
