@@ -828,7 +828,7 @@ def reconstruct_completed(
     finite = np.isfinite(data).all(axis=2)
     estimate, std, info = empty_estimates(n_frames, n_markers)
     known_distances = distances_to(np.where(known[..., None], data, np.nan))  # once, not per marker
-    blackout = ~known[:n_frames].any(axis=1)  # frames where nothing is observed
+    blackout = missing.all(axis=1)  # frames where nothing is observed
     if untrusted is not None:
         u_data = np.array(untrusted[0], dtype=np.float64) if reference is None else np.concatenate(
             [untrusted[0], reference])
