@@ -15,8 +15,8 @@ from synthetic import moving_body, rot_x, rot_z
 from mocapfill.methods import get_method
 from mocapfill.engines.local_pca import prefer_segment, refit_parts, rigid_prediction, segment_markers
 from mocapfill.methods.auto import (body_stage, displaced_runs, fill_auto, gap_records, global_prediction,
-                                   global_stage, motion_model, rough_variance, seed_elsewhere, spatial_stage,
-                                   temporal_stage)
+                                   global_stage, model_changes, motion_model, rough_variance, seed_elsewhere,
+                                   spatial_stage, temporal_stage)
 from mocapfill.methods.auto_config import DEFAULT_CONFIG, ModelConfig
 
 
@@ -113,6 +113,40 @@ def test_temporal_stage_down_weights_a_jumping_prediction():
     assert outliers[130, 0]
     assert np.linalg.norm(fill[130, 0] - pos[130, 0]) < 30.0
     assert np.array_equal(fill[~missing], gapped[~missing])
+
+
+def test_model_changes_where_the_kind_of_measurement_changes():
+    kinds = np.array([[1, 0], [1, 2], [0, 2], [2, 0], [2, 1], [1, 1]])  # 0: no spatial measurement
+    assert model_changes(kinds).tolist() == [[False, False], [False, False], [False, False], [True, False],
+                                             [False, True], [True, False]]
+
+
+def test_a_local_models_error_is_not_read_as_the_global_pcas():
+    """A gap whose first half the local PCA predicts 10 mm off (its reconstruction beside the gap shows the same
+    offset) and whose second half the global PCA predicts without error (sd 300): the local model's bias, scaled by
+    the global prediction's 60-fold loading, must not push the second half off."""
+    pos = tumbling_body()
+    gapped = pos.copy()
+    gapped[100:180, 0] = np.nan
+    missing = np.isnan(gapped).any(axis=2)
+    pred = np.where(missing[..., None], pos, np.nan)
+    pred[100:140, 0] += 10.0
+    sd = np.where(missing, 5.0, np.nan)
+    globbed = np.zeros_like(missing)
+    globbed[140:180, 0] = True
+    sd[globbed] = 300.0
+    edge = np.full_like(pos, np.nan)
+    edge[95:100, 0] = pos[95:100, 0] + 10.0
+    edge[180:185, 0] = pos[180:185, 0]
+    edge_sd = np.where(np.isfinite(edge[..., 0]), 5.0, np.nan)
+    errors = {}
+    for apart in (True, False):
+        config = ModelConfig(bias_per_model=apart)
+        mdl = motion_model(gapped, missing, config, 1.0, 100.0)
+        fill, _, _ = temporal_stage(gapped, pred, sd, edge, edge_sd, mdl, config, 1.0, 100.0, globbed=globbed)
+        errors[apart] = np.linalg.norm(fill[100:180, 0] - pos[100:180, 0], axis=1).max()
+        assert np.array_equal(fill[~missing], gapped[~missing])
+    assert errors[True] < 0.7 * errors[False]  # (4.6 against 8.6 mm)
 
 
 def test_spatial_stage_predicts_a_rigid_marker():

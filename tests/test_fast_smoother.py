@@ -9,11 +9,18 @@ import pytest
 from mocapfill.engines.motion_smoother import N_STATE, MotionModel, smooth, transition
 
 
-def reference_smooth(obs, spatial, spatial_sd, bias_sd, model, *, init=None, obs_var=None):
+def reference_smooth(obs, spatial, spatial_sd, bias_sd, model, *, init=None, obs_var=None, reset=None):
     """The smoother as a straightforward loop: predict, update with the observation, update with the spatial
-    prediction (H = e_x + s e_b), symmetrise; then RTS backwards with G = Pf F^T Pp^-1."""
+    prediction (H = e_x + s e_b), symmetrise; then RTS backwards with G = Pf F_t^T Pp^-1.  ``reset`` (T, S) bool:
+    the transition into frame t has phi = 0 and the bias's process noise 1 there (b drawn anew)."""
     T, S, _ = obs.shape
-    F, Q = transition(model)
+    F0, Q = transition(model)
+
+    def step(t, s):  # the transition into frame t of series s
+        F = F0.copy()
+        if reset is not None and reset[t, s]:
+            F[3, 3] = 0.0
+        return F
     has_obs = np.isfinite(obs).all(axis=2)
     has_sp = np.isfinite(spatial).all(axis=2) & np.isfinite(spatial_sd) & np.isfinite(bias_sd)
     if init is None:
@@ -42,6 +49,9 @@ def reference_smooth(obs, spatial, spatial_sd, bias_sd, model, *, init=None, obs
                 Qt = Q[s].copy()
                 if model.gain is not None:
                     Qt[:3, :3] *= model.gain[t - 1]
+                F = step(t, s)
+                if reset is not None and reset[t, s]:
+                    Qt[3, 3] = 1.0
                 m = F @ m
                 P = F @ P @ F.T + Qt
                 mp[t, s], Pp[t, s] = m, P
@@ -67,7 +77,7 @@ def reference_smooth(obs, spatial, spatial_sd, bias_sd, model, *, init=None, obs
         mean[-1, s], var[-1, s] = ms[0], Ps[0, 0]
         for t in range(T - 2, -1, -1):
             Ppred = (Pp[t + 1, s] + Pp[t + 1, s].T) / 2
-            G = np.linalg.solve(Ppred, F @ Pf[t, s]).T
+            G = np.linalg.solve(Ppred, step(t + 1, s) @ Pf[t, s]).T
             ms = mf[t, s] + G @ (ms - mp[t + 1, s])
             Ps = Pf[t, s] + G @ (Ps - Ppred) @ G.T
             mean[t, s], var[t, s] = ms[0], Ps[0, 0]
@@ -107,10 +117,10 @@ def random_case(seed, T=80, S=5, *, late_start=False, gain=True, rho_acc=None, f
     return obs, spatial, white, bias, model, obs_var
 
 
-def assert_same(case, *, init=None, mean_tol=1e-9, sd_tol=1e-9):
+def assert_same(case, *, init=None, mean_tol=1e-9, sd_tol=1e-9, reset=None):
     obs, spatial, white, bias, model, obs_var = case
-    mean, sd = smooth(obs, spatial, white, bias, model, init=init, obs_var=obs_var)
-    ref_mean, ref_sd = reference_smooth(obs, spatial, white, bias, model, init=init, obs_var=obs_var)
+    mean, sd = smooth(obs, spatial, white, bias, model, init=init, obs_var=obs_var, reset=reset)
+    ref_mean, ref_sd = reference_smooth(obs, spatial, white, bias, model, init=init, obs_var=obs_var, reset=reset)
     T, S, _ = obs.shape
     assert mean.shape == (T, S, 3) and sd.shape == (T, S)
     assert np.array_equal(np.isnan(mean), np.isnan(ref_mean)) and np.array_equal(np.isnan(sd), np.isnan(ref_sd))
@@ -186,3 +196,16 @@ def test_long_observed_stretch_after_a_spatial_measurement():
     white[:], bias[:] = np.nan, np.nan
     white[4:9], bias[4:9] = 2.0, 3.0
     assert_same((obs, spatial, white, bias, model, None))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_bias_drawn_anew(seed):
+    """Where the spatial model changes (``reset``), b is drawn anew: the same numbers as the loop with phi = 0 and the
+    bias's process noise 1 on that step, forward and backward; and not those of the smoother without it."""
+    case = random_case(seed, fragments=seed == 1)
+    reset = np.random.default_rng(seed + 100).random(case[0].shape[:2]) < 0.08
+    reset[0] = False
+    assert_same(case, reset=reset)
+    plain, _ = smooth(*case[:5], obs_var=case[5])
+    redrawn, _ = smooth(*case[:5], obs_var=case[5], reset=reset)
+    assert np.nanmax(np.abs(plain - redrawn)) > 0.1

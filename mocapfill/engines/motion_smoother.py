@@ -17,7 +17,8 @@ The model (one per marker; its three axes share the covariances, each has its ow
     acceleration memory, :func:`acceleration_memory`: where the observed accelerations are mostly noise, the one
     estimated at a gap's edge is then not carried into it); b is an Ornstein-Uhlenbeck process with phi = exp(-1 / tau_b):
     the error of a spatial prediction is correlated over neighbouring frames, so averaging many of them does not
-    make it vanish, and a residual seen next to a gap is carried into it.
+    make it vanish, and a residual seen next to a gap is carried into it.  Where the predictions pass to another
+    model (``smooth(reset=)``), b is drawn anew (phi = 0 for that step): one model's error is not the next one's.
 
     observations   y_t = x_t + e,                e ~ N(0, r_obs)             (an observed sample)
     spatial        p_t = x_t + s_t b_t + e',     e' ~ N(0, r_spatial_t)      (a spatial prediction with std sd_t:
@@ -167,6 +168,7 @@ def smooth(
     *,
     init: np.ndarray | None = None,
     obs_var: np.ndarray | None = None,
+    reset: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Posterior mean and standard deviation of the position, given every measurement (RTS smoother).
 
@@ -186,6 +188,10 @@ def smooth(
     init : ndarray (n_series, 3) or None
         Prior mean of the first position (default: the first measurement of each series); the prior's variance is
         diffuse (1e6 x the largest squared measurement spread).
+    reset : ndarray (n_frames, n_series) bool or None
+        Frames where the spatial predictions come from another model than before: the bias b is drawn anew from its
+        prior there (b_t ~ N(0, 1), independent of b_{t-1}: the transition's phi is 0 for that step), so one
+        model's error is not read as the next one's.
 
     Returns
     -------
@@ -252,10 +258,14 @@ def smooth(
     y1 = np.ascontiguousarray(np.swapaxes(y1, 1, 2))
     W = np.empty((_NC, S))  # the update's right factor: [P H, H m - y]
     outer = np.empty((N_STATE, _NC, S))
+    redraw = None if reset is None else np.asarray(reset, dtype=bool)  # where b is drawn anew
+    redraw_at = [False] * T if redraw is None else redraw.any(axis=1).tolist()
     for t in range(T):
         X = Xf[t, :_NX]
         if t:
             np.matmul(A, Xf[t - 1], out=pred)
+            if redraw_at[t]:
+                _redraw_bias(pred, redraw[t])
             Xp[t] = pred[:_NX]
             if do1[t]:
                 _update(pred[:_NX], pred[_NA:_NA + _NC], pred[_NA + _NC:], X, W, outer, y1[t], r1[t], s1[t])
@@ -287,6 +297,8 @@ def smooth(
         FPf = np.zeros((stop - start, N_STATE, N_STATE, S))
         for i, k in zip(*np.nonzero(F)):
             FPf[:, i] += F[i, k] * Pf[start:stop, k]
+        if redraw is not None:  # the frames whose next frame draws b anew: F's b row is 0 for that step
+            FPf[:, _B] *= ~redraw[start + 1:stop + 1, None, :]
         Gt_all = _solve_spd(Bp[start + 1:stop + 1, :, :N_STATE], FPf)  # G^T (in FPf's place)
         G_all = np.moveaxis(Gt_all, 3, 1).swapaxes(2, 3)  # the per-frame products batched over the series
         for t in range(stop - 1, start - 1, -1):
@@ -308,6 +320,15 @@ _NA = _NX + 2
 #: Where [P[:, 0], m[0]] and [P[:, 3], m[3]] are in it.
 _HX = np.array([0, _NC, 2 * _NC, 3 * _NC, 4, 5, 6])
 _HB = np.array([3, _NC + 3, 2 * _NC + 3, 3 * _NC + 3, _NX - 3, _NX - 2, _NX - 1])
+#: The bias b's index in the state, and the entries of a prediction (the [P | m] rows, then the copies of
+#: [P[:, 0], m[0]] and [P[:, 3], m[3]] the update reads) that :func:`_redraw_bias` sets to 0: b's covariances with x,
+#: v and a (both halves) and its mean.
+_B = N_STATE - 1
+_B_ZERO = np.array([i * _NC + _B for i in range(_B)] + [_B * _NC + j for j in range(_B)]
+                   + [_B * _NC + N_STATE + c for c in range(3)] + [_NA + _B]
+                   + [_NA + _NC + i for i in range(_B)] + [_NA + _NC + N_STATE + c for c in range(3)])
+#: ... and those set to 1: b's variance (in P and in the copy of P[:, 3]).
+_B_ONE = np.array([_B * _NC + _B, _NA + _NC + _B])
 #: Entries of the state below this are set to 0: the correlations of b with x, v, a shrink by a factor at every
 #: observed frame and would otherwise become subnormal numbers (each costing ~100 cycles per arithmetic operation)
 #: in long observed stretches; at 1e-150 they are far below the round-off of anything they are combined with.
@@ -337,6 +358,14 @@ def _transition_rows(F: np.ndarray, phi: float) -> np.ndarray:
     A[_NX + 1, (N_STATE - 1) * (_NC + 1)] = 1.0 - phi ** 2
     A[_NX, _NX] = A[_NX + 1, _NX + 1] = 1.0
     return np.concatenate([A, A[:, _HX], A[:, _HB]], axis=1)
+
+
+def _redraw_bias(pred: np.ndarray, cols: np.ndarray) -> None:
+    """In a prediction (the forward pass's layout, :func:`_transition_rows`), draw b anew from its prior for the
+    series ``cols`` (S,) bool: its variance 1, its covariances with x, v and a 0, its mean 0 (as a transition with
+    phi = 0 and process noise 1 would give)."""
+    pred[np.ix_(_B_ZERO, cols)] = 0.0
+    pred[np.ix_(_B_ONE, cols)] = 1.0
 
 
 def _update(X: np.ndarray, hx: np.ndarray, hb: np.ndarray, out: np.ndarray, W: np.ndarray, outer: np.ndarray,

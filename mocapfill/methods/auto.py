@@ -28,7 +28,8 @@ The model (equations in ``ARCHITECTURE.md``, "The default's model"), each stage 
    correlated error in its state (:mod:`mocapfill.engines.motion_smoother`); the observations and the spatial
    predictions are its measurements; one Rauch-Tung-Striebel smoother gives the fill (posterior mean) and its
    standard deviation (posterior sd).  The jerk density is learnt from the capture's observed third differences,
-   scaled at each frame by how fast the body moves then.  Samples of observed fragments of 1-2 frames between
+   scaled at each frame by how fast the body moves then.  The correlated error is one model's: it is drawn anew where
+   a marker's predictions pass to another kind of model (:attr:`ModelConfig.bias_per_model`).  Samples of observed fragments of 1-2 frames between
    gaps count as noisy measurements (the output keeps them), and so does an observed run between two gaps that
    lies farther off the spatial model than its sd explains (:func:`displaced_runs`: a swapped or ghost marker
    outlier rejection cannot see; it is reported).  Where the spatial model has nothing, the dynamics
@@ -222,7 +223,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     believed = (np.empty(positions.shape), np.empty(missing.shape)) if config.refit_untrusted else None
     fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate,
                                         report_sd=None if config.impute_passes else report_sd, displaced=displaced,
-                                        believed=believed, white_only=anchored)
+                                        believed=believed, white_only=anchored, globbed=globbed)
     segment_used = None  # where the last refit's segment models predicted (none without a refit)
     spread = None  # the spread of the last refit's widths (:func:`reported_sd`)
     moved = None  # how far the last refit's bone stage moved each prediction (:attr:`ModelConfig.bone_move_sd`)
@@ -265,7 +266,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         displaced[:, untrusted_used] = False  # a model on guessed neighbours does not overrule an observation
         fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate,
                                             report_sd=report_sd if last else None, displaced=displaced,
-                                            rough=untrusted_used, white_only=anchored)
+                                            rough=untrusted_used, white_only=anchored, globbed=globbed)
     if used_refs is not None:
         info["references"] = ({"frames": int((reference_weights > 0).sum()), "models": len(used_refs),
                                "used": int(sum(used_refs))} if config.impute_passes
@@ -783,7 +784,8 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
                    edge_sd: np.ndarray, model: MotionModel, config: ModelConfig, mm: float, rate: float,
                    report_sd: np.ndarray | None = None, displaced: np.ndarray | None = None,
                    rough: np.ndarray | None = None, believed: tuple[np.ndarray, np.ndarray] | None = None,
-                   white_only: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   white_only: np.ndarray | None = None, globbed: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stage 3: the smoother's posterior mean and sd for every marker with gaps.
 
     positions / pred / edge (n_frames, n_markers, 3); pred_sd / edge_sd (n_frames, n_markers) (NaN: no spatial
@@ -793,7 +795,10 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
     spatial sd the returned posterior sd is computed with (:func:`reported_sd`; the mean keeps ``pred_sd``): the
     smoother runs again, for its variances, on the markers where it differs.  ``displaced`` (n_frames, n_markers)
     bool or None: observed samples judged displaced (:func:`displaced_runs`), measured with the sd
-    ``displacement_mm`` instead of the camera's.  ``rough`` (n_markers,) bool or None: markers whose spatial
+    ``displacement_mm`` instead of the camera's.  ``globbed`` (n_frames, n_markers) bool or None: where the global
+    PCA predicted (:func:`global_stage`); with :attr:`ModelConfig.bias_per_model`, the prediction's correlated error
+    is drawn anew where the kind of model changes (local PCA, global PCA, the anchor's ``white_only``:
+    :func:`model_changes`).  ``rough`` (n_markers,) bool or None: markers whose spatial
     predictions' white error variance grows by :func:`rough_variance`.  ``believed`` (take (n_frames, n_markers, 3),
     sd (n_frames, n_markers)) or None receives the take as the smoother believes it: the fill and its sd, but at the
     observed samples it measured as noisy (fragments, displaced runs) its posterior mean and sd.
@@ -832,9 +837,18 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
     obs_var = np.where(short, (config.fragment_sd_mm * mm) ** 2, model.r_obs)
     if displaced is not None:  # measured with the displacement's spread: the fill does not bend to them
         obs_var = np.where(displaced[:, todo], (config.displacement_mm * mm) ** 2, obs_var)
+    reset = None  # where the kind of spatial model changes, its error is drawn anew
+    if config.bias_per_model:
+        kind = np.ones(sp_sd.shape, dtype=int)  # the local PCA (and its reconstruction beside the gaps)
+        if globbed is not None:
+            kind[globbed[:, todo] & missing[:, todo]] = 2
+        if wo is not None:
+            kind[wo] = 3
+        reset = model_changes(np.where(np.isfinite(sp_sd), kind, 0))
     inflate = np.ones_like(sp_sd)
     for attempt in range(config.reweight_passes + 1):
-        mean, sd = smooth(obs, sp, white * np.sqrt(inflate), bias * np.sqrt(inflate), sub, obs_var=obs_var)
+        mean, sd = smooth(obs, sp, white * np.sqrt(inflate), bias * np.sqrt(inflate), sub, obs_var=obs_var,
+                          reset=reset)
         if attempt == config.reweight_passes:
             break
         with np.errstate(invalid="ignore"):
@@ -849,7 +863,8 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
         redo = np.flatnonzero((np.nan_to_num(rep) > np.nan_to_num(sp_sd * np.sqrt(inflate))).any(axis=0))
         if len(redo):  # a Kalman smoother's variances do not depend on the measurements' values
             _, sd[:, redo] = smooth(obs[:, redo], sp[:, redo], *split(rep[:, redo], redo),
-                                    sub._replace(q=sub.q[redo]), obs_var=obs_var[:, redo])
+                                    sub._replace(q=sub.q[redo]), obs_var=obs_var[:, redo],
+                                    reset=None if reset is None else reset[:, redo])
     fill[:, todo] = np.where(missing[:, todo, None], mean, positions[:, todo])
     sd_out[:, todo] = np.where(missing[:, todo], sd, 0.0)
     if believed is not None:
@@ -858,6 +873,17 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
         believed[0][:, todo] = np.where(noisy[..., None], mean, fill[:, todo])
         believed[1][:, todo] = np.where(noisy, sd, sd_out[:, todo])
     return fill, sd_out, outliers
+
+
+def model_changes(sources: np.ndarray) -> np.ndarray:
+    """(n_frames, n_series) bool: the frames where a series' spatial measurement comes from another kind of model
+    than its last one before (``sources`` (n_frames, n_series) int, 0 where there is none)."""
+    T, S = sources.shape
+    at = np.where(sources > 0, np.arange(T)[:, None], -1)
+    last = np.maximum.accumulate(at, axis=0)
+    before = np.vstack([np.full((1, S), -1), last[:-1]])
+    prev = np.where(before >= 0, sources[np.maximum(before, 0), np.arange(S)], 0)
+    return (sources > 0) & (prev > 0) & (sources != prev)
 
 
 def rough_variance(obs: np.ndarray, sp: np.ndarray) -> np.ndarray:

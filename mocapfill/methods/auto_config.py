@@ -58,6 +58,8 @@ class ModelConfig:
     fragment_sd_mm: float = 20.0
     #: Longest observed run between two gaps that counts as such a fragment.
     fragment_frames: int = 2
+    #: The prediction's bias is drawn anew where the kind of spatial model changes (local PCA, global PCA, anchor).
+    bias_per_model: bool = True
     #: Prior odds that an observed run between gaps is displaced whole (a swap or ghost; 0: off).
     displaced_prior: float = 0.05
     #: Sd per axis of such a displacement (Holden's corruption: up to 50 cm per axis).
