@@ -29,12 +29,13 @@ The model (equations in ``ARCHITECTURE.md``, "The default's model"), each stage 
    predictions are its measurements; one Rauch-Tung-Striebel smoother gives the fill (posterior mean) and its
    standard deviation (posterior sd).  The jerk density is learnt from the capture's observed third differences,
    scaled at each frame by how fast the body moves then.  The correlated error is one model's: it is drawn anew where
-   a marker's predictions pass to another kind of model (:attr:`ModelConfig.bias_per_model`).  Samples of observed fragments of 1-2 frames between
-   gaps count as noisy measurements (the output keeps them), and so does an observed run between two gaps that
-   lies farther off the spatial model than its sd explains (:func:`displaced_runs`: a swapped or ghost marker
-   outlier rejection cannot see; it is reported).  Where the spatial model has nothing, the dynamics
-   bridge the gap and the standard deviation grows.  (Optionally, ``reweight_passes``: predictions far off the
-   smoothed path are down-weighted and the smoother runs again; off by default, as measured.)
+   a marker's predictions pass to another kind of model (:attr:`ModelConfig.bias_per_model`).  Samples of observed
+   fragments of 1-2 frames between gaps count as noisy measurements (the output keeps them), and so does an
+   observed run between two gaps that lies farther off the spatial model than its sd explains
+   (:func:`displaced_runs`: a swapped or ghost marker outlier rejection cannot see; it is reported).  Where the
+   spatial model has nothing, the dynamics bridge the gap and the standard deviation grows.  (Optionally,
+   ``reweight_passes``: predictions far off the smoothed path are down-weighted and the smoother runs again; off by
+   default, as measured.)
 4. :func:`impute_stage` (EM-style): the spatial model is fitted again on the take completed by step 3 (every frame
    where the marker is observed is a training frame, its neighbours taken from the completed take, their posterior
    variance propagated into the prediction's; a neighbour filled with an sd above ``impute_trust_mm`` during the
