@@ -130,3 +130,43 @@ def test_many_renamed_duplicate_labels_make_one_note():
     assert grouped_notes(notes) == ["5 duplicate labels renamed: 'M0' -> 'M0_2', 'M1' -> 'M1_2', 'M2' -> 'M2_2', "
                                     "... (all in the report)", "file truncated"]
     assert grouped_notes(notes[:2]) == notes[:2]
+
+
+def test_copies_whose_gaps_differ_lend_each_other_their_samples():
+    from mocapfill.guards.copies import lent_by_copies
+
+    _, pos = _with_copies()
+    pos[10:40, 8] = np.nan  # M2's first copy misses frames where M2 and its other copy are seen
+    pos[75:80, 9] = np.nan  # inside 60-89, which all three miss: nothing to lend there
+    lending, lent, lenders = lent_by_copies(pos)
+    assert np.flatnonzero(lent.any(axis=0)).tolist() == [8]
+    assert lent[:, 8].sum() == 30
+    assert np.array_equal(lending[:, 8], pos[:, 2], equal_nan=True)
+    assert set(lenders) == {(8, 2)}
+    shifted = pos.copy()
+    shifted[5, 9, 0] += 1e-9  # one co-observed sample apart: no copy of 2, lends nothing, borrows nothing
+    assert not lent_by_copies(shifted)[1][:, 9].any()
+    few = pos.copy()
+    few[:, 10] = np.nan
+    few[:8, 10] = pos[:8, 5]  # eight shared frames only: not enough to call them copies
+    assert not lent_by_copies(few)[1][:, [5, 10]].any()
+
+
+def test_a_copy_fills_its_twins_gap_exactly_and_says_so():
+    truth, pos = _with_copies()
+    labels = [f"M{i}" for i in range(8)] + ["M2_copy", "M2_again", "M5_copy"]
+    pos[100:130, 9] = np.nan  # hidden in one copy only: M2 and M2_copy keep it
+    pos[20:50, 2] = np.nan  # and in the original, M2_copy and M2_again keep it
+    out = fill_auto(pos, labels=labels, rate=100.0)
+    observed = ~np.isnan(pos).any(axis=2)
+    assert np.array_equal(out.positions[observed], pos[observed])
+    assert np.array_equal(out.positions[100:130, 9], truth[100:130, 2])
+    assert np.array_equal(out.positions[20:50, 2], truth[20:50, 2])
+    assert np.all(out.std[100:130, 9] == 0) and np.all(out.std[20:50, 2] == 0)
+    copied = [(g["marker"], g["start"], g["length"]) for g in out.info["gap_methods"] if g["method"] == "copy"]
+    assert copied == [("M2", 20, 30), ("M2_again", 100, 30)]
+    assert {"marker": "M2", "marker_index": 2, "copy": "M2_copy"} in out.info["lent"]
+    starts = [(g["marker_index"], g["start"]) for g in out.info["gap_methods"]]
+    assert starts == sorted(starts)
+    # the gap all three miss is the model's, as before
+    assert any(g["marker"] == "M2" and g["start"] == 60 and g["method"] != "copy" for g in out.info["gap_methods"])

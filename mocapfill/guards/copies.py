@@ -6,7 +6,9 @@ fill that treats it as a marker pays for it three times (the default's local mod
 predictors) and learns from it as a neighbour that predicts its twin exactly, so every cross-validated error near the
 twins' gaps is zero and the fill trusts predictions it has no grounds to trust.  :func:`distinct_markers` finds the
 copies (bit-identical samples, gaps included); :func:`widened` turns a fill of the distinct markers back into one of
-every marker.
+every marker.  Copies whose gaps differ (a sample missing in one and kept in its twin) are the same trajectory too:
+:func:`lent_by_copies` gives each copy its twins' samples first, after which they are bit-identical, gaps included;
+:func:`with_lent` records those samples as filled from the copy.
 """
 
 from __future__ import annotations
@@ -33,6 +35,100 @@ def distinct_markers(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             keep.append(m)
         source[m] = first[key]
     return np.asarray(keep, dtype=np.intp), source
+
+
+#: Frames two markers must both be observed in, bit-identical in every one, to be copies whose gaps differ.
+MIN_SHARED_FRAMES = 10
+#: Frames spread over the take where :func:`lent_by_copies` looks for markers at the same position (candidates).
+_PROBE_FRAMES = 64
+
+
+def lent_by_copies(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int]]]:
+    """Each marker's missing samples taken from an exact copy that is observed there.
+
+    positions (n_frames, n_markers, 3), NaN = missing.  Two markers are copies when they are bit-identical in every
+    frame where both are observed, and there are at least :data:`MIN_SHARED_FRAMES` such frames (candidates: the
+    markers at one position in some of :data:`_PROBE_FRAMES` frames spread over the take).  Returns the positions
+    with every set of copies given the union of their samples, the samples taken (n_frames, n_markers) bool, and the
+    (marker, copy it took them from) pairs; the input itself where no copy lends anything.
+    """
+    n_frames, n_markers, _ = positions.shape
+    observed = ~np.isnan(positions).any(axis=2)
+    parent = list(range(n_markers))
+
+    def root(m: int) -> int:
+        while parent[m] != m:
+            parent[m] = parent[parent[m]]
+            m = parent[m]
+        return m
+
+    tried = set()
+    for t in np.unique(np.linspace(0, n_frames - 1, min(_PROBE_FRAMES, n_frames)).astype(int)):
+        seen = np.flatnonzero(observed[t])
+        if len(seen) < 2:
+            continue
+        _, inverse, counts = np.unique(positions[t, seen], axis=0, return_inverse=True, return_counts=True)
+        for g in np.flatnonzero(counts > 1):
+            members = seen[inverse.ravel() == g]
+            for a, b in ((int(members[0]), int(other)) for other in members[1:]):
+                if (a, b) in tried or root(a) == root(b):
+                    continue
+                tried.add((a, b))
+                both = observed[:, a] & observed[:, b]
+                if both.sum() >= MIN_SHARED_FRAMES and np.array_equal(positions[both, a], positions[both, b]):
+                    parent[root(b)] = root(a)
+    out = positions
+    lent = np.zeros((n_frames, n_markers), dtype=bool)
+    lenders: list[tuple[int, int]] = []
+    sets: dict[int, list[int]] = {}
+    for m in range(n_markers):
+        sets.setdefault(root(m), []).append(m)
+    for members in sets.values():
+        if len(members) < 2:
+            continue
+        union = observed[:, members].any(axis=1)
+        for m in members:
+            take = union & ~observed[:, m]
+            if not take.any():
+                continue
+            if out is positions:
+                out = positions.copy()
+            for other in members:  # the first copy observed in each frame lends it
+                give = take & observed[:, other]
+                if give.any():
+                    out[give, m] = positions[give, other]
+                    lent[give, m] = True
+                    lenders.append((m, other))
+                    take &= ~give
+    return out, lent, lenders
+
+
+def with_lent(result: FillResult, original: np.ndarray, lent: np.ndarray, lenders: list[tuple[int, int]],
+              labels: Sequence[str] | None) -> FillResult:
+    """``result``, the fill of :func:`lent_by_copies`' positions, as the fill of ``original`` (n_frames, n_markers,
+    3): the samples ``lent`` (n_frames, n_markers) are filled (sd 0: the trajectory was observed there), each run of
+    them with a ``gap_methods`` record naming the copy, and ``info["lent"]`` lists the (marker, copy) pairs."""
+    from ..gaps import runs
+
+    name = (lambda m: labels[m] if labels is not None else int(m))
+    info: dict[str, Any] = dict(result.info or {})
+    by_marker: dict[int, list[int]] = {}
+    for m, other in lenders:
+        by_marker.setdefault(m, []).append(other)
+    records = list(info.get("gap_methods") or [])
+    for m in sorted(by_marker):
+        copies = ", ".join(str(name(o)) for o in dict.fromkeys(by_marker[m]))
+        for start, length in runs(lent[:, m]):
+            records.append({"marker": name(m), "marker_index": int(m), "start": int(start), "length": int(length),
+                            "method": "copy", "reason": f"taken from its exact copy {copies}, observed there",
+                            "review": False, "max_std": 0.0})
+    records.sort(key=lambda r: (int(r["marker_index"]), int(r["start"])))
+    info["gap_methods"] = records
+    info["review"] = [i for i, r in enumerate(records) if r.get("review")]
+    info["lent"] = [{"marker": name(m), "marker_index": int(m), "copy": name(o)}
+                    for m, o in dict.fromkeys(lenders)]
+    return finish(original, result.positions, std=result.std, n_iter=result.n_iter, converged=result.converged,
+                  objective=list(result.objective), info=info)
 
 
 def bones_on_distinct(bones, source: np.ndarray):

@@ -66,7 +66,7 @@ from ..engines.local_pca import reconstruct_local
 from ..engines.motion_smoother import MotionModel, acceleration_memory, jerk_density, jerk_gain, smooth
 from ..errors import MethodError
 from ..gaps import find_gaps, fragments, runs
-from ..guards.copies import bones_on_distinct, distinct_markers, widened
+from ..guards.copies import bones_on_distinct, distinct_markers, lent_by_copies, widened, with_lent
 from ..guards.windows import DEFAULT_WINDOW, fill_in_windows
 from ..runtime.blas import single_blas_thread
 from ..runtime.executor import resolve_jobs
@@ -141,6 +141,12 @@ def fill_auto(
         from .learned import resolve_model
 
         model = resolve_model(model)
+    lending, lent, lenders = lent_by_copies(positions)
+    if lent.any():  # copies whose gaps differ: each takes its twins' samples first (guards/copies.py)
+        result = fill_auto(lending, units=units, labels=labels, rate=rate, bones=bones, refine=refine,
+                           reference_frames=reference_frames, reference_weights=reference_weights, model=model,
+                           config=config, jobs=jobs)
+        return with_lent(result, positions, lent, lenders, labels)
     keep, source = distinct_markers(positions)
     if len(keep) < positions.shape[1]:  # exact copies of a marker: filled once (guards/copies.py)
         sub = None if labels is None else [labels[m] for m in keep]
