@@ -5,7 +5,8 @@ everywhere, and that is where the default must hold too.  For every capture of `
 capture with gaps under ``sample_data/``, ``tests/data/`` and ``../shared/data``, read as ``mocapfill fill`` reads it;
 its marker points only) and each of ``--draws`` seeded draws, the ``dense`` protocol hides ``--missing`` (5 %) of
 the samples in random single-marker gaps of 0.25-2 s, on top of the real gaps (only samples that were observed count
-as hidden); each ``--methods`` fills the result and is scored on the hidden samples: the RMSE of the 3-D error (mm),
+as hidden; a sample hidden in one exact copy of a marker is hidden in every copy and scored once, as ``evaluate``
+hides them); each ``--methods`` fills the result and is scored on the hidden samples: the RMSE of the 3-D error (mm),
 per draw, and pooled over the draws.
 
 Tables: per capture and method the pooled RMSE and the draws'; per method the median over captures of the pooled
@@ -39,6 +40,7 @@ import numpy as np  # noqa: E402
 from mocapfill import fill  # noqa: E402
 from mocapfill.errors import MocapfillError  # noqa: E402
 from mocapfill.evaluation.occlusions import make_occlusions  # noqa: E402
+from mocapfill.evaluation.runner import copies_hidden_together  # noqa: E402
 from mocapfill.io import read  # noqa: E402
 from mocapfill.pipeline import fill_columns, subset  # noqa: E402
 from mocapfill.runtime.executor import make_executor  # noqa: E402
@@ -49,10 +51,18 @@ RESULTS = harness.REPO / "benchmarks" / "results" / f"{Path(__file__).stem}.json
 CACHE = harness.REPO / "benchmarks" / ".cache" / Path(__file__).stem
 
 
-def hidden_draw(data, draw: int, missing: float) -> np.ndarray:
-    """(n_frames, n_markers) bool: the observed samples of ``data`` (its marker points) that draw ``draw`` hides."""
+def hidden_draw(data, draw: int, missing: float) -> tuple[np.ndarray, np.ndarray]:
+    """The observed samples of ``data`` (its marker points) that draw ``draw`` hides, and those it scores, each
+    (n_frames, n_markers) bool.  A sample hidden in one exact copy of a marker (an export that writes a trajectory
+    several times) is hidden in all of them and scored once, as ``evaluate`` does
+    (:func:`~mocapfill.evaluation.runner.copies_hidden_together`): its twin would give it away."""
     trial = make_occlusions(data, "dense", trials=1, seed=draw, missing=missing)[0]
-    return trial.hidden_mask(data.n_frames, data.n_markers) & ~np.isnan(data.positions).any(axis=2)
+    observed = ~np.isnan(data.positions).any(axis=2)
+    hidden = trial.hidden_mask(data.n_frames, data.n_markers) & observed
+    cut = data.positions.copy()
+    cut[hidden] = np.nan
+    cut, scored, _ = copies_hidden_together(data.positions, cut, hidden, np.zeros_like(hidden))
+    return np.isnan(cut).any(axis=2) & observed, scored
 
 
 def run_one(task: tuple) -> dict:
@@ -62,11 +72,11 @@ def run_one(task: tuple) -> dict:
         warnings.simplefilter("ignore")
         data = read(path)
         data = subset(data, fill_columns(data))
-        hidden = hidden_draw(data, draw, missing)
+        hidden, scored = hidden_draw(data, draw, missing)
         cut = data.positions.copy()
         cut[hidden] = np.nan
         record = {"file": harness.capture_name(Path(path)), "sha256": digest, "method": method, "draw": draw,
-                  "missing": missing, "hidden": int(hidden.sum()), "error": None}
+                  "missing": missing, "hidden": int(scored.sum()), "error": None}
         try:
             options = {}
             if method == "auto" and config:
@@ -77,7 +87,7 @@ def run_one(task: tuple) -> dict:
         except MocapfillError as exc:
             record["error"] = str(exc)
         else:
-            err = np.linalg.norm(out.positions[hidden] - data.positions[hidden], axis=1) * length_factor(data.units,
+            err = np.linalg.norm(out.positions[scored] - data.positions[scored], axis=1) * length_factor(data.units,
                                                                                                      "mm")
             record["unfilled"] = int(np.isnan(err).sum())
             record["sq_sum"] = float(np.nansum(err ** 2))
@@ -89,7 +99,8 @@ def run_one(task: tuple) -> dict:
 
 def _cache_file(cache, digest: str, method: str, draw: int, missing: float, config: dict | None = None) -> Path:
     Path(cache).mkdir(parents=True, exist_ok=True)
-    return Path(cache) / f"{digest[:16]}_{method}{harness.config_tag(config)}_{draw}_{missing:g}.json"
+    # ("_c": copies hidden together; a record from before that rule is not read)
+    return Path(cache) / f"{digest[:16]}_{method}{harness.config_tag(config)}_{draw}_{missing:g}_c.json"
 
 
 def main(argv: list[str] | None = None) -> None:
