@@ -98,7 +98,8 @@ def summarize(data: MarkerData) -> dict[str, Any]:
     ``c3d`` (processor, storage, analog channels, model outputs).  The gap statistics cover the points of kind
     "marker" only; ``model_points`` and ``unlabelled`` list the others (kept untouched by a fill), and ``held`` is
     what :func:`mocapfill.guards.held.held_summary` finds on the markers; ``copies`` the markers bit-identical to an
-    earlier one (``marker``, ``copy_of``; :mod:`mocapfill.guards.copies`: the default fills them once).
+    earlier one wherever both are observed (``marker``, ``copy_of``; :mod:`mocapfill.guards.copies`: the default
+    fills them once).
     """
     out: dict[str, Any] = {
         "path": data.path,
@@ -122,9 +123,10 @@ def summarize(data: MarkerData) -> dict[str, Any]:
         quantum = abs(float(extra.file.scale))
     out["held"] = held_summary(find_held(data.positions[:, columns], units=data.units, quantum=quantum), labels,
                                data.first_frame)
-    from .guards.copies import distinct_markers
+    from .guards.copies import distinct_markers, lent_by_copies
 
-    keep, source = distinct_markers(data.positions[:, columns])
+    # (copies whose gaps differ count: with their samples lent to each other they are bit-identical)
+    keep, source = distinct_markers(lent_by_copies(data.positions[:, columns])[0])
     out["copies"] = [{"marker": labels[m], "copy_of": labels[int(keep[source[m]])]}
                      for m in range(len(columns)) if keep[source[m]] != m]
     extra = data.extra

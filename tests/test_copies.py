@@ -168,5 +168,10 @@ def test_a_copy_fills_its_twins_gap_exactly_and_says_so():
     assert {"marker": "M2", "marker_index": 2, "copy": "M2_copy"} in out.info["lent"]
     starts = [(g["marker_index"], g["start"]) for g in out.info["gap_methods"]]
     assert starts == sorted(starts)
+    from mocapfill.markers import MarkerData
+    from mocapfill.summary import summarize
+
+    assert summarize(MarkerData(pos, labels, 100.0, "mm"))["copies"][:2] == [
+        {"marker": "M2_copy", "copy_of": "M2"}, {"marker": "M2_again", "copy_of": "M2"}]
     # the gap all three miss is the model's, as before
     assert any(g["marker"] == "M2" and g["start"] == 60 and g["method"] != "copy" for g in out.info["gap_methods"])
