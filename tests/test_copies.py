@@ -175,3 +175,18 @@ def test_a_copy_fills_its_twins_gap_exactly_and_says_so():
         {"marker": "M2_copy", "copy_of": "M2"}, {"marker": "M2_again", "copy_of": "M2"}]
     # the gap all three miss is the model's, as before
     assert any(g["marker"] == "M2" and g["start"] == 60 and g["method"] != "copy" for g in out.info["gap_methods"])
+
+
+def test_evaluation_hides_a_sample_in_every_copy_whose_gaps_differ():
+    from mocapfill.evaluation.runner import copies_hidden_together
+
+    truth, pos = _with_copies()
+    clean = pos.copy()
+    clean[10:40, 8] = np.nan  # the capture's own copies: M2_copy misses frames M2 keeps
+    hidden = np.zeros(clean.shape[:2], dtype=bool)
+    hidden[200:210, 8] = True
+    corrupted = clean.copy()
+    corrupted[hidden] = np.nan
+    corrupted, scored, _ = copies_hidden_together(clean, corrupted, hidden, np.zeros_like(hidden))
+    assert np.isnan(corrupted[200:210][:, [2, 8, 9]]).all()  # no twin gives it away
+    assert scored[200:210, 2].all() and scored.sum() == 10  # scored once, on the first copy
