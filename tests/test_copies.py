@@ -100,6 +100,13 @@ def test_fill_says_which_markers_were_copies(tmp_path):
     assert result.exit_code == 0, result.output
     assert "3 markers are exact copies of another, filled once and copied: M2_copy = M2" in result.output
     assert "M2_copy 60" not in result.output  # a review line names a gap once, under the original
+    assert "taken from an exact copy" not in result.output
+    pos[100:130, 9] = np.nan  # hidden in one copy only: its twins keep it
+    write(MarkerData(pos, labels, 100.0, "mm"), path)
+    result = CliRunner().invoke(cli, ["fill", str(path), str(tmp_path / "out.trc")])
+    assert result.exit_code == 0, result.output
+    # (a TRC's frames count from 1)
+    assert "30 samples taken from an exact copy observed there: M2_again 101-130" in result.output
 
 
 def test_evaluate_hides_copies_together_and_scores_each_error_once():

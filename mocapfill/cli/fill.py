@@ -203,6 +203,14 @@ def _summary(outcome, method: str, report_path, status_path, quiet: bool) -> Non
     if copies:
         out.print(f"{len(copies)} markers are exact copies of another, filled once and copied: "
                   f"{copies_text(copies)}", markup=False, highlight=False, soft_wrap=True)
+    lent = [rec for rec in result.info.get("gap_methods") or []
+            if isinstance(rec, dict) and rec.get("method") == "copy"]
+    if lent:  # samples one copy missed and another kept
+        shown = ", ".join(f"{rec['marker']} {data.first_frame + rec['start']}-"
+                          f"{data.first_frame + rec['start'] + rec['length'] - 1}" for rec in lent[:5])
+        more = f", ... {len(lent) - 5} more (see --report)" if len(lent) > 5 else ""
+        out.print(f"{sum(rec['length'] for rec in lent)} samples taken from an exact copy observed there: "
+                  f"{shown}{more}", markup=False, highlight=False, soft_wrap=True)
     copied = {c["marker_index"] for c in copies}  # a copy's gaps are its original's: listed once
     review = [rec for rec in result.info.get("gap_methods") or [] if isinstance(rec, dict) and rec.get("review")
               and rec.get("marker_index") not in copied]
