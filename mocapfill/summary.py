@@ -123,10 +123,9 @@ def summarize(data: MarkerData) -> dict[str, Any]:
         quantum = abs(float(extra.file.scale))
     out["held"] = held_summary(find_held(data.positions[:, columns], units=data.units, quantum=quantum), labels,
                                data.first_frame)
-    from .guards.copies import distinct_markers, lent_by_copies
+    from .guards.copies import distinct_trajectories
 
-    # (copies whose gaps differ count: with their samples lent to each other they are bit-identical)
-    keep, source = distinct_markers(lent_by_copies(data.positions[:, columns])[0])
+    keep, source = distinct_trajectories(data.positions[:, columns])
     out["copies"] = [{"marker": labels[m], "copy_of": labels[int(keep[source[m]])]}
                      for m in range(len(columns)) if keep[source[m]] != m]
     extra = data.extra

@@ -108,9 +108,9 @@ def copies_hidden_together(positions: np.ndarray, corrupted: np.ndarray, hidden:
     one copy is hidden in all of them (else its twin would give it away), and only the first of each set is scored
     (each error counts once).  positions (n_frames, n_markers, 3) clean; the rest as :meth:`Trial.apply` returns
     them; unchanged without copies."""
-    from ..guards.copies import distinct_markers, lent_by_copies
+    from ..guards.copies import distinct_trajectories
 
-    keep, source = distinct_markers(lent_by_copies(positions)[0])  # (copies whose own gaps differ too)
+    keep, source = distinct_trajectories(positions)  # (copies whose own gaps differ too)
     if len(keep) == positions.shape[1]:
         return corrupted, hidden, shifted
     together = np.zeros((len(hidden), len(keep)), dtype=bool)

@@ -103,6 +103,12 @@ def lent_by_copies(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[
     return out, lent, lenders
 
 
+def distinct_trajectories(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`distinct_markers` with copies whose gaps differ counted as copies (read after
+    :func:`lent_by_copies`): (keep (k,), source (n_markers,)) for positions (n_frames, n_markers, 3)."""
+    return distinct_markers(lent_by_copies(positions)[0])
+
+
 def with_lent(result: FillResult, original: np.ndarray, lent: np.ndarray, lenders: list[tuple[int, int]],
               labels: Sequence[str] | None) -> FillResult:
     """``result``, the fill of :func:`lent_by_copies`' positions, as the fill of ``original`` (n_frames, n_markers,

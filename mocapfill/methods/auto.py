@@ -141,21 +141,19 @@ def fill_auto(
         from .learned import resolve_model
 
         model = resolve_model(model)
+    # exact copies of a marker: filled once (guards/copies.py); copies whose gaps differ take their twins' samples
+    # first, after which they are bit-identical, gaps included (so lent samples always come with copies)
     lending, lent, lenders = lent_by_copies(positions)
-    if lent.any():  # copies whose gaps differ: each takes its twins' samples first (guards/copies.py)
-        result = fill_auto(lending, units=units, labels=labels, rate=rate, bones=bones, refine=refine,
-                           reference_frames=reference_frames, reference_weights=reference_weights, model=model,
-                           config=config, jobs=jobs)
-        return with_lent(result, positions, lent, lenders, labels)
-    keep, source = distinct_markers(positions)
-    if len(keep) < positions.shape[1]:  # exact copies of a marker: filled once (guards/copies.py)
+    keep, source = distinct_markers(lending)
+    if len(keep) < positions.shape[1]:
         sub = None if labels is None else [labels[m] for m in keep]
         if bones is not None and bones is not False:
             bones = bones_on_distinct(bones, source)
-        part = fill_auto(positions[:, keep], units=units, labels=sub, rate=rate, bones=bones, refine=refine,
+        part = fill_auto(lending[:, keep], units=units, labels=sub, rate=rate, bones=bones, refine=refine,
                          reference_frames=None if reference_frames is None else reference_frames[:, keep],
                          reference_weights=reference_weights, model=model, config=config, jobs=jobs)
-        return widened(positions, part, keep, source, labels)
+        result = widened(lending, part, keep, source, labels)
+        return with_lent(result, positions, lent, lenders, labels) if lent.any() else result
     core = partial(model_fill, units=units, labels=labels, rate=rate, bones=bones, refine=refine,
                    reference_frames=reference_frames, reference_weights=reference_weights, prior=model,
                    config=config)
