@@ -246,3 +246,22 @@ def test_summary_names_the_gaps_to_review(runner, tmp_path):
     assert "review 1 gap" in result.stderr and "M2 101-250" in result.stderr
     doc = json.loads(report.read_text())
     assert doc["summary"]["review_gaps"] == 1 and [g["review"] for g in doc["gaps"]] == [True]
+
+
+def test_gaps_left_missing_are_not_listed_for_review(runner, tmp_path):
+    # The same wandering marker's gap, now longer than --max-gap, and a marker never observed: both are left missing
+    # and listed as such; neither has a fill to check, so neither is listed (or reported) for review.
+    rng = np.random.default_rng(0)
+    pos = np.cumsum(rng.normal(0, 5, (300, 5, 3)), axis=0) + rng.normal(0, 300, (1, 5, 3))
+    pos[100:250, 2] = np.nan
+    pos[:, 4] = np.nan
+    src = tmp_path / "wander.csv"
+    mocapfill.write(mocapfill.MarkerData(pos, [f"M{i}" for i in range(5)], 100.0, "mm", 1), src)
+    report = tmp_path / "r.json"
+    result = runner.invoke(cli, ["fill", str(src), str(tmp_path / "out.csv"), "--max-gap", "50", "--report",
+                                 str(report)])
+    assert result.exit_code == 0, result.output
+    assert "M2 101-250" in result.stderr and "never observed, left empty: M4" in result.stderr
+    assert "review" not in result.stderr
+    doc = json.loads(report.read_text())
+    assert doc["summary"]["review_gaps"] == 0 and not any(g["review"] for g in doc["gaps"])

@@ -212,8 +212,18 @@ def _summary(outcome, method: str, report_path, status_path, quiet: bool) -> Non
         out.print(f"{sum(rec['length'] for rec in lent)} samples taken from an exact copy observed there: "
                   f"{shown}{more}", markup=False, highlight=False, soft_wrap=True)
     copied = {c["marker_index"] for c in copies}  # a copy's gaps are its original's: listed once
+    where = {label: i for i, label in enumerate(data.labels)}
+
+    def has_fill(rec: dict) -> bool:
+        """Whether the record's gap got a filled sample (one left missing has nothing to check: listed above)."""
+        m = where.get(rec.get("marker"))
+        start = rec.get("start")
+        if m is None or not isinstance(start, (int, np.integer)):
+            return True
+        return bool(result.filled[start:start + max(int(rec.get("length", 1)), 1), m].any())
+
     review = [rec for rec in result.info.get("gap_methods") or [] if isinstance(rec, dict) and rec.get("review")
-              and rec.get("marker_index") not in copied]
+              and rec.get("marker_index") not in copied and has_fill(rec)]
     if review:  # the gaps the method itself is unsure of: what a technician checks first
         shown_gaps = ", ".join(f"{rec['marker']} {data.first_frame + rec['start']}-"
                                f"{data.first_frame + rec['start'] + rec['length'] - 1}" for rec in review[:8])
