@@ -645,8 +645,9 @@ def _csv_field(text: str) -> str:
 
 
 def write_fill_report(outcome: FillOutcome, path: str, *, method: str, input_path: str | None,
-                      output_path: str | None, smoothed: bool) -> None:
-    """Write the JSON or HTML report (by ``path``'s extension) of one fill.
+                      output_path: str | None, smoothed: bool, jobs: int | None = None) -> None:
+    """Write the JSON or HTML report (by ``path``'s extension) of one fill (``jobs``: processes an HTML page's
+    plots are drawn on, as :func:`~mocapfill.report.write_report`).
 
     The report's bone-length checks use the given bones, else bones estimated from the observed frames of the
     input (as bone-aware methods do), never from filled samples.
@@ -685,7 +686,7 @@ def write_fill_report(outcome: FillOutcome, path: str, *, method: str, input_pat
     report["summary"]["points"] = points_line(outcome.data)
     if outcome.held_summary is not None:
         report["summary"]["held"] = held_report(outcome.held_summary, kept=outcome.held is None)
-    write_report(report, path, data=data, result=result, bones=bones)
+    write_report(report, path, data=data, result=result, bones=bones, jobs=jobs)
 
 
 def points_line(data: MarkerData) -> str:

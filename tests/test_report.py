@@ -184,6 +184,16 @@ def test_html_report_is_self_contained_with_one_plot_per_filled_marker(case, tmp
     assert "1 gap to review" in text and "M1 30-44" in text  # the gap the method flagged, in file numbering
 
 
+def test_html_report_plots_drawn_on_two_processes_are_the_same_page(case, tmp_path):
+    # The trajectory and bone plots (tenths of a second of matplotlib each) may be drawn on forked processes: the
+    # page is the same, figure for figure and in the same order.
+    pytest.importorskip("matplotlib")
+    one, two = tmp_path / "one.html", tmp_path / "two.html"
+    write_report(case.report, one, data=case.data, result=case.result, bones=case.bones, jobs=1)
+    write_report(case.report, two, data=case.data, result=case.result, bones=case.bones, jobs=2)
+    assert one.read_text() == two.read_text() and one.read_text().count("<svg") >= 6
+
+
 def test_html_report_caps_plots_and_says_what_was_left_out(case, tmp_path):
     pytest.importorskip("matplotlib")
     path = tmp_path / "r.html"

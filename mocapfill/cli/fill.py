@@ -54,7 +54,7 @@ FILL_EPILOG = "\b\nMethods:\n" + "\n".join(f"  {spec.name:<10} {spec.summary}" f
 @click.option("--force", is_flag=True, help="Allow OUT to be the same file as IN (it is replaced atomically).")
 @click.option("-j", "--jobs", type=click.IntRange(min=0), default=0, show_default=True,
               help="Worker processes (0 = every core): a long take's windows, the default method's per-marker "
-                   "models; the output does not depend on it.")
+                   "models, an HTML report's plots; the output does not depend on it.")
 def fill_command(input_path: str, output_path: str, fill_settings: FillSettings, report_path: str | None,
                  status_path: str | None, output_format: str | None, reading: ReadOptions, quiet: bool,
                  force: bool, jobs: int) -> None:
@@ -101,7 +101,7 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
 
         if report_path is not None:
             write_fill_report(outcome, report_path, method=method, input_path=input_path, output_path=output_path,
-                              smoothed=settings.smooth or settings.lowpass is not None)
+                              smoothed=settings.smooth or settings.lowpass is not None, jobs=jobs)
         if status_path is not None:
             write_status_csv(outcome, status_path)
 

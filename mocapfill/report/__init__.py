@@ -30,7 +30,7 @@ def atomic_write_text(path: str | Path, text: str) -> None:
 
 
 def write_report(report: dict[str, Any], path: str | Path, *, data, result, bones=None,
-                 max_markers: int = 40, max_bones: int = 40, player: bool = True) -> None:
+                 max_markers: int = 40, max_bones: int = 40, player: bool = True, jobs: int | None = None) -> None:
     """Write ``report`` (from :func:`build_fill_report`) to ``path``: JSON or HTML by extension.
 
     Parameters
@@ -50,6 +50,8 @@ def write_report(report: dict[str, Any], path: str | Path, *, data, result, bone
         Caps on the number of trajectory and bone plots in the HTML page; the page says what was left out.
     player : bool
         Put the 3-D player (:mod:`.player`) at the top of the HTML page.
+    jobs : int or None
+        Processes the HTML page's plots are drawn on (None or 1: this one; 0: every core); the page is the same.
     """
     path_str = str(path)
     suffix = Path(path_str).suffix.lower()
@@ -59,6 +61,7 @@ def write_report(report: dict[str, Any], path: str | Path, *, data, result, bone
         from .html_report import render_html
 
         atomic_write_text(path, render_html(report, data=data, result=result, bones=bones,
-                                             max_markers=max_markers, max_bones=max_bones, player=player))
+                                             max_markers=max_markers, max_bones=max_bones, player=player,
+                                             jobs=jobs))
     else:
         raise InputError(f"report {path_str}: unknown extension {suffix or '(none)'!r}; use .json or .html")

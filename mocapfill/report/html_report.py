@@ -10,7 +10,8 @@ the page says what was left out.
 from __future__ import annotations
 
 import html
-from typing import Any
+from functools import partial
+from typing import Any, Callable
 
 import numpy as np
 
@@ -169,8 +170,13 @@ def _figure(svg: str, caption: str, kind: str, name: str) -> str:
             f"<figcaption>{caption}</figcaption></figure>")
 
 
+def _draw(draw: Callable[[], str]) -> str:
+    """One plot's SVG (a task of :func:`render_html`'s plots, which may run in another process)."""
+    return draw()
+
+
 def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers: int = 40,
-                max_bones: int = 40, player: bool = True) -> str:
+                max_bones: int = 40, player: bool = True, jobs: int | None = None) -> str:
     """The self-contained HTML page of ``report`` (from :func:`build_fill_report`).
 
     Parameters
@@ -187,6 +193,9 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
         Caps on the number of trajectory and bone plots (at most ``LONG_TAKE_PLOTS`` each past ``LONG_TAKE`` frames).
     player : bool
         Put the 3-D player (:mod:`.player`, the page's only script) near the top.
+    jobs : int or None
+        Processes the trajectory and bone plots are drawn on (:func:`~mocapfill.runtime.executor.forked_map`; None
+        or 1: this one).  Each plot is tenths of a second of matplotlib, a page dozens of them; the page is the same.
 
     Raises
     ------
@@ -342,16 +351,17 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
                      + ("; band: \u00b1 2 standard deviations" if std is not None else "")
                      + "; grey: still missing.</p>")
     outliers = np.where(rejected[..., None], data.positions, np.nan)
+    drawings: list[tuple[int, Callable[[], str], str, str, str]] = []  # (place in parts, draw, caption, kind, name)
     for m in keep:
         window = plots.plot_window(filled[:, m] | unfilled[:, m])
-        svg = plots.trajectory_svg(frames, observed[:, m], output[:, m], filled[:, m], unfilled[:, m],
-                                   None if std is None else std[:, m], label=labels[m], units=units,
-                                   outliers=outliers[:, m] if rejected[:, m].any() else None, window=window,
-                                   max_points=points)
+        draw = partial(plots.trajectory_svg, frames, observed[:, m], output[:, m], filled[:, m], unfilled[:, m],
+                       None if std is None else std[:, m], label=labels[m], units=units,
+                       outliers=outliers[:, m] if rejected[:, m].any() else None, window=window, max_points=points)
         n_gaps = sum(1 for g in gaps if g["marker"] == labels[m])
         shown = "" if window is None else f" Frames {frames[window[0]]}-{frames[window[1] - 1]} shown."
-        parts.append(_figure(svg, f"{escape(labels[m])}: {int(counts[m])} filled samples in {n_gaps} gap(s).{shown}",
-                             "marker", labels[m]))
+        drawings.append((len(parts), draw, f"{escape(labels[m])}: {int(counts[m])} filled samples in {n_gaps} "
+                         f"gap(s).{shown}", "marker", labels[m]))
+        parts.append("")
 
     # Bone lengths.
     parts.append('<h2 id="bones">Bone lengths</h2>')
@@ -383,11 +393,16 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
             name = f"{labels[a]} \u2013 {labels[c]}"
             either = filled[:, a] | filled[:, c]
             window = plots.plot_window(either)
-            svg = plots.bone_svg(frames, dist(observed, a, c), dist(output, a, c), float(lengths[b]), either,
-                                 name=name, units=units, window=window, max_points=points)
+            draw = partial(plots.bone_svg, frames, dist(observed, a, c), dist(output, a, c), float(lengths[b]),
+                           either, name=name, units=units, window=window, max_points=points)
             shown = "" if window is None else f" Frames {frames[window[0]]}-{frames[window[1] - 1]} shown."
-            parts.append(_figure(svg, f"Length of {escape(name)} in the input (breaks at gaps) and after the fill."
-                                 + shown, "bone", name))
+            drawings.append((len(parts), draw, f"Length of {escape(name)} in the input (breaks at gaps) and after "
+                             f"the fill.{shown}", "bone", name))
+            parts.append("")
+    from ..runtime.executor import forked_map
+
+    for (at, _, caption, kind, name), svg in zip(drawings, forked_map(_draw, [d[1] for d in drawings], jobs)):
+        parts[at] = _figure(svg, caption, kind, name)
 
     parts.append('<h2 id="convergence">Convergence</h2>')
     objective = conv["objective"]

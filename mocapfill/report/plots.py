@@ -67,7 +67,8 @@ def svg_of(fig, *, tight: bool = False) -> str:
     instead because a report draws dozens of them.
     """
     buf = io.StringIO()
-    fig.savefig(buf, format="svg", bbox_inches="tight" if tight else None)
+    # (no date in the metadata: the same fill draws the same page, wherever and whenever it is drawn)
+    fig.savefig(buf, format="svg", bbox_inches="tight" if tight else None, metadata={"Date": None})
     text = buf.getvalue()
     # Coordinates to 0.1 pt (a tenth of a screen pixel) in path data and positions: about half the size.
     text = _GEOMETRY.sub(lambda m: _DECIMALS.sub(r"\1", m.group(0)), text)
