@@ -89,7 +89,7 @@ def test_a_gap_above_max_gap_is_untouched_and_reported(runner, gappy, gappy_data
     assert by_key[(318, "Daphnee:SCAP_CP")] == "filled" and by_key[(1, "Daphnee:SCAP_CP")] == "observed"
 
 
-def test_max_gap_in_python_and_html(gappy_data, tmp_path):
+def test_max_gap_in_python_and_html(gappy_data, tmp_path, monkeypatch):
     result = mocapfill.fill(gappy_data, "linear", max_gap=20)
     assert len(result.info["left_missing"]) == 3
     assert {r["reason"] for r in result.info["left_missing"]} == {"left missing (too long)"}
@@ -100,6 +100,11 @@ def test_max_gap_in_python_and_html(gappy_data, tmp_path):
     from mocapfill.pipeline import write_fill_report
 
     pytest.importorskip("matplotlib")
+    from mocapfill.report import plots
+
+    # the page's text is what is checked here: its 53 plots (7 s of matplotlib) are tested in test_report.py
+    for name in ("trajectory_svg", "bone_svg"):
+        monkeypatch.setattr(plots, name, lambda *args, **kwargs: "<svg></svg>")
     html = tmp_path / "r.html"
     write_fill_report(outcome, str(html), method="linear", input_path="in.csv", output_path="out.csv",
                       smoothed=False)
