@@ -271,3 +271,22 @@ def test_reports_of_a_real_fill(sample_data, tmp_path):
     if bones is not None:
         n_bones = len([1 for cls, _ in parser.figures if "bone-plot" in cls])
         assert n_bones == min(4, len(report["bones"]["touching_filled"]))
+
+
+def test_band_outline_thins_each_filled_stretch_and_keeps_its_ends():
+    # The +-2 std band is drawn from about max_points samples: each filled stretch keeps its first and last frame
+    # (a one-frame stretch stays), stretches are kept apart by one NaN, and each point is the fill and 2 sd there.
+    from mocapfill.report.plots import band_outline
+
+    frames = np.arange(100, 1100)
+    centre = np.linspace(0.0, 1.0, 1000)
+    sd = np.full(1000, np.nan)
+    sd[10] = 1.0
+    sd[200:900] = 2.0
+    x, mid, half = band_outline(frames, centre, sd, max_points=50)
+    assert np.isnan(x).sum() == 1 and len(x) <= 50 + 3
+    assert 110 in x and 300 in x and 999 in x
+    finite = np.isfinite(x)
+    rows = (x[finite] - 100).astype(int)
+    np.testing.assert_array_equal(half[finite], 2.0 * sd[rows])
+    np.testing.assert_array_equal(mid[finite], centre[rows])
