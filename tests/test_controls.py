@@ -182,6 +182,17 @@ def test_leave_reasons_precedence():
     assert (reasons[~missing] == 0).all()
 
 
+def test_a_marker_never_observed_is_left_by_no_limit():
+    # Missing in every frame: no --max-gap or --edges left it, nothing could fill it; it stays MISSING (reported as
+    # never observed), not "too long" or "at an edge" as well
+    missing = np.zeros((20, 2), dtype=bool)
+    missing[:, 0] = True
+    missing[5:15, 1] = True
+    for edges in ("fill", "leave"):
+        reasons = leave_reasons(missing, max_gap=5, edges=edges)
+        assert (reasons[:, 0] == 0).all() and set(reasons[5:15, 1]) == {Status.MISSING_TOO_LONG}
+
+
 # -------------------------------------------------------------------------------------------------- --min-fragment
 
 def test_short_fragments():

@@ -83,6 +83,7 @@ def leave_reasons(missing: np.ndarray, *, max_gap: int | None = None, edges: str
         Gaps longer than this many frames are left (:attr:`Status.MISSING_TOO_LONG`); None = no limit.
     edges : "fill" or "leave"
         "leave": gaps touching the first or last frame are left (:attr:`Status.MISSING_EDGE`).
+        (A marker missing in every frame is neither: nothing can fill it, and it is reported as never observed.)
     chosen : ndarray of bool, shape (n_markers,), or None
         The markers to fill; the gaps of the others are left (:attr:`Status.MISSING_NOT_CHOSEN`).  None = all.
 
@@ -101,6 +102,8 @@ def leave_reasons(missing: np.ndarray, *, max_gap: int | None = None, edges: str
         return reasons
     for gap in find_gaps(missing):
         if chosen is not None and not chosen[gap.marker]:
+            continue
+        if gap.length == missing.shape[0]:  # a marker never observed: no limit left it (it stays MISSING)
             continue
         if edges == "leave" and (gap.at_start or gap.at_end):
             reasons[gap.start:gap.stop, gap.marker] = Status.MISSING_EDGE
