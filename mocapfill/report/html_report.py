@@ -15,6 +15,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..runtime.executor import forked_map
 from . import plots
 
 #: Points per plotted line; takes longer than LONG_TAKE frames get fewer (about one per two pixels of the page), so
@@ -399,8 +400,6 @@ def render_html(report: dict[str, Any], *, data, result, bones=None, max_markers
             drawings.append((len(parts), draw, f"Length of {escape(name)} in the input (breaks at gaps) and after "
                              f"the fill.{shown}", "bone", name))
             parts.append("")
-    from ..runtime.executor import forked_map
-
     for (at, _, caption, kind, name), svg in zip(drawings, forked_map(_draw, [d[1] for d in drawings], jobs)):
         parts[at] = _figure(svg, caption, kind, name)
 
