@@ -36,6 +36,16 @@ Run from the repository root (CPU-heavy: ``bolero-hc`` takes minutes per fill; r
 
 Writes ``benchmarks/results/bench_default_captures.json`` (``--out``) with every method found in the cache for the
 selected captures, protocols and draws.
+
+Four more captures come from OpenSim's example pipelines (opensim-org/opensim-models, no license file: fetched,
+never committed, as ``bench_ik.py`` reads them; ``OPENSIM_MODELS`` names the copy, default ``/tmp/osm``), complete
+TRC files from studies none of the default captures' labs ran: ``opensim-walk`` (the Rajagopal model's walk, 2.4 s
+at 100 Hz, 41 markers: a short full-body walking trial in TRC, as issue 21's), ``opensim-run`` (its run, 5.1 s),
+``hamner-run`` (10 s at 60 Hz) and ``gait2354-walk`` (2.5 s at 60 Hz)::
+
+    OPENSIM_MODELS=/path/to/opensim-models python benchmarks/bench_default_captures.py --jobs 2 \
+        --captures opensim-walk,gait2354-walk,opensim-run,hamner-run --methods auto,pca,bolero-sc \
+        --out benchmarks/results/bench_default_captures_opensim.json
 """
 
 from __future__ import annotations
@@ -110,6 +120,28 @@ EXTRA_CAPTURES = {
     "qualisys-walk": Capture(REPO / "tests" / "data" / "qtm_JaneDoe_Dynamic_2.tsv", "Qualisys (QTM sample)",
                              "53 markers, gait, 229 fr @ 100 Hz"),
 }
+#: OpenSim's example pipelines (module docstring): read from a copy of opensim-org/opensim-models, never committed.
+OPENSIM_MODELS = Path(os.environ.get("OPENSIM_MODELS", "/tmp/osm"))
+EXTRA_CAPTURES.update({
+    "opensim-walk": Capture(OPENSIM_MODELS / "Pipelines" / "Rajagopal" / "ExpData" / "motion_capture_walk.trc",
+                            "OpenSim Rajagopal pipeline (TRC)", "41 markers, walk, 238 fr @ 100 Hz"),
+    "opensim-run": Capture(OPENSIM_MODELS / "Pipelines" / "Rajagopal" / "ExpData" / "motion_capture_run.trc",
+                           "OpenSim Rajagopal pipeline (TRC)", "42 markers, run, 510 fr @ 100 Hz"),
+    "hamner-run": Capture(OPENSIM_MODELS / "Pipelines" / "Hamner" / "subject02_running.trc",
+                          "OpenSim Hamner pipeline (TRC)", "41 markers, run, 600 fr @ 60 Hz"),
+    "gait2354-walk": Capture(OPENSIM_MODELS / "Pipelines" / "Gait2354_Simbody" / "subject01_walk1.trc",
+                             "OpenSim Gait2354 pipeline (TRC)", "41 markers, walk, 151 fr @ 60 Hz"),
+})
+
+
+def shown_path(path: Path) -> str:
+    """A capture's file as the tables show it: in the OpenSim copy, under ../shared or in the repository."""
+    if OPENSIM_MODELS in path.parents:
+        return f"opensim-models/{path.relative_to(OPENSIM_MODELS)}"
+    for root in (SHARED.parent, REPO):
+        if root in path.parents:
+            return str(path.relative_to(root))
+    return str(path)
 
 #: The issue's gaps for marker and limb: 10-50 % of the take, given explicitly (make_occlusions' defaults cap them
 #: at 1 s / 5 s on long takes).
@@ -454,8 +486,7 @@ def report(cache: Path, captures: list[str], protocols: list[str], draws: int, s
     caps = {**CAPTURES, **EXTRA_CAPTURES}
     results.table("captures", "the captures (complete; a stretch where frames are given)",
                   ["capture", "file", "lab", "what"],
-                  [[c, str(caps[c].path.relative_to(SHARED.parent) if SHARED.parent in caps[c].path.parents
-                           else caps[c].path.relative_to(REPO)), caps[c].lab, caps[c].what] for c in captures])
+                  [[c, shown_path(caps[c].path), caps[c].lab, caps[c].what] for c in captures])
     results.table("cases", f"per capture, protocol and method: errors (mm) over the hidden samples, {draws} draws, "
                   f"seed {seed}; code: " + "; ".join(
                       f"{m} {','.join(sorted({x for k, v in pooled.items() if k[2] == m for x in v['commits']}))}"

@@ -44,11 +44,14 @@ def compare(floor: dict, new: dict, rtol: float = 0.0) -> tuple[list[str], list[
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("new", type=Path, help="a results JSON written by a benchmark script")
-    parser.add_argument("--floor", type=Path, default=None, help="default: benchmarks/results/floor/<same name>")
+    parser.add_argument("--floor", type=Path, default=None,
+                        help="default: benchmarks/results/floor/<the file's name>, else <its script's name>")
     parser.add_argument("--rtol", type=float, default=0.0, help="relative tolerance (default 0)")
     args = parser.parse_args(argv)
     new = json.loads(args.new.read_text())
-    floor_path = args.floor or FLOOR / f"{Path(new.get('script', args.new.name)).stem}.json"
+    # a results file of its own name (a script's run on other inputs, ``--out``) has its own floor where one exists
+    own = FLOOR / f"{args.new.stem}.json"
+    floor_path = args.floor or (own if own.is_file() else FLOOR / f"{Path(new.get('script', args.new.name)).stem}.json")
     floor = json.loads(floor_path.read_text())
     bad, missing = compare(floor, new, args.rtol)
     for line in bad:

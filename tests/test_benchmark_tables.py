@@ -121,3 +121,19 @@ def test_auto_config_changes_the_default_fill_for_the_block_only():
     with pytest.raises(RuntimeError), harness.auto_config({"knn": 5}):
         raise RuntimeError("a failing fill")
     assert auto.fill_auto.__kwdefaults__["config"] is before
+
+
+def test_compare_takes_the_floor_of_the_results_files_own_name(tmp_path, monkeypatch):
+    """A script's run written under another name (``--out``, other inputs) is held to the floor of that name, and a
+    file without one to its script's."""
+    floor = tmp_path / "floor"
+    floor.mkdir()
+    fig = {"rmse": {"value": 10.0, "better": "lower", "unit": "mm"}}
+    (floor / "bench_x.json").write_text(json.dumps({"command": "c", "figures": fig}))
+    (floor / "bench_x_other.json").write_text(json.dumps({"command": "c", "figures": {"rmse": {**fig["rmse"],
+                                                                                            "value": 20.0}}}))
+    monkeypatch.setattr(compare, "FLOOR", floor)
+    new = {"script": "bench_x.py", "figures": {"rmse": {"value": 15.0, "better": "lower"}}}
+    for name, worse in (("bench_x_other.json", 0), ("scratch.json", 1)):
+        (tmp_path / name).write_text(json.dumps(new))
+        assert compare.main([str(tmp_path / name)]) == worse
