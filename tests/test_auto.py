@@ -14,9 +14,10 @@ from synthetic import tumbling_body
 from synthetic import moving_body, rot_x, rot_z
 from mocapfill.methods import get_method
 from mocapfill.engines.local_pca import prefer_segment, refit_parts, rigid_prediction, segment_markers
-from mocapfill.methods.auto import (body_stage, displaced_runs, fill_auto, gap_records, global_prediction,
-                                   global_stage, model_changes, motion_model, rough_variance, seed_elsewhere,
-                                   spatial_stage, temporal_stage)
+from mocapfill.methods.auto import (body_stage, displaced_runs, fill_auto, global_prediction, global_stage,
+                                   model_changes, motion_model, rough_variance, seed_elsewhere, spatial_stage,
+                                   temporal_stage)
+from mocapfill.methods.auto_records import gap_records
 from mocapfill.methods.auto_config import DEFAULT_CONFIG, ModelConfig
 
 
@@ -935,7 +936,7 @@ def test_bone_breaks_keeps_a_bone_against_an_overconfident_miss():
 
 
 def test_gap_records_name_the_bones_left_out():
-    from mocapfill.methods.auto import gap_records
+    from mocapfill.methods.auto_records import gap_records
 
     pos, gapped, pred, sd, bones = _bone_case(150.0)
     missing = np.isnan(gapped).any(axis=2)
@@ -950,7 +951,7 @@ def test_gap_records_name_the_bones_left_out():
 
 
 def test_displaced_records_name_each_displaced_run_and_its_offset():
-    from mocapfill.methods.auto import displaced_records
+    from mocapfill.methods.auto_records import displaced_records
 
     pos = np.zeros((30, 2, 3))
     edge = np.full_like(pos, np.nan)

@@ -136,7 +136,8 @@ def test_bone_stage_holds_a_prediction_within_reach_and_the_gap_says_so():
     """Stage 2 with a reach and no bone: a wrist predicted twice as far from its observed elbow as it was ever seen
     is pulled back to near the limit, one within reach is left alone, and the gap's reason names the elbow."""
     from mocapfill.bones.boneset import BoneSet
-    from mocapfill.methods.auto import bone_stage, gap_records
+    from mocapfill.methods.auto import bone_stage
+    from mocapfill.methods.auto_records import gap_records
     from mocapfill.methods.auto_config import DEFAULT_CONFIG
 
     pos = _arm(n=60)[:, :3]  # shoulder, elbow, wrist
