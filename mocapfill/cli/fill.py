@@ -15,6 +15,7 @@ import click
 import numpy as np
 
 from ..methods import METHODS
+from ..methods.base import records_mask
 from ..pipeline import FillSettings
 from . import cli
 from .common import (ReadOptions, StderrProgress, console, copies_text, fill_options, format_options, quiet_option,
@@ -212,15 +213,12 @@ def _summary(outcome, method: str, report_path, status_path, quiet: bool) -> Non
         out.print(f"{sum(rec['length'] for rec in lent)} samples taken from an exact copy observed there: "
                   f"{shown}{more}", markup=False, highlight=False, soft_wrap=True)
     copied = {c["marker_index"] for c in copies}  # a copy's gaps are its original's: listed once
-    where = {label: i for i, label in enumerate(data.labels)}
 
     def has_fill(rec: dict) -> bool:
-        """Whether the record's gap got a filled sample (one left missing has nothing to check: listed above)."""
-        m = where.get(rec.get("marker"))
-        start = rec.get("start")
-        if m is None or not isinstance(start, (int, np.integer)):
-            return True
-        return bool(result.filled[start:start + max(int(rec.get("length", 1)), 1), m].any())
+        """Whether the record's gap got a filled sample (one left missing has nothing to check: listed above; a
+        record without a run of its own is kept)."""
+        covered = records_mask([rec], result.filled.shape)
+        return not covered.any() or bool((covered & result.filled).any())
 
     review = [rec for rec in result.info.get("gap_methods") or [] if isinstance(rec, dict) and rec.get("review")
               and rec.get("marker_index") not in copied and has_fill(rec)]
