@@ -121,7 +121,7 @@ EXTRA_CAPTURES = {
                              "53 markers, gait, 229 fr @ 100 Hz"),
 }
 #: OpenSim's example pipelines (module docstring): read from a copy of opensim-org/opensim-models, never committed.
-OPENSIM_MODELS = Path(os.environ.get("OPENSIM_MODELS", "/tmp/osm"))
+OPENSIM_MODELS = harness.OPENSIM_MODELS
 EXTRA_CAPTURES.update({
     "opensim-walk": Capture(OPENSIM_MODELS / "Pipelines" / "Rajagopal" / "ExpData" / "motion_capture_walk.trc",
                             "OpenSim Rajagopal pipeline (TRC)", "41 markers, walk, 238 fr @ 100 Hz"),

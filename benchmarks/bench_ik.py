@@ -104,7 +104,7 @@ def trc_fidelity(trc: Path, setup: str, data: MarkerData) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--models", default=os.environ.get("OPENSIM_MODELS", "/tmp/osm"),
+    parser.add_argument("--models", default=str(harness.OPENSIM_MODELS),
                         help="a copy of opensim-org/opensim-models (its Pipelines/ folder is read)")
     parser.add_argument("--trials", type=int, default=3)
     parser.add_argument("--seed", type=int, default=24)

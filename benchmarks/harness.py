@@ -35,6 +35,9 @@ FLOOR = RESULTS / "floor"
 SAMPLE_DATA = REPO / "sample_data"
 #: The shared real captures (``../shared/data``, or ``$MOCAPFILL_SHARED_DATA``); scripts skip what is absent.
 SHARED_DATA = Path(os.environ.get("MOCAPFILL_SHARED_DATA") or REPO.parent / "shared" / "data")
+#: A copy of opensim-org/opensim-models (``$OPENSIM_MODELS``, default ``/tmp/osm``): its example pipelines' captures
+#: (no license file there: fetched, never committed), read by ``bench_ik.py`` and ``bench_default_captures.py``.
+OPENSIM_MODELS = Path(os.environ.get("OPENSIM_MODELS", "/tmp/osm"))
 #: The bundled complete clips most scripts measure on: CMU 85_02 (41 markers, 810 frames at 120 Hz, mm) and the
 #: OptiTrack tennis serve (39 markers, 1,092 frames at 50 Hz, m).
 CLIP_85_02 = SAMPLE_DATA / "85_02.c3d"
