@@ -4,8 +4,9 @@ until ``--long-missing`` percent of its samples are missing).
 
 For each capture: the fill (``auto`` unless ``--method``; not counted), then the fill report (``write_fill_report``:
 bones estimated, JSON record, plots, player) drawn in one process and on every core (``jobs=0``, what ``mocapfill
-fill --report`` does; the pages are the same; in turn, the best of two each) and the raw capture's page (``info --report``): seconds and megabytes,
-the player's share of the page and its decimation.  Prints a Markdown table on stdout.
+fill --report`` does; the pages are the same; in turn, the best of two each) and the raw capture's page (``info
+--report``): seconds and megabytes, the player's share of the page and its decimation.  Prints a Markdown table on
+stdout.
 
     python benchmarks/bench_report.py [--method auto] [--long-frames 72000] [--skip-long] [MORE.c3d ...]
 """

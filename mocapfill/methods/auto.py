@@ -51,8 +51,9 @@ The model (equations in ``ARCHITECTURE.md``, "The default's model"), each stage 
 5. :func:`reported_sd`: where a prediction's neighbours take a pose its model never learnt (their residual off the
    model's components beyond the held-out frames'), its variance grows by that factor for the reported posterior
    sd (the smoother's variances, computed again); the fill itself keeps the cross-validated sd.
-6. :func:`~mocapfill.methods.auto_records.gap_records`: one record per gap, what filled it and whether a person should review it (its largest
-   posterior standard deviation above :attr:`ModelConfig.review_sd_mm`), the reason text formatted from the config.
+6. :func:`~mocapfill.methods.auto_records.gap_records`: one record per gap, what filled it and whether a person
+   should review it (its largest posterior standard deviation above :attr:`ModelConfig.review_sd_mm`), the reason
+   text formatted from the config.
 """
 
 from __future__ import annotations

@@ -46,9 +46,10 @@ def stretched_text(m: int, sl: slice, reach, stretched: np.ndarray | None, label
 
 def displaced_records(positions: np.ndarray, displaced: np.ndarray, edge: np.ndarray, mm: float, labels
                       ) -> list[dict]:
-    """One JSON-ready record per observed run judged displaced (:func:`~mocapfill.methods.auto.displaced_runs`): ``marker``,
-    ``marker_index``, ``start``, ``length`` and ``offset_mm``, the mean distance between the run's samples and the
-    spatial model's reconstruction there.  positions / edge (n_frames, n_markers, 3), displaced (n_frames, n_markers).
+    """One JSON-ready record per observed run judged displaced (:func:`~mocapfill.methods.auto.displaced_runs`):
+    ``marker``, ``marker_index``, ``start``, ``length`` and ``offset_mm``, the mean distance between the run's samples
+    and the spatial model's reconstruction there.  positions / edge (n_frames, n_markers, 3), displaced (n_frames,
+    n_markers).
     """
     out = []
     for m in np.flatnonzero(displaced.any(axis=0)):
@@ -68,18 +69,20 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
                 anchored: np.ndarray | None = None, spread: np.ndarray | None = None,
                 broken: np.ndarray | None = None, reach=None, stretched: np.ndarray | None = None,
                 globbed: np.ndarray | None = None, moved: np.ndarray | None = None) -> list[dict]:
-    """Stage 5: one JSON-ready record per gap (run of missing frames of one marker).
+    """Stage 6: one JSON-ready record per gap (run of missing frames of one marker).
 
     missing / sd / spatial / outliers (n_frames, n_markers): the input's mask, the posterior sd, where the spatial
     model predicted, where its prediction was down-weighted; off (n_frames, n_markers) or None: how far each
-    prediction's pose lay off its model's training poses (:func:`~mocapfill.methods.auto.reported_sd`); displaced (n_frames, n_markers) or
-    None: observed samples judged displaced (:func:`~mocapfill.methods.auto.displaced_runs`); segment (n_frames, n_markers) or None: where a
-    segment model predicted (:attr:`ModelConfig.segment_mm`); anchored (n_frames, n_markers) or None: where the body
-    anchor predicted (:func:`~mocapfill.methods.auto.anchor_stage`), not counted in ``spatial``; spread (n_frames, n_markers) or None: the
-    variance of the spatial model's widths about their mix (:func:`~mocapfill.methods.auto.reported_sd`); broken (n_frames, n_bones) or
-    None: where the bone stage left a bone of ``boneset`` out (:func:`~mocapfill.methods.auto.bone_breaks`); globbed (n_frames, n_markers) or
-    None: where the global PCA predicted (:func:`~mocapfill.methods.auto.global_stage`), not counted in ``spatial``; moved (n_frames,
-    n_markers) or None: how far the refit's bone stage moved each prediction (:attr:`ModelConfig.bone_move_sd`).
+    prediction's pose lay off its model's training poses (:func:`~mocapfill.methods.auto.reported_sd`); displaced
+    (n_frames, n_markers) or None: observed samples judged displaced (:func:`~mocapfill.methods.auto.displaced_runs`);
+    segment (n_frames, n_markers) or None: where a segment model predicted (:attr:`ModelConfig.segment_mm`); anchored
+    (n_frames, n_markers) or None: where the body anchor predicted (:func:`~mocapfill.methods.auto.anchor_stage`), not
+    counted in ``spatial``; spread (n_frames, n_markers) or None: the variance of the spatial model's widths about
+    their mix (:func:`~mocapfill.methods.auto.reported_sd`); broken (n_frames, n_bones) or None: where the bone stage
+    left a bone of ``boneset`` out (:func:`~mocapfill.methods.auto.bone_breaks`); globbed (n_frames, n_markers) or
+    None: where the global PCA predicted (:func:`~mocapfill.methods.auto.global_stage`), not counted in ``spatial``;
+    moved (n_frames, n_markers) or None: how far the refit's bone stage moved each prediction
+    (:attr:`ModelConfig.bone_move_sd`).
     ``review`` is True when the gap's largest sd exceeds ``config.review_sd_mm`` (or nothing could be filled) or a
     run judged displaced touches it; every number in ``reason`` comes from ``config`` or from the fill.
     """
