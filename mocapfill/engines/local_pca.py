@@ -46,6 +46,7 @@ from .weighted_pca import (
     linear_fallback,
     fit_model,
     gaussian_weights,
+    distance_spreads_to,
     distances_to,
     mean_distances,
     pattern_groups,
@@ -310,16 +311,42 @@ def _edge_samples(info: dict, m: int, group: np.ndarray, train: np.ndarray, est_
     info["edge_std"][train[keep], m] = std_train[keep]
 
 
-def marker_weights(dist: np.ndarray, m: int, scales: tuple[float, ...], align_scale: float, missing_weight: float
-                   ) -> tuple[list[np.ndarray], np.ndarray]:
+def marker_weights(dist: np.ndarray, m: int, scales: tuple[float, ...], align_scale: float, missing_weight: float,
+                   spread: np.ndarray | None = None, noise: float = 0.0) -> tuple[list[np.ndarray], np.ndarray]:
     """Gaussian weights (n_markers,) of every marker for target ``m``, one array per width in ``scales`` (the target
-    itself weighs ``missing_weight``), and the alignment weights; dist (n_markers,) mean distances to ``m``."""
+    itself weighs ``missing_weight``), and the alignment weights; dist (n_markers,) mean distances to ``m``.
+    ``spread`` (n_markers,) or None: how much each marker's distance to ``m`` varies; given, the alignment weights
+    are also :func:`rigidity_weights` of it (``noise`` as there)."""
     weights = []
     for width in scales:
         w = gaussian_weights(dist, width)
         w[m] = missing_weight
         weights.append(w)
-    return weights, gaussian_weights(dist, align_scale)
+    align = gaussian_weights(dist, align_scale)
+    if spread is not None:
+        align = align * rigidity_weights(spread, m, noise)
+    return weights, align
+
+
+def rigidity_weights(spread: np.ndarray, m: int, noise: float = 0.0) -> np.ndarray:
+    """Weights (n_markers,) in (0, 1] of the markers that define marker ``m``'s local frame, by how rigidly each
+    moves with it: s0^2 / (s^2 + s0^2), s (``spread``, (n_markers,)) the standard deviation of its distance to
+    ``m`` (0 for a marker never seen with it).
+
+    The Kabsch alignment's weights are inverse variances: a neighbour on the marker's own segment locates its frame
+    to within its skin and camera noise, one across a joint only to within the joint's motion.  The scale s0 is the
+    third smallest spread, so at least three markers weigh about the same (a frame needs three; one nearly rigid
+    marker alone would leave it free to turn about that marker), and at least ``noise``, the spread the cameras'
+    noise alone gives a distance (data units): spreads below it tell nothing about the body (a take where nothing
+    moves).  All 1 where fewer than three spreads are known.
+    """
+    s = np.asarray(spread, dtype=float).copy()
+    s[m] = np.nan
+    known = np.sort(s[np.isfinite(s)])
+    if len(known) < 3:
+        return np.ones(len(s))
+    s0 = max(float(known[2]), float(noise), 1e-12)
+    return np.where(np.isfinite(s), s0 ** 2 / (np.nan_to_num(s) ** 2 + s0 ** 2), 0.0)
 
 
 def reference_rows(reference: np.ndarray, weights: np.ndarray, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
@@ -518,6 +545,7 @@ def reconstruct_local(
     reference_frames: np.ndarray | None = None,
     reference_weights: np.ndarray | None = None,
     extrapolation: bool = False,
+    rigid_align: float | None = None,
     jobs: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """Estimate every missing sample with the weighted PCA in each missing marker's local frame.
@@ -554,7 +582,9 @@ def reconstruct_local(
         least two blocks of them are observed, the model with the references is kept only if its leave-one-block-
         out error on the capture's frames (the references always in training) is below that of the model without
         them; so a reference of another body or motion is dropped where it does not help.
-
+    rigid_align : None, or the spread (data units) the cameras' noise alone gives a distance: the alignment weights
+        also weigh each neighbour by how rigidly it moves with the marker (:func:`rigidity_weights` of the spread of
+        its distance to it over the frames where both are seen, with this ``noise``).
 
     Returns
     -------
@@ -588,6 +618,7 @@ def reconstruct_local(
                                          n_frames)
         info["references"] = {"frames": len(ref), "models": 0, "used": 0}
     own_distances = distances_to(positions) if context is None else None
+    own_spreads = distance_spreads_to(positions) if context is None and rigid_align is not None else None
     if context is None and ref is not None:  # reference frames join the training rows (never the predicted ones)
         with_refs_src = np.concatenate([positions, ref])
         with_refs_miss = np.concatenate([missing, np.isnan(ref).any(axis=2)])
@@ -602,15 +633,18 @@ def reconstruct_local(
             src, miss = context.copy(), ctx_missing.copy()
             src[:, m], miss[:, m] = positions[:, m], missing[:, m]
             dist = mean_distances(src, m)
+            spread = distance_spreads_to(src)(m) if rigid_align is not None else None
         else:
             dist = own_distances(m)
+            spread = own_spreads(m) if rigid_align is not None else None
         if ref is not None:  # reference frames join the training rows (never the predicted ones)
             if context is None:
                 src, miss = with_refs_src, with_refs_miss
             else:
                 src = np.concatenate([src, ref])
                 miss = np.concatenate([miss, np.isnan(ref).any(axis=2)])
-        weights, align_weight = marker_weights(dist, m, scales, align_scale, missing_weight)
+        weights, align_weight = marker_weights(dist, m, scales, align_scale, missing_weight, spread,
+                                               rigid_align or 0.0)
         others = np.ones(n_markers, dtype=bool)
         others[m] = False
         other_idx = np.flatnonzero(others)
@@ -769,6 +803,7 @@ def reconstruct_completed(
     run_scales: tuple[float, ...] | None = None,
     run_knn: int = 0,
     run_max_rms: float = np.inf,
+    rigid_align: float | None = None,
     jobs: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The local model refitted on a completed take (one EM-style imputation step).
@@ -813,7 +848,8 @@ def reconstruct_completed(
     cross-validated rms is at most ``run_max_rms`` (data units): a neighbour that vanished with the marker in one
     gap no longer leaves every other gap without a model; a gap run that runs into a whole-body blackout, where
     nothing is trusted over the run, is judged again on its frames outside the blackout (:func:`beside_blackouts`),
-    its models kept only within ``trust``.  ``jobs`` as in :func:`reconstruct_local`.
+    its models kept only within ``trust``.  ``jobs`` and ``rigid_align`` (the marker's neighbourhood models) as in
+    :func:`reconstruct_local`.
     """
     n_frames, n_markers, _ = positions.shape
     missing = np.isnan(positions).any(axis=2)
@@ -827,7 +863,9 @@ def reconstruct_completed(
     known = np.concatenate([~missing, np.isfinite(reference).all(axis=2)]) if reference is not None else ~missing
     finite = np.isfinite(data).all(axis=2)
     estimate, std, info = empty_estimates(n_frames, n_markers)
-    known_distances = distances_to(np.where(known[..., None], data, np.nan))  # once, not per marker
+    known_data = np.where(known[..., None], data, np.nan)
+    known_distances = distances_to(known_data)  # once, not per marker
+    known_spreads = distance_spreads_to(known_data) if rigid_align is not None else None
     blackout = missing.all(axis=1)  # frames where nothing is observed
     if untrusted is not None:
         u_data = np.array(untrusted[0], dtype=np.float64) if reference is None else np.concatenate(
@@ -904,7 +942,8 @@ def reconstruct_completed(
         refs: list = []
         gap_frames = np.flatnonzero(missing[:, m])
         dist = known_distances(m)
-        weights, align_weight = marker_weights(dist, m, scales, align_scale, missing_weight)
+        weights, align_weight = marker_weights(dist, m, scales, align_scale, missing_weight,
+                                               None if rigid_align is None else known_spreads(m), rigid_align or 0.0)
         sure = np.ones(n_markers, dtype=bool)
         if trust is not None:
             # a neighbour filled with little certainty during this marker's gaps (it vanished with it) is no

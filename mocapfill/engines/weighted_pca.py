@@ -113,6 +113,24 @@ def distances_to(positions: np.ndarray):
     return mean_to
 
 
+def distance_spreads_to(positions: np.ndarray):
+    """How much each marker's distance to a target varies: per target m, the standard deviation (n_markers,) over
+    the frames where both are observed of |x_j - x_m| (NaN where never co-observed), positions (n_frames,
+    n_markers, 3) read once.  Small for the markers of the target's own rigid segment."""
+    planes = [np.ascontiguousarray(positions[..., c]) for c in range(3)]
+
+    def spread_to(m: int) -> np.ndarray:
+        dist = np.sqrt(sum((plane - plane[:, m:m + 1]) ** 2 for plane in planes))
+        seen = np.isfinite(dist)
+        counts = seen.sum(axis=0)
+        dist[~seen] = 0.0
+        with np.errstate(invalid="ignore", divide="ignore"):
+            dev = np.where(seen, dist - dist.sum(axis=0) / counts, 0.0)
+            return np.where(counts > 0, np.sqrt((dev ** 2).sum(axis=0) / np.maximum(counts, 1)), np.nan)
+
+    return spread_to
+
+
 def mean_distances(positions: np.ndarray, target: int) -> np.ndarray:
     """Mean distance of every marker to marker ``target`` over the frames where both are observed.
 

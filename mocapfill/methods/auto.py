@@ -328,6 +328,13 @@ def anchor_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, r
     return np.where(todo[..., None], est, pred), np.where(todo, white, pred_sd), np.where(todo, white, report_sd)
 
 
+def rigid_noise(config: ModelConfig, mm: float) -> float | None:
+    """With :attr:`ModelConfig.align_rigid`, the spread (data units) the cameras' noise alone gives the distance of
+    two markers (each coordinate of each with sd ``obs_sd_mm``): below it a spread says nothing of rigidity
+    (:func:`mocapfill.engines.local_pca.rigidity_weights`); None without it."""
+    return float(np.sqrt(2.0) * config.obs_sd_mm * mm) if config.align_rigid else None
+
+
 def spatial_stage(positions: np.ndarray, config: ModelConfig, mm: float, *,
                   reference_frames: np.ndarray | None = None, reference_weights: np.ndarray | None = None,
                   jobs: int = 1):
@@ -353,7 +360,7 @@ def spatial_stage(positions: np.ndarray, config: ModelConfig, mm: float, *,
                                        reference_frames=reference_frames if weighed else None,
                                        reference_weights=reference_weights if weighed else None,
                                        extrapolation=config.extrapolation_sd and not config.impute_passes,
-                                       jobs=jobs)
+                                       rigid_align=rigid_noise(config, mm), jobs=jobs)
     if "extrapolation" in info:
         info["extrapolation"] = info["extrapolation"][:n]
     missing = np.isnan(positions).any(axis=2)
@@ -461,7 +468,8 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
         segment=config.segment_mm * mm if config.segment_mm else None, segment_used=segment_used,
         parts=config.refit_parts, untrusted=untrusted, untrusted_used=untrusted_used, disagreement=disagreement,
         run_scales=tuple(np.asarray(config.seed_scales_mm) * mm) if config.refit_by_run else None,
-        run_knn=config.seed_knn, run_max_rms=config.review_sd_mm * mm, jobs=jobs)
+        run_knn=config.seed_knn, run_max_rms=config.review_sd_mm * mm, rigid_align=rigid_noise(config, mm),
+        jobs=jobs)
     return pred, pred_sd, edge, edge_sd
 
 

@@ -26,6 +26,8 @@ class ModelConfig:
     max_predictors: int = 40
     #: Width of the alignment (Kabsch) weights on the neighbours that define a local frame.
     align_mm: float = 200.0
+    #: The alignment also weighs each neighbour by the inverse variance of its distance (off, as measured: a trade).
+    align_rigid: bool = False
     #: Nearest training poses whose mean residual corrects the linear reconstruction (20: the lowest of 5, 10, 20).
     knn: int = 20
     #: How much a pose's leverage grows the spatial sd the smoother weighs (0: high leverage was not worse).
