@@ -4,6 +4,7 @@ smoothing, one-line warnings."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 
 import numpy as np
@@ -61,6 +62,29 @@ def test_output_equal_to_input_is_refused_unless_forced(runner, gappy, tmp_path)
     result = runner.invoke(cli, ["fill", str(copy), str(copy), "-m", "linear", "--force", "-q"])
     assert result.exit_code == 0, result.output
     assert not mocapfill.read(copy).missing.any()
+
+
+def test_output_through_a_symlink_keeps_the_link(runner, test_data, tmp_path):
+    real = tmp_path / "real"
+    real.mkdir()
+    (real / "target.csv").write_text("old content")
+    link = tmp_path / "link.csv"
+    link.symlink_to(real / "target.csv")
+    result = runner.invoke(cli, ["fill", str(test_data / "T.trc"), str(link), "-m", "linear"])
+    assert result.exit_code == 0, result.output
+    assert link.is_symlink() and not mocapfill.read(real / "target.csv").missing.any()
+    sink = tmp_path / "sink.csv"
+    sink.symlink_to(os.devnull)  # a device: written to, not replaced by a file
+    result = runner.invoke(cli, ["fill", str(test_data / "T.trc"), str(sink), "-m", "linear"])
+    assert result.exit_code == 0, result.output
+    assert sink.is_symlink() and os.readlink(sink) == os.devnull
+    source = tmp_path / "in.trc"
+    shutil.copy(test_data / "T.trc", source)
+    to_input = tmp_path / "to_input.trc"
+    to_input.symlink_to(source)
+    result = runner.invoke(cli, ["fill", str(source), str(to_input), "-m", "linear"])
+    assert result.exit_code == 1 and "same file as the input" in result.stderr
+    assert source.read_bytes() == (test_data / "T.trc").read_bytes()
 
 
 def test_unknown_method_is_a_usage_error(runner, gappy, tmp_path):
