@@ -217,6 +217,34 @@ def test_output_folder_inside_the_input_folder_is_not_searched(session, tmp_path
     assert len(first) == len(again) == 5
 
 
+def test_a_per_file_report_or_status_that_cannot_be_written_fails_its_file_before_the_fill(tmp_path, test_data,
+                                                                                          monkeypatch):
+    import mocapfill.pipeline
+    from mocapfill.errors import InputError
+
+    src = tmp_path / "s"
+    src.mkdir()
+    shutil.copy(test_data / "T.trc", src / "T.trc")
+    out = tmp_path / "o"
+    (out / "T.trc.report.json").mkdir(parents=True)  # a folder where the report goes
+    (out / "T.trc.status.csv").mkdir()
+    filled = mocapfill.pipeline.fill_capture
+    monkeypatch.setattr(mocapfill.pipeline, "fill_capture", lambda *a, **k: pytest.fail("the fill ran"))
+    for options in ({"report": "json"}, {"status": True}):
+        [row] = mocapfill.batch(src, out, method="linear", **options)
+        assert row.status == "failed" and "is a directory, cannot write a file there" in row.error
+        assert not (out / "T.trc").exists() and row.report == "" and row.status_csv == ""
+
+    def refuse(outcome, path):  # a write that fails after the check: the output and report already written go
+        raise InputError(f"{path}: cannot write: No space left on device")
+
+    monkeypatch.setattr(mocapfill.pipeline, "fill_capture", filled)
+    monkeypatch.setattr(mocapfill.pipeline, "write_status_csv", refuse)
+    [row] = mocapfill.batch(src, tmp_path / "o2", method="linear", report="json", status=True)
+    assert row.status == "failed" and "No space left on device" in row.error
+    assert not (tmp_path / "o2" / "T.trc").exists() and not (tmp_path / "o2" / "T.trc.report.json").exists()
+
+
 def test_fill_options_are_shared_with_fill(session, tmp_path):
     runner = CliRunner()
     assert runner.invoke(cli, ["batch", str(session), "-o", str(tmp_path / "o"), "--delta", "0.2"]).exit_code == 2

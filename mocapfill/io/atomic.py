@@ -18,7 +18,7 @@ from typing import IO, Iterator
 
 from ..errors import InputError
 
-__all__ = ["atomic_write", "check_output_path", "is_std_stream"]
+__all__ = ["atomic_write", "check_output_path", "check_writable", "is_std_stream", "removed_on_failure"]
 
 
 def is_std_stream(path) -> bool:
@@ -65,20 +65,12 @@ def atomic_write(path, mode: str = "wb", *, encoding: str | None = "utf-8", newl
         stream.flush()
         return
 
-    target = Path(os.fspath(path))
-    kind = _existing_kind(target)
-    if kind is not None and stat.S_ISDIR(kind):
-        raise InputError(f"{path}: is a directory, cannot write a file there")
-    if kind is not None and not stat.S_ISREG(kind):
+    target = _target(path)
+    if target is None:
         # A FIFO, device or socket: a rename would put a file in its place, and atomicity means nothing there.
         yield from _write_directly(path, mode, kwargs)
         return
-    if target.is_symlink():
-        target = Path(os.path.realpath(target))  # replace the file the link names, not the link
-    directory = target.parent if str(target.parent) else Path(".")
-    if not directory.is_dir():
-        why = "is not a directory" if directory.exists() else "does not exist"
-        raise InputError(f"{path}: cannot write: {str(directory)!r} {why}")
+    directory = target.parent
     try:
         fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=directory)
     except OSError as exc:
@@ -106,6 +98,62 @@ def atomic_write(path, mode: str = "wb", *, encoding: str | None = "utf-8", newl
     except BaseException:
         with contextlib.suppress(OSError):
             tmp.unlink()
+        raise
+
+
+def check_writable(path, *, parents: bool = False) -> None:
+    """Raise the error :func:`atomic_write` would raise on ``path`` before it writes anything, so a command can check
+    every output before its work starts.  ``"-"`` and ``None`` pass.
+
+    ``parents``: a missing directory passes where the nearest existing one above it is a directory (the caller
+    creates it before writing).
+
+    Raises
+    ------
+    InputError
+        The target is a directory, or its directory does not exist or is not a directory; the message names
+        ``path``.
+    """
+    if path is not None and not is_std_stream(path):
+        _target(path, parents=parents)
+
+
+def _target(path, *, parents: bool = False) -> Path | None:
+    """Where :func:`atomic_write` renames its temporary file for ``path``: ``path`` itself, or the file a symlink
+    there names (the link stays); None for an existing FIFO, device or socket (written directly)."""
+    target = Path(os.fspath(path))
+    kind = _existing_kind(target)
+    if kind is not None and stat.S_ISDIR(kind):
+        raise InputError(f"{path}: is a directory, cannot write a file there")
+    if kind is not None and not stat.S_ISREG(kind):
+        return None
+    if target.is_symlink():
+        target = Path(os.path.realpath(target))  # replace the file the link names, not the link
+    directory = target.parent if str(target.parent) else Path(".")
+    if parents and not directory.exists():
+        directory = next(above for above in directory.parents if above.exists())  # "." and "/" exist
+    if not directory.is_dir():
+        why = "is not a directory" if directory.exists() else "does not exist"
+        raise InputError(f"{path}: cannot write: {str(directory)!r} {why}")
+    return target
+
+
+@contextlib.contextmanager
+def removed_on_failure() -> Iterator[list]:
+    """Collect the outputs a command writes (append each path once written); if the block then fails, remove them,
+    so a command that fails leaves none of its outputs behind.  Only regular files are removed (a symlink's target,
+    not the link): stdout, a FIFO or a device keeps what it was sent."""
+    written: list = []
+    try:
+        yield written
+    except BaseException:
+        for path in written:
+            if path is None or is_std_stream(path):
+                continue
+            real = os.path.realpath(os.fspath(path))
+            with contextlib.suppress(OSError):
+                if stat.S_ISREG(os.stat(real).st_mode):
+                    os.unlink(real)
         raise
 
 
