@@ -217,6 +217,57 @@ def test_output_folder_inside_the_input_folder_is_not_searched(session, tmp_path
     assert len(first) == len(again) == 5
 
 
+def test_a_per_file_report_or_status_that_cannot_be_written_fails_its_file_before_the_fill(tmp_path, test_data,
+                                                                                          monkeypatch):
+    import mocapfill.pipeline
+    from mocapfill.errors import InputError
+
+    src = tmp_path / "s"
+    src.mkdir()
+    shutil.copy(test_data / "T.trc", src / "T.trc")
+    out = tmp_path / "o"
+    (out / "T.trc.report.json").mkdir(parents=True)  # a folder where the report goes
+    (out / "T.trc.status.csv").mkdir()
+    filled = mocapfill.pipeline.fill_capture
+    monkeypatch.setattr(mocapfill.pipeline, "fill_capture", lambda *a, **k: pytest.fail("the fill ran"))
+    for options in ({"report": "json"}, {"status": True}):
+        [row] = mocapfill.batch(src, out, method="linear", **options)
+        assert row.status == "failed" and "is a directory, cannot write a file there" in row.error
+        assert not (out / "T.trc").exists() and row.report == "" and row.status_csv == ""
+
+    def refuse(outcome, path):  # a write that fails after the check: the output and report already written go
+        raise InputError(f"{path}: cannot write: No space left on device")
+
+    monkeypatch.setattr(mocapfill.pipeline, "fill_capture", filled)
+    monkeypatch.setattr(mocapfill.pipeline, "write_status_csv", refuse)
+    [row] = mocapfill.batch(src, tmp_path / "o2", method="linear", report="json", status=True)
+    assert row.status == "failed" and "No space left on device" in row.error
+    assert not (tmp_path / "o2" / "T.trc").exists() and not (tmp_path / "o2" / "T.trc.report.json").exists()
+
+
+def test_a_search_skips_earlier_batch_outputs_and_their_bookkeeping(tmp_path, test_data, monkeypatch):
+    from mocapfill.batching import find_inputs
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "s1").mkdir()
+    shutil.copy(test_data / "T.trc", tmp_path / "s1" / "T.trc")
+    runner = CliRunner()
+    first = runner.invoke(cli, ["batch", "s1", "-o", "s1/filled", "-m", "linear", "--status", "--report", "json"])
+    assert first.exit_code == 0, first.output
+    assert {"mocapfill-batch.csv", "T.trc", "T.trc.status.csv"} <= {p.name for p in (tmp_path / "s1/filled").iterdir()}
+    again = runner.invoke(cli, ["batch", "s1", "-o", "o2", "-m", "linear"])
+    assert again.exit_code == 0 and "1 filled, 0 skipped, 0 failed" in again.stderr, again.output
+    assert [os.path.relpath(r["input"]) for r in csv.DictReader(open("o2/" + RESULTS_NAME))] == ["s1/T.trc"]
+
+    found = lambda *items: [p.as_posix() for p, _ in find_inputs(items)]  # noqa: E731
+    assert found("s1/**/*.trc") == found("s1/*") == found("s1/**") == ["s1/T.trc"]
+    # Named explicitly, an earlier output folder is searched (its bookkeeping is not) and a file is kept.
+    assert found("s1/filled") == found("s1/filled/*") == ["s1/filled/T.trc"]
+    assert found("s1/filled/T.trc.status.csv") == ["s1/filled/T.trc.status.csv"]
+    (tmp_path / "s1" / "walk.status.csv").write_text("frame,marker,status\n")  # no output beside it: a capture
+    assert "s1/walk.status.csv" in found("s1")
+
+
 def test_fill_options_are_shared_with_fill(session, tmp_path):
     runner = CliRunner()
     assert runner.invoke(cli, ["batch", str(session), "-o", str(tmp_path / "o"), "--delta", "0.2"]).exit_code == 2

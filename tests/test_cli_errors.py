@@ -156,6 +156,60 @@ def test_atomic_write_keeps_permissions(tmp_path):
     assert (target.stat().st_mode & 0o777) == 0o640
 
 
+def test_atomic_write_follows_a_symlink(tmp_path):
+    real = tmp_path / "real"
+    real.mkdir()
+    (real / "target.csv").write_text("old content")
+    link = tmp_path / "link.csv"
+    link.symlink_to(real / "target.csv")
+    with atomic_write(link, "w") as fh:
+        fh.write("new")
+    assert link.is_symlink() and (real / "target.csv").read_text() == "new"
+    assert sorted(p.name for p in real.iterdir()) == ["target.csv"]  # the temporary file went where the target is
+    dangling = tmp_path / "dangling.csv"
+    dangling.symlink_to(real / "new.csv")
+    with atomic_write(dangling, "w") as fh:
+        fh.write("made")
+    assert dangling.is_symlink() and (real / "new.csv").read_text() == "made"
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+def test_atomic_write_streams_into_a_fifo(tmp_path):
+    import stat
+
+    fifo = tmp_path / "ff.csv"
+    os.mkfifo(fifo)
+    reader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)  # a reader first, so opening the write end does not block
+    try:
+        with atomic_write(fifo, "w") as fh:
+            fh.write("frame,A\n")
+        assert os.read(reader, 100) == b"frame,A\n"
+    finally:
+        os.close(reader)
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ff.csv"]
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full")
+def test_atomic_write_to_a_device_behind_a_symlink(tmp_path):
+    import stat
+
+    sink = tmp_path / "sink.csv"
+    sink.symlink_to(os.devnull)
+    with atomic_write(sink, "w") as fh:
+        fh.write("anything")
+    full = tmp_path / "full.csv"
+    full.symlink_to("/dev/full")
+    for text in ("anything", "x" * (1 << 20)):  # refused at the flush, or already at the write
+        with pytest.raises(InputError, match=r"full\.csv: cannot write: No space left on device"):
+            with atomic_write(full, "w") as fh:
+                fh.write(text)
+    for link, device in ((sink, os.devnull), (full, "/dev/full")):
+        assert link.is_symlink() and os.readlink(link) == device
+        assert stat.S_ISCHR(os.stat(device).st_mode)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["full.csv", "sink.csv"]
+
+
 def test_write_refuses_to_overwrite_the_input(sample_data, tmp_path):
     import shutil
 

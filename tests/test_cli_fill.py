@@ -4,6 +4,7 @@ smoothing, one-line warnings."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 
 import numpy as np
@@ -61,6 +62,71 @@ def test_output_equal_to_input_is_refused_unless_forced(runner, gappy, tmp_path)
     result = runner.invoke(cli, ["fill", str(copy), str(copy), "-m", "linear", "--force", "-q"])
     assert result.exit_code == 0, result.output
     assert not mocapfill.read(copy).missing.any()
+
+
+def test_output_through_a_symlink_keeps_the_link(runner, test_data, tmp_path):
+    real = tmp_path / "real"
+    real.mkdir()
+    (real / "target.csv").write_text("old content")
+    link = tmp_path / "link.csv"
+    link.symlink_to(real / "target.csv")
+    result = runner.invoke(cli, ["fill", str(test_data / "T.trc"), str(link), "-m", "linear"])
+    assert result.exit_code == 0, result.output
+    assert link.is_symlink() and not mocapfill.read(real / "target.csv").missing.any()
+    sink = tmp_path / "sink.csv"
+    sink.symlink_to(os.devnull)  # a device: written to, not replaced by a file
+    result = runner.invoke(cli, ["fill", str(test_data / "T.trc"), str(sink), "-m", "linear"])
+    assert result.exit_code == 0, result.output
+    assert sink.is_symlink() and os.readlink(sink) == os.devnull
+    source = tmp_path / "in.trc"
+    shutil.copy(test_data / "T.trc", source)
+    to_input = tmp_path / "to_input.trc"
+    to_input.symlink_to(source)
+    result = runner.invoke(cli, ["fill", str(source), str(to_input), "-m", "linear"])
+    assert result.exit_code == 1 and "same file as the input" in result.stderr
+    assert source.read_bytes() == (test_data / "T.trc").read_bytes()
+
+
+@pytest.mark.parametrize("option, name, kind", [("--report", "missing/r.json", "does not exist"),
+                                                  ("--status", "missing/s.csv", "does not exist"),
+                                                  ("--report", "somedir.json", "is a directory"),
+                                                  ("--status", "adir.c3d", "is a directory")])
+def test_a_bad_report_or_status_path_fails_before_the_fill(runner, test_data, tmp_path, monkeypatch, option,
+                                                           name, kind):
+    import mocapfill.pipeline
+
+    monkeypatch.setattr(mocapfill.pipeline, "fill_capture", lambda *a, **k: pytest.fail("the fill ran"))
+    for folder in ("somedir.json", "adir.c3d"):
+        (tmp_path / folder).mkdir()
+    out = tmp_path / "out.csv"
+    result = runner.invoke(cli, ["fill", str(test_data / "T.trc"), str(out), "-m", "linear", option,
+                                 str(tmp_path / name)])
+    assert result.exit_code == 1 and "Traceback" not in result.output
+    assert result.stderr.startswith(f"Error: {tmp_path / name}: ") and kind in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1 and not out.exists()
+    bad = tmp_path / "missing" / "out.csv"
+    result = runner.invoke(cli, ["fill", str(test_data / "T.trc"), str(bad), "-m", "linear"])
+    assert result.exit_code == 1 and "does not exist" in result.stderr
+
+
+def test_a_failed_status_write_leaves_no_output(runner, test_data, tmp_path, monkeypatch):
+    import mocapfill.pipeline
+    from mocapfill.errors import InputError
+
+    def refuse(outcome, path):
+        raise InputError(f"{path}: cannot write: No space left on device")
+
+    monkeypatch.setattr(mocapfill.pipeline, "write_status_csv", refuse)
+    out, report = tmp_path / "out.csv", tmp_path / "r.json"
+    result = runner.invoke(cli, ["fill", str(test_data / "T.trc"), str(out), "-m", "linear", "--report",
+                                 str(report), "--status", str(tmp_path / "s.csv")])
+    assert result.exit_code == 1 and "No space left on device" in result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+    source = tmp_path / "in.trc"  # under --force the output is the input: a failed status leaves it as it was
+    shutil.copy(test_data / "T.trc", source)
+    result = runner.invoke(cli, ["fill", str(source), str(source), "-m", "linear", "--force", "--status",
+                                 str(tmp_path / "s.csv")])
+    assert result.exit_code == 1 and source.read_bytes() == (test_data / "T.trc").read_bytes()
 
 
 def test_unknown_method_is_a_usage_error(runner, gappy, tmp_path):

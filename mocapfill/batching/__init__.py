@@ -27,7 +27,7 @@ from typing import Any, Callable, Iterable
 
 from ..errors import InputError, MocapfillError
 from ..pipeline import FillSettings
-from .inputs import find_inputs, output_paths
+from .inputs import INDEX_NAME, RESULTS_NAME, STATUS_SUFFIX, find_inputs, output_paths
 from .order import longest_first
 from .resume import STATE_NAME, compact_state, file_digest, load_state, row_from_state, settings_digest
 from .task import COLUMNS, BatchRow, FileTask, run_task
@@ -35,9 +35,6 @@ from .task import COLUMNS, BatchRow, FileTask, run_task
 __all__ = ["batch", "BatchRow", "COLUMNS", "RESULTS_NAME", "STATE_NAME", "INDEX_NAME", "find_inputs", "run_task",
            "FileTask"]
 
-#: The results table and the index page inside ``out_dir`` (the resume record is :data:`STATE_NAME`).
-RESULTS_NAME = "mocapfill-batch.csv"
-INDEX_NAME = "index.html"
 REPORT_KINDS = ("html", "json")
 
 
@@ -129,7 +126,7 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
         owners[key] = path
         tasks.append(FileTask(str(path), str(output), None if report_path is None else str(report_path), settings,
                               input_format, rate, override_rate, format,
-                              str(output.with_name(f"{output.name}.status.csv")) if status else None))
+                              str(output.with_name(output.name + STATUS_SUFFIX)) if status else None))
 
     try:
         out.mkdir(parents=True, exist_ok=True)

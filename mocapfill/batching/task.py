@@ -123,6 +123,7 @@ def run_task(task: FileTask) -> BatchRow:
 def _fill_file(task: FileTask, row: BatchRow) -> None:
     """The body of :func:`run_task`: fills in ``row`` (status, counts, error, warnings, seconds)."""
     from ..io import read, write
+    from ..io.atomic import check_writable, removed_on_failure
     from ..pipeline import fill_capture, write_fill_report
 
     started = time.perf_counter()
@@ -131,6 +132,8 @@ def _fill_file(task: FileTask, row: BatchRow) -> None:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:
+                for path in (task.output, task.report, task.status):  # a bad path found now, not after the fill
+                    check_writable(path, parents=True)
                 row.input_sha256 = file_digest(task.input)
                 data = read(task.input, format=task.input_format, rate=task.rate, override_rate=task.override_rate)
                 notes += [f"note: {note}" for note in data.notes]
@@ -145,17 +148,19 @@ def _fill_file(task: FileTask, row: BatchRow) -> None:
                 if outcome.held is not None and outcome.held.any():
                     notes.append(f"note: {int(outcome.held.sum())} held sample(s) made gaps and filled")
                 Path(task.output).parent.mkdir(parents=True, exist_ok=True)
-                write(outcome.output, task.output, format=task.output_format)
-                if task.report is not None:
-                    write_fill_report(outcome, task.report, method=task.settings.method, input_path=task.input,
-                                      output_path=task.output,
-                                      smoothed=task.settings.smooth or task.settings.lowpass is not None)
-                    row.report = task.report
-                if task.status is not None:
-                    from ..pipeline import write_status_csv
+                with removed_on_failure() as written:  # a failed report or status takes the output with it
+                    write(outcome.output, task.output, format=task.output_format)
+                    written.append(task.output)
+                    if task.report is not None:
+                        write_fill_report(outcome, task.report, method=task.settings.method, input_path=task.input,
+                                          output_path=task.output,
+                                          smoothed=task.settings.smooth or task.settings.lowpass is not None)
+                        written.append(task.report)
+                    if task.status is not None:
+                        from ..pipeline import write_status_csv
 
-                    write_status_csv(outcome, task.status)
-                    row.status_csv = task.status
+                        write_status_csv(outcome, task.status)
+                row.report, row.status_csv = task.report or "", task.status or ""
                 row.left_samples = 0 if outcome.left is None else int((outcome.left != 0).sum())
                 row.status = "filled"
             finally:

@@ -66,7 +66,7 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
     only, so `mocapfill fill - - --format csv < in.csv > out.csv` works in a pipe.
     """
     from ..io import write
-    from ..io.atomic import check_output_path
+    from ..io.atomic import check_output_path, check_writable, removed_on_failure
     from ..pipeline import fill_capture, write_fill_report, write_status_csv
 
     settings = fill_settings
@@ -81,6 +81,8 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
         check_output_path(status_path, input_path, output_path, report_path)
         if status_path == "-" and output_path == "-":
             raise click.BadParameter("stdout carries the output; write the status to a file", param_hint="--status")
+    for path in (output_path, report_path, status_path):  # a bad path found now, not after the fill
+        check_writable(path)
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -98,13 +100,18 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
         if force:
             # The writer refuses the path the data came from; --force says the user wants exactly that.
             out_data = dataclasses.replace(out_data, path=None)
-        write(out_data, output_path, format=output_format)
-
-        if report_path is not None:
-            write_fill_report(outcome, report_path, method=method, input_path=input_path, output_path=output_path,
-                              smoothed=settings.smooth or settings.lowpass is not None, jobs=jobs)
-        if status_path is not None:
-            write_status_csv(outcome, status_path)
+        # The output last: a report or status that fails leaves it (under --force, the input) untouched, and one
+        # that fails to write takes the report and status already written with it.
+        with removed_on_failure() as written:
+            if report_path is not None:
+                write_fill_report(outcome, report_path, method=method, input_path=input_path,
+                                  output_path=output_path, smoothed=settings.smooth or settings.lowpass is not None,
+                                  jobs=jobs)
+                written.append(report_path)
+            if status_path is not None:
+                write_status_csv(outcome, status_path)
+                written.append(status_path)
+            write(out_data, output_path, format=output_format)
 
     show_warnings(caught, quiet)
     _references(outcome.references, data.units, quiet)
