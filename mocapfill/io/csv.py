@@ -36,6 +36,7 @@ import numpy as np
 from ..errors import DataWarning, FormatError
 from ..markers import MarkerData
 from .labels import make_unique, match_label_row, normalise_units, point_kinds, rename_notes, unit_name
+from .timing import rate_from_times
 
 __all__ = ["read_csv", "csv_text", "csv_rows", "frame_number", "parse_numbers"]
 
@@ -113,16 +114,6 @@ def check_width(rows: list[list[str]], width: int, name: str, first_line: int, p
                               "(ragged CSV)")
         out.append(row)
     return out
-
-
-def rate_from_times(times: np.ndarray, name: str) -> float:
-    steps = np.diff(times[np.isfinite(times)])
-    if steps.size == 0 or not np.all(steps > 0):
-        raise FormatError(f"{name}: the time column does not increase; cannot tell the frame rate")
-    step = float(np.median(steps))
-    if np.max(np.abs(steps - step)) > 0.01 * step + 1e-9:
-        raise FormatError(f"{name}: the time column is not evenly spaced; cannot tell the frame rate")
-    return 1.0 / step
 
 
 def _finish(values: np.ndarray, name: str) -> np.ndarray:
@@ -230,14 +221,15 @@ def _read_wide(rows: list[list[str]], name: str) -> MarkerData:
         warnings.warn(f"{name}: {len(renamed)} duplicate marker label(s) renamed (e.g. {renamed[0][1]!r})",
                       DataWarning, stacklevel=3)
 
-    rate = None
+    rate, rate_range = None, None
     if "rate" in meta:
         try:
             rate = float(meta["rate"])
         except ValueError:
             raise FormatError(f"{name}: rate {meta['rate']!r} in the comment line is not a number") from None
     elif time_col is not None and len(values) >= 2:
-        rate = rate_from_times(values[:, time_col], name)
+        timed = rate_from_times(values[:, time_col], name, [r[time_col] for r in data_rows])
+        rate, rate_range = timed.rate, (timed.low, timed.high)
     if rate is None:
         # No rate in the file: the caller's (``--rate``); NaN tells io.read that the file had none.
         rate = float("nan")
@@ -255,7 +247,8 @@ def _read_wide(rows: list[list[str]], name: str) -> MarkerData:
         units, note = normalise_units(meta.get("units", ""), positions)
         if note:
             notes.append(note)
-    return MarkerData(positions, labels, rate, units, first_frame, "csv", None, name, notes, point_kinds(labels))
+    return MarkerData(positions, labels, rate, units, first_frame, "csv", None, name, notes, point_kinds(labels),
+                      rate_range)
 
 
 def _read_vicon(rows: list[list[str]], name: str) -> MarkerData:
