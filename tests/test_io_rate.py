@@ -82,3 +82,12 @@ def test_a_rate_within_the_time_columns_precision_agrees(tmp_path):
         mocapfill.read(path, rate=119.9)
     result = CliRunner().invoke(cli, ["info", "--json", str(path), "--rate", "120"])
     assert result.exit_code == 0 and '"rate": 120.0' in result.stdout
+
+
+@pytest.mark.parametrize("suffix", [".c3d", ".trc", ".csv", ".tsv"])
+def test_overridden_rate_reaches_every_output_format(sample_data, tmp_path, suffix):
+    out = tmp_path / f"ov{suffix}"
+    result = CliRunner().invoke(cli, ["fill", str(sample_data / "kinematics_tennis_serve_nan.c3d"), str(out),
+                                      "--rate", "100", "--override-rate", "-m", "linear"])
+    assert result.exit_code == 0, result.output
+    assert mocapfill.read(out).rate == 100.0
