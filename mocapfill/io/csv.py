@@ -17,7 +17,8 @@ Plain wide layout (what :func:`csv_text` writes)::
   exact.
 
 Header-only wide CSVs from other tools (``time,male:LKNE-x,male:LKNE-y,...``) are the same layout without our
-comment line; there a ``subject:`` prefix is stripped when the stripped labels stay unique.
+comment line; there a ``subject:`` prefix is stripped when the stripped labels stay unique (not from an unlabelled
+trajectory's name such as Motive's ``Unlabeled:108``).
 
 Vicon Nexus "Trajectories" export: a ``Trajectories`` line, the rate, a row of ``subject:label`` names (one per
 x/y/z triplet), ``Frame,Sub Frame,X,Y,Z,...``, a units row, then the data.  Labels are kept as Vicon writes them
@@ -35,7 +36,8 @@ import numpy as np
 
 from ..errors import DataWarning, FormatError
 from ..markers import MarkerData
-from .labels import make_unique, match_label_row, normalise_units, point_kinds, rename_notes, unit_name
+from .labels import (UNLABELLED_NAME, make_unique, match_label_row, normalise_units, point_kinds, rename_notes,
+                     unit_name)
 from .timing import rate_from_times
 
 __all__ = ["read_csv", "csv_text", "csv_rows", "frame_number", "parse_numbers"]
@@ -210,9 +212,11 @@ def _read_wide(rows: list[list[str]], name: str) -> MarkerData:
 
     labels = [label for label, _ in markers]
     if not ours:
-        stripped = [lab.split(":", 1)[1] if ":" in lab else lab for lab in labels]
+        # Motive's "Unlabeled:108" has no subject prefix: its colon is part of the name.
+        prefixed = [":" in lab and not UNLABELLED_NAME.match(lab) for lab in labels]
+        stripped = [lab.split(":", 1)[1] if cut else lab for lab, cut in zip(labels, prefixed)]
         if stripped != labels and len(set(stripped)) == len(stripped) and all(stripped):
-            prefixes = sorted({lab.split(":", 1)[0] for lab in labels if ":" in lab})
+            prefixes = sorted({lab.split(":", 1)[0] for lab, cut in zip(labels, prefixed) if cut})
             notes.append(f"subject prefix {', '.join(repr(p + ':') for p in prefixes)} removed from the labels")
             labels = stripped
     labels, renamed = make_unique(labels)
