@@ -45,6 +45,10 @@ class MarkerData:
         Things the reader repaired or ignored (renamed duplicate labels, truncated rows), for reports.
     kinds : list of str, length n_markers
         Each point's kind (:data:`POINT_KINDS`), as the file says; ``"marker"`` where nothing says otherwise.
+    rate_range : (float, float) or None
+        Where the rate was inferred from a time column: the lowest and highest rates (Hz) the times agree with to
+        the precision they were written with (a caller's rate among them is no contradiction); None where the file
+        states its rate.
     """
 
     positions: np.ndarray
@@ -57,6 +61,7 @@ class MarkerData:
     path: str | None = None
     notes: list[str] = field(default_factory=list)
     kinds: list[str] | None = None
+    rate_range: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         pos = np.asarray(self.positions, dtype=np.float64)

@@ -223,6 +223,38 @@ def test_filled_rewrite_keeps_everything_else(request, tmp_path, folder, name, v
     np.testing.assert_array_equal(residual[kept], old_points[:, mp, 3][kept])
 
 
+@pytest.mark.parametrize("folder,name,vendor", ROUND_TRIP)
+def test_overridden_rate_is_written_to_header_and_parameters(request, tmp_path, folder, name, vendor):
+    path = _path(request, folder, name)
+    original = path.read_bytes()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DataWarning)
+        old = mocapfill.read(path)
+        data = mocapfill.read(path, rate=old.rate / 2, override_rate=True)
+    out = tmp_path / "slow.c3d"
+    mocapfill.write(data.with_positions(_fake_fill(data)), out)
+    back = _read(out)
+    f, g = old.extra.file, back.extra.file
+    assert back.rate == g.number("POINT", "RATE", back.rate) == pytest.approx(old.rate / 2, rel=1e-7)
+    assert decode_floats(out.read_bytes()[20:24], g.processor)[0] == np.float32(old.rate / 2)
+    # The data section keeps its analog samples per point frame, so ANALOG:RATE (in Hz) keeps its ratio.
+    if f.number("ANALOG", "RATE", 0):
+        assert g.number("ANALOG", "RATE") == pytest.approx(f.number("ANALOG", "RATE") / 2, rel=1e-7)
+    # Nothing else in the header and parameters moved.
+    rates = [20] + [prm.offset for key in [("POINT", "RATE"), ("ANALOG", "RATE")] if (prm := f.param(*key))]
+    written = bytearray(out.read_bytes()[: f.data_offset])
+    for at in rates:
+        written[at:at + 4] = original[at:at + 4]
+    assert bytes(written) == original[: f.data_offset]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            reader = c3d.Reader(io.BytesIO(out.read_bytes()))
+        except AssertionError:
+            return  # the c3d package rejects this vendor's file
+    assert reader.point_rate == pytest.approx(old.rate / 2, rel=1e-7)
+
+
 def test_fills_outside_the_integer_storage_range_stay_missing_with_a_warning(test_data, tmp_path):
     data = _read(test_data / "newwalk.c3d")
     pos = data.positions.copy()

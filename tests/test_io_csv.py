@@ -148,6 +148,34 @@ def test_uneven_time_column(tmp_path):
         mocapfill.read(path)
 
 
+def _timed_csv(tmp_path, rate, fmt, n=240):
+    rows = "".join(f"{i + 1},{fmt.format(i / rate)},{i},2,3\n" for i in range(n))
+    return _write(tmp_path, "frame,time,A_x,A_y,A_z\n" + rows)
+
+
+@pytest.mark.parametrize("fmt", ["{:.3f}", "{:.4f}", "{:.6f}", "{!r}", "{:g}"])
+def test_rate_from_a_rounded_time_column_is_the_round_rate(tmp_path, fmt):
+    # 120 Hz to six decimals has steps 0.008333 / 0.008334 (1 / median = 120.005 Hz); to three, 0.008 / 0.009.
+    assert mocapfill.read(_timed_csv(tmp_path, 120, fmt)).rate == 120.0
+
+
+@pytest.mark.parametrize("rate, fmt, expected", [(100.5, "{:.6f}", 100.5), (120000 / 1001, "{:.3f}", 120000 / 1001),
+                                                 (37.3, "{:.4f}", 37.3)])
+def test_rate_from_a_rounded_time_column_that_is_not_an_integer(tmp_path, rate, fmt, expected):
+    assert mocapfill.read(_timed_csv(tmp_path, rate, fmt)).rate == expected
+
+
+def test_rate_from_times_is_fitted_to_all_of_them(tmp_path):
+    # Precise times that jitter by 0.1 % of a step still read (as before), at the slope of all of them.
+    times = np.arange(500) / 250 + np.random.default_rng(1).normal(scale=0.001 / 250, size=500)
+    path = _write(tmp_path, "time,A_x,A_y,A_z\n" + "".join(f"{t!r},1,2,3\n" for t in times.tolist()))
+    assert mocapfill.read(path).rate == pytest.approx(1 / np.polyfit(np.arange(500), times, 1)[0], rel=1e-12)
+    # A time column whose steps differ by more than its precision explains is still refused.
+    path = _write(tmp_path, "time,A_x,A_y,A_z\n0.000,1,2,3\n0.008,1,2,3\n0.018,1,2,3\n0.025,1,2,3\n")
+    with pytest.raises(FormatError, match="not evenly spaced"):
+        mocapfill.read(path)
+
+
 def test_empty_file(tmp_path):
     with pytest.raises(FormatError, match="empty CSV"):
         mocapfill.read(_write(tmp_path, "\n\n"))

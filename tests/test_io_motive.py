@@ -63,6 +63,15 @@ def test_newer_header_layout(take):
     np.testing.assert_array_equal(data.positions, old.positions)
 
 
+def test_rate_from_the_time_column_without_a_rate_in_the_header(take):
+    # Motive writes times to six decimals (0.008333, 0.016667, ...): the rate they give is 120, not 120.005.
+    text = take.read_text().replace("Capture Frame Rate,120.000000", "Capture Frame Rate,").replace(
+        "Export Frame Rate,120.000000", "Export Frame Rate,")
+    data = read(io.BytesIO(text.encode()), format="motive-csv")
+    assert data.rate == 120.0
+    assert read(io.BytesIO(text.encode()), format="motive-csv", rate=120).rate == 120.0
+
+
 def test_detection_by_content_and_stdin(take, tmp_path):
     odd = tmp_path / "export.txt"
     odd.write_bytes(take.read_bytes())

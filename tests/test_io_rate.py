@@ -68,3 +68,26 @@ def test_stdin_csv_with_rate(bare_csv):
                                 input=bare_csv.read_bytes())
     assert result.exit_code == 0, result.output
     assert '"rate": 50.0' in result.stdout
+
+
+def test_a_rate_within_the_time_columns_precision_agrees(tmp_path):
+    """A time column to three decimals at 120 Hz agrees with any rate within about 0.02 Hz of 120."""
+    path = tmp_path / "t3.csv"
+    path.write_text("frame,time,A_x,A_y,A_z\n" + "".join(f"{i + 1},{i / 120:.3f},{i},2,3\n" for i in range(240)))
+    assert mocapfill.read(path).rate == 120.0
+    assert mocapfill.read(path, rate=120).rate == 120.0
+    data = mocapfill.read(path, rate=119.99)
+    assert data.rate == 119.99 and not any("replaced" in note for note in data.notes)
+    with pytest.raises(FormatError, match=r"--rate 119.9 contradicts the file's rate of 120 Hz"):
+        mocapfill.read(path, rate=119.9)
+    result = CliRunner().invoke(cli, ["info", "--json", str(path), "--rate", "120"])
+    assert result.exit_code == 0 and '"rate": 120.0' in result.stdout
+
+
+@pytest.mark.parametrize("suffix", [".c3d", ".trc", ".csv", ".tsv"])
+def test_overridden_rate_reaches_every_output_format(sample_data, tmp_path, suffix):
+    out = tmp_path / f"ov{suffix}"
+    result = CliRunner().invoke(cli, ["fill", str(sample_data / "kinematics_tennis_serve_nan.c3d"), str(out),
+                                      "--rate", "100", "--override-rate", "-m", "linear"])
+    assert result.exit_code == 0, result.output
+    assert mocapfill.read(out).rate == 100.0

@@ -8,8 +8,10 @@ import warnings
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 import mocapfill
+from mocapfill.cli import cli
 from mocapfill.errors import DataWarning
 from mocapfill.io import c3dfile
 from mocapfill.io.labels import match_label_row, point_kinds
@@ -90,6 +92,42 @@ def test_point_kinds_by_name():
               "CentreOfMassFloor", "*12", "Unlabeled 1003", "sub:*3", "LTHI"]
     assert point_kinds(labels) == ["marker", "model", "model", "model", "model", "marker", "model", "model",
                                    "model", "model", "unlabelled", "unlabelled", "unlabelled", "marker"]
+
+
+def test_unlabelled_names_with_a_colon_or_an_asterisk():
+    # Motive's "Unlabeled:108" is no subject prefix (cut at the colon, "108" looked like a marker); Cortex writes
+    # "*Unnamed_60".  A real subject prefix still leaves a marker (or an unlabelled name) behind it.
+    labels = ["Unlabeled:108", "*Unnamed_60", "Subject:LASI", "Rigid Body 1:Marker1", "Subject:Unlabeled:3",
+              "subject:*Unnamed_2", "*LASI", "Unnamed:LASI"]
+    assert point_kinds(labels) == ["unlabelled", "unlabelled", "marker", "marker", "unlabelled", "unlabelled",
+                                   "marker", "marker"]
+
+
+def test_motive_take_keeps_its_colon_named_unlabelled_trajectories_aside(test_data):
+    data = mocapfill.read(test_data / "motive_sample_take.csv")
+    kinds = dict(zip(data.labels, data.kinds))
+    assert kinds["Unlabeled:108"] == kinds["Unlabeled:105"] == "unlabelled"
+    assert kinds["Rigid Body 1:Marker1"] == kinds["Rigid Body 1_1"] == "marker"
+    assert data.kinds.count("unlabelled") == 6 and data.kinds.count("marker") == 6
+    result = CliRunner().invoke(cli, ["info", str(test_data / "motive_sample_take.csv")])
+    assert result.exit_code == 0, result.output
+    assert "kept aside          6 unlabelled trajectories" in result.stderr
+
+
+def test_header_only_csv_keeps_an_unlabelled_name_whole(tmp_path):
+    path = tmp_path / "u.csv"
+    path.write_text("time,male:LKNE_x,male:LKNE_y,male:LKNE_z,Unlabeled:108_x,Unlabeled:108_y,Unlabeled:108_z\n"
+                    "0.0,1,2,3,4,5,6\n0.01,1,2,3,4,5,6\n")
+    data = mocapfill.read(path)
+    assert data.labels == ["LKNE", "Unlabeled:108"] and data.kinds == ["marker", "unlabelled"]
+    assert "subject prefix 'male:' removed from the labels" in data.notes
+
+
+def test_cortex_unnamed_trajectories_kept_aside(shared_data):
+    data = mocapfill.read(shared_data / "btk" / "TRCSamples" / "Knee.trc")
+    unnamed = [lab for lab in data.labels if lab.startswith("*Unnamed_")]
+    assert unnamed and [data.kinds[data.labels.index(lab)] for lab in unnamed] == ["unlabelled"] * len(unnamed)
+    assert data.kinds.count("marker") == data.n_markers - len(unnamed)
 
 
 # --- C3D -----------------------------------------------------------------------------------------------------------

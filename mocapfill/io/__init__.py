@@ -123,7 +123,8 @@ def read(path_or_stream: PathOrStream, format: str | None = None, *, rate: float
         Overrides the content and the extension; a stream whose content has no signature is read as CSV.
     rate : float or None
         Frame rate in Hz for a file that carries none (a bare CSV, the BoLeRO authors' CSV).  For a file that has
-        its own rate it must agree with it (to 1e-6 relative) unless ``override_rate`` says to replace the file's.
+        its own rate it must agree with it (to 1e-6 relative, or within the precision of the time column it came
+        from: :attr:`MarkerData.rate_range`) unless ``override_rate`` says to replace the file's.
     override_rate : bool
         Use ``rate`` even where the file says otherwise (the user knows the file is wrong).
 
@@ -187,11 +188,14 @@ def _apply_rate(data: MarkerData, rate: float | None, override: bool, name: str)
         if not has_own:
             raise FormatError(f"{name}: the file has no frame rate; give it with --rate HZ (rate= in Python)")
         return
-    if has_own and abs(data.rate - rate) > 1e-6 * data.rate and not override:
+    # A rate inferred from a time column is known only to the times' written precision: any rate within it agrees.
+    within = data.rate_range is not None and data.rate_range[0] <= rate <= data.rate_range[1]
+    if has_own and abs(data.rate - rate) > 1e-6 * data.rate and not within and not override:
         raise FormatError(f"{name}: --rate {rate:g} contradicts the file's rate of {data.rate:g} Hz "
                           f"(add --override-rate to use {rate:g} Hz anyway)")
-    if has_own and data.rate != rate and override:
+    if has_own and data.rate != rate and not within and override:
         data.notes.append(f"frame rate {data.rate:g} Hz in the file replaced by {rate:g} Hz (--override-rate)")
+        data.rate_range = None
     data.rate = rate
 
 

@@ -9,7 +9,8 @@ Writing a C3D that was read by this module copies the original bytes (header, ev
 events, model outputs, the storage format and scale, the processor type) and re-encodes only the marker samples whose
 position changed: changed observed samples keep their residual word, newly filled samples (and samples rejected as
 outliers and filled again, :func:`mark_refilled`) get residual 0 and camera mask 0, samples that became missing get
-(0, 0, 0) and residual -1.  Data without a C3D origin (CSV, TRC) is written
+(0, 0, 0) and residual -1.  A rate that replaced the file's (``--override-rate``) is written into the header,
+POINT:RATE and (in the same ratio) ANALOG:RATE.  Data without a C3D origin (CSV, TRC) is written
 as a fresh float C3D (Intel) with POINT, ANALOG (no channels), TRIAL and MANUFACTURER groups.
 """
 
@@ -208,9 +209,49 @@ def _word_bytes(values: np.ndarray, f: C3DFile) -> np.ndarray:
     return np.frombuffer(raw, dtype=np.uint8).reshape(m, k * f.word_size)
 
 
+def _set_number(buf: bytearray, f: C3DFile, group: str, param: str, value: float) -> bool:
+    """Write ``value`` over the first value of a numeric parameter of ``f`` in ``buf`` (nothing when absent); False
+    when it is stored as an integer that cannot hold ``value``."""
+    prm = f.param(group, param)
+    if prm is None or prm.offset < 0 or prm.type not in (2, 4) or len(prm.raw) < abs(prm.type):
+        return True
+    if prm.type == 4:
+        payload = c3dfile.encode_floats(np.array([value]), f.processor)
+    elif float(value).is_integer() and -32768 <= value <= 32767:
+        payload = np.array([int(value)], dtype=c3dfile.int16_dtype(f.processor)).tobytes()
+    else:
+        return False
+    buf[prm.offset:prm.offset + len(payload)] = payload
+    return True
+
+
+def _set_rate(buf: bytearray, f: C3DFile, rate: float, name: str) -> None:
+    """Write the point rate ``rate`` (a caller's override) into the header and POINT:RATE of ``buf``.
+
+    The data section interleaves a fixed number of analog samples with each point frame (the header's samples per
+    frame), so ANALOG:RATE, which is in Hz, is scaled with the point rate to keep that ratio.
+    """
+    if not abs(rate) <= 3.4e38:
+        raise FormatError(f"{name}: frame rate {rate:g} Hz cannot be stored in a C3D (a 32-bit float)")
+    at = c3dfile.HEADER_RATE_AT
+    buf[at:at + 4] = c3dfile.encode_floats(np.array([rate]), f.processor)
+    if not _set_number(buf, f, "POINT", "RATE", rate):
+        warnings.warn(f"{name}: POINT:RATE is stored as an integer and cannot hold {rate:g} Hz; only the header "
+                      "says it", DataWarning, stacklevel=4)
+    analog = f.number("ANALOG", "RATE", None)
+    if analog and np.isfinite(analog) and analog > 0 and not _set_number(buf, f, "ANALOG", "RATE",
+                                                                          analog * rate / f.rate):
+        warnings.warn(f"{name}: ANALOG:RATE is stored as an integer and cannot hold {analog * rate / f.rate:g} Hz; "
+                      "left as it was", DataWarning, stacklevel=4)
+
+
 def _rewrite(data: MarkerData, extra: C3DExtra, name: str) -> bytes:
     f = extra.file
     buf = bytearray(f.raw)
+    with np.errstate(over="ignore"):
+        replaced = np.float32(data.rate) != np.float32(f.rate)  # the caller's rate for the file's (--override-rate)
+    if replaced:
+        _set_rate(buf, f, data.rate, name)
     if f.n_frames == 0 or len(extra.marker_points) == 0:
         return bytes(buf)
     block = f.point_block()[:, extra.marker_points, :]

@@ -22,6 +22,8 @@ import numpy as np
 from ..errors import FormatError
 
 BLOCK = 512
+#: Byte offset of the frame rate (a float in the processor's format) in the header.
+HEADER_RATE_AT = 20
 INTEL, DEC, MIPS = 84, 85, 86
 PROCESSOR_NAMES = {INTEL: "Intel", DEC: "DEC", MIPS: "MIPS"}
 
@@ -68,7 +70,8 @@ def encode_floats(values: np.ndarray, processor: int) -> bytes:
 
 @dataclass
 class Parameter:
-    """One C3D parameter: ``dims`` in file order (first varies fastest), ``raw`` its data bytes."""
+    """One C3D parameter: ``dims`` in file order (first varies fastest), ``raw`` its data bytes, ``offset`` where
+    they start in the file (for a rewrite that changes a value in place; -1 when not read from a file)."""
 
     group: str
     name: str
@@ -76,6 +79,7 @@ class Parameter:
     dims: tuple[int, ...]
     raw: bytes
     description: str = ""
+    offset: int = -1
 
     def values(self, processor: int) -> np.ndarray:
         """Numeric values as a flat array (int16 / float32 / int8); empty for char data."""
@@ -234,12 +238,12 @@ def _parse_parameters(raw: bytes, start: int, end: int, processor: int, notes: l
                 size = abs(ptype) * int(np.prod(dims)) if ndim else abs(ptype)
                 if ptype not in (-1, 1, 2, 4) or p + size > end:
                     raise IndexError
-                data = raw[p:p + size]
+                data, data_at = raw[p:p + size], p
                 p += size
                 dlen = raw[p] if p < end else 0
                 desc = raw[p + 1:p + 1 + dlen].decode("latin-1").strip()
                 computed = p + 1 + dlen
-                pending.append((gid, Parameter("", item, ptype, dims, data, desc)))
+                pending.append((gid, Parameter("", item, ptype, dims, data, desc, data_at)))
         except (IndexError, struct.error):
             notes.append(f"parameter {item!r} is malformed; it and the rest of the parameter section were ignored")
             break
@@ -291,7 +295,7 @@ def parse(raw: bytes, name: str) -> C3DFile:
     header_scale = float(decode_floats(raw[12:16], processor)[0])
     header_data_block = hdr[8]
     header_analog_per_frame = hdr[9]
-    header_rate = float(decode_floats(raw[20:24], processor)[0])
+    header_rate = float(decode_floats(raw[HEADER_RATE_AT:HEADER_RATE_AT + 4], processor)[0])
 
     # The parameter section may claim fewer blocks than it uses; read up to the data section (or the file's end).
     n_pblocks = raw[pstart + 2]

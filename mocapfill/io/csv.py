@@ -17,7 +17,8 @@ Plain wide layout (what :func:`csv_text` writes)::
   exact.
 
 Header-only wide CSVs from other tools (``time,male:LKNE-x,male:LKNE-y,...``) are the same layout without our
-comment line; there a ``subject:`` prefix is stripped when the stripped labels stay unique.
+comment line; there a ``subject:`` prefix is stripped when the stripped labels stay unique (not from an unlabelled
+trajectory's name such as Motive's ``Unlabeled:108``).
 
 Vicon Nexus "Trajectories" export: a ``Trajectories`` line, the rate, a row of ``subject:label`` names (one per
 x/y/z triplet), ``Frame,Sub Frame,X,Y,Z,...``, a units row, then the data.  Labels are kept as Vicon writes them
@@ -35,7 +36,9 @@ import numpy as np
 
 from ..errors import DataWarning, FormatError
 from ..markers import MarkerData
-from .labels import make_unique, match_label_row, normalise_units, point_kinds, rename_notes, unit_name
+from .labels import (UNLABELLED_NAME, make_unique, match_label_row, normalise_units, point_kinds, rename_notes,
+                     unit_name)
+from .timing import rate_from_times
 
 __all__ = ["read_csv", "csv_text", "csv_rows", "frame_number", "parse_numbers"]
 
@@ -113,16 +116,6 @@ def check_width(rows: list[list[str]], width: int, name: str, first_line: int, p
                               "(ragged CSV)")
         out.append(row)
     return out
-
-
-def rate_from_times(times: np.ndarray, name: str) -> float:
-    steps = np.diff(times[np.isfinite(times)])
-    if steps.size == 0 or not np.all(steps > 0):
-        raise FormatError(f"{name}: the time column does not increase; cannot tell the frame rate")
-    step = float(np.median(steps))
-    if np.max(np.abs(steps - step)) > 0.01 * step + 1e-9:
-        raise FormatError(f"{name}: the time column is not evenly spaced; cannot tell the frame rate")
-    return 1.0 / step
 
 
 def _finish(values: np.ndarray, name: str) -> np.ndarray:
@@ -219,9 +212,11 @@ def _read_wide(rows: list[list[str]], name: str) -> MarkerData:
 
     labels = [label for label, _ in markers]
     if not ours:
-        stripped = [lab.split(":", 1)[1] if ":" in lab else lab for lab in labels]
+        # Motive's "Unlabeled:108" has no subject prefix: its colon is part of the name.
+        prefixed = [":" in lab and not UNLABELLED_NAME.match(lab) for lab in labels]
+        stripped = [lab.split(":", 1)[1] if cut else lab for lab, cut in zip(labels, prefixed)]
         if stripped != labels and len(set(stripped)) == len(stripped) and all(stripped):
-            prefixes = sorted({lab.split(":", 1)[0] for lab in labels if ":" in lab})
+            prefixes = sorted({lab.split(":", 1)[0] for lab, cut in zip(labels, prefixed) if cut})
             notes.append(f"subject prefix {', '.join(repr(p + ':') for p in prefixes)} removed from the labels")
             labels = stripped
     labels, renamed = make_unique(labels)
@@ -230,14 +225,15 @@ def _read_wide(rows: list[list[str]], name: str) -> MarkerData:
         warnings.warn(f"{name}: {len(renamed)} duplicate marker label(s) renamed (e.g. {renamed[0][1]!r})",
                       DataWarning, stacklevel=3)
 
-    rate = None
+    rate, rate_range = None, None
     if "rate" in meta:
         try:
             rate = float(meta["rate"])
         except ValueError:
             raise FormatError(f"{name}: rate {meta['rate']!r} in the comment line is not a number") from None
     elif time_col is not None and len(values) >= 2:
-        rate = rate_from_times(values[:, time_col], name)
+        timed = rate_from_times(values[:, time_col], name, [r[time_col] for r in data_rows])
+        rate, rate_range = timed.rate, (timed.low, timed.high)
     if rate is None:
         # No rate in the file: the caller's (``--rate``); NaN tells io.read that the file had none.
         rate = float("nan")
@@ -255,7 +251,8 @@ def _read_wide(rows: list[list[str]], name: str) -> MarkerData:
         units, note = normalise_units(meta.get("units", ""), positions)
         if note:
             notes.append(note)
-    return MarkerData(positions, labels, rate, units, first_frame, "csv", None, name, notes, point_kinds(labels))
+    return MarkerData(positions, labels, rate, units, first_frame, "csv", None, name, notes, point_kinds(labels),
+                      rate_range)
 
 
 def _read_vicon(rows: list[list[str]], name: str) -> MarkerData:

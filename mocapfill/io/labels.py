@@ -70,10 +70,11 @@ def normalise_units(text: str, positions: np.ndarray | None = None) -> tuple[str
     return guess, f"units {shown}; assumed {guess!r} from the size of the coordinates"
 
 
-#: Names capture software gives trajectories nobody labelled: Vicon ``*12``, Motive ``Unlabeled 1000``, Cortex
-#: ``Unlabel#3``, QTM ``Unidentified 4`` / ``Unnamed 4`` (matched on the part after a ``subject:`` prefix).
-UNLABELLED_NAME = re.compile(r"^(\*\d+|unlabel(l)?ed([ _#:-]*\d+)?|unlabel#?\d+|unidentified([ _#:-]*\d+)?"
-                             r"|unnamed( marker)?([ _#:-]*\d+)?)$", re.IGNORECASE)
+#: Names capture software gives trajectories nobody labelled: Vicon ``*12``, Motive ``Unlabeled 1000`` /
+#: ``Unlabeled:108``, Cortex ``Unlabel#3`` / ``*Unnamed_60``, QTM ``Unidentified 4`` / ``Unnamed 4`` (matched on the
+#: whole label and on the part after each colon: see :func:`is_unlabelled_name`).
+UNLABELLED_NAME = re.compile(r"^(\*\d+|\*?(unlabel(l)?ed([ _#:-]*\d+)?|unlabel#?\d+|unidentified([ _#:-]*\d+)?"
+                             r"|unnamed( marker)?([ _#:-]*\d+)?))$", re.IGNORECASE)
 #: Names of points that modelling software computes (never a marker on the skin): joint centres (``LHJC``,
 #: ``RKJC_CGM_2.4``, ``LeftHipCenter``), the centre of mass and its floor projection, the CGM's ``_CGM_`` outputs,
 #: global / segment axes written as ``AXISX...`` / ``ORIGIN...`` points, arch heights.
@@ -92,17 +93,27 @@ def bare_label(label: str) -> str:
     return str(label).rsplit(":", 1)[-1].strip()
 
 
+def is_unlabelled_name(label: str) -> bool:
+    """Does ``label`` name an unlabelled trajectory (:data:`UNLABELLED_NAME`), with or without a ``subject:`` prefix?
+
+    The whole label is tried before the part after each colon: in Motive's ``Unlabeled:108`` the colon belongs to
+    the name (cut at it, only ``108`` is left), in ``subject:*12`` it ends a prefix.
+    """
+    parts = str(label).split(":")
+    return any(UNLABELLED_NAME.match(":".join(parts[i:]).strip()) for i in range(len(parts)))
+
+
 def point_kinds(labels: list[str]) -> list[str]:
     """Each label's kind ("marker", "model" or "unlabelled") as its name says; "marker" where nothing does.
 
-    Unlabelled: :data:`UNLABELLED_NAME`.  Model points: :data:`MODEL_NAME`, and the four points of a segment's
+    Unlabelled: :func:`is_unlabelled_name`.  Model points: :data:`MODEL_NAME`, and the four points of a segment's
     axes (:data:`AXIS_SUFFIXES`) when all four are present.
     """
     bare = [bare_label(label) for label in labels]
     present = set(bare)
     kinds = []
-    for name in bare:
-        if UNLABELLED_NAME.match(name):
+    for label, name in zip(labels, bare):
+        if is_unlabelled_name(label):
             kinds.append("unlabelled")
         elif MODEL_NAME.search(name) or _segment_axis(name, present):
             kinds.append("model")

@@ -27,8 +27,9 @@ import numpy as np
 
 from ..errors import FormatError
 from ..markers import MarkerData
-from .csv import check_width, rate_from_times, csv_rows, frame_number, parse_numbers
+from .csv import check_width, csv_rows, frame_number, parse_numbers
 from .labels import make_unique, normalise_units, point_kinds, rename_notes, unit_name
+from .timing import rate_from_times
 
 __all__ = ["read_motive"]
 
@@ -89,17 +90,19 @@ def read_motive(text: str, name: str) -> MarkerData:
     positions[np.isnan(positions).any(axis=2)] = np.nan
     clock = parse_numbers([r[:2] for r in data_rows], name, axis_at + 2, ["Frame", "Time"])
 
-    rate = _rate(meta, clock[:, 1], name)
+    rate, rate_range = _rate(meta, clock[:, 1], [r[1] for r in data_rows], name)
     first_frame = frame_number(clock[0, 0], name) if len(clock) else 0
     units = unit_name(meta.get("Length Units", ""))
     if units is None:
         units, note = normalise_units(meta.get("Length Units", ""), positions)
         notes.append(note)
     return MarkerData(positions, labels, rate, units, first_frame, "motive-csv", None, name, notes,
-                      point_kinds(labels))
+                      point_kinds(labels), rate_range)
 
 
-def _rate(meta: dict, times: np.ndarray, name: str) -> float:
+def _rate(meta: dict, times: np.ndarray, cells: list[str], name: str) -> tuple[float, tuple[float, float] | None]:
+    """The rate and the range the times agree with (:attr:`MarkerData.rate_range`): the header's rate (no range),
+    else the time column's (:func:`rate_from_times`), else NaN."""
     for key in ("Export Frame Rate", "Capture Frame Rate"):
         if meta.get(key):
             try:
@@ -108,7 +111,8 @@ def _rate(meta: dict, times: np.ndarray, name: str) -> float:
                 raise FormatError(f"{name}: {key} {meta[key][:30]!r} is not a number") from None
             if not np.isfinite(rate) or rate <= 0:
                 raise FormatError(f"{name}: {key} {rate:g} is not a positive frame rate")
-            return rate
+            return rate, None
     if np.isfinite(times).sum() >= 2:
-        return rate_from_times(times, name)
-    return float("nan")
+        timed = rate_from_times(times, name, cells)
+        return timed.rate, (timed.low, timed.high)
+    return float("nan"), None
