@@ -128,6 +128,26 @@ def test_train_command(cmu, tmp_path, sample_data):
     assert load_model(out).settings["takes"] == [str(sample_data / "85_02.c3d")]
 
 
+def test_train_on_a_capture_with_nothing_observed_names_it(cmu, tmp_path, sample_data):
+    """Every sample missing: one line naming the take (it was a zero-size reduction in the body frame)."""
+    pytest.importorskip("jax")
+    empty = tmp_path / "empty.csv"
+    mocapfill.write(cmu.with_positions(np.full_like(cmu.positions, np.nan)), empty)
+    result = CliRunner().invoke(cli, ["train", str(empty), "-o", str(tmp_path / "t.model")])
+    assert result.exit_code == 1
+    assert result.stderr.strip().splitlines() == [f"Error: {empty}: nothing observed to train on (every sample of "
+                                                  "the layout's markers is missing)"]
+    # two takes observing different markers share nothing to train on
+    first, second = cmu.positions.copy(), cmu.positions.copy()
+    first[:, 20:], second[:, :20] = np.nan, np.nan
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    mocapfill.write(cmu.with_positions(first), a)
+    mocapfill.write(cmu.with_positions(second), b)
+    result = CliRunner().invoke(cli, ["train", str(a), str(b), "-o", str(tmp_path / "t.model")])
+    assert result.exit_code == 1 and "no marker is observed in every take" in result.stderr
+    assert "Traceback" not in result.output and not (tmp_path / "t.model").exists()
+
+
 def test_without_the_extra_train_says_which(monkeypatch, sample_data, tmp_path):
     real_import = builtins.__import__
 
