@@ -183,6 +183,34 @@ def test_bad_model_files_and_missing_model(tmp_path, cmu):
     assert not (tmp_path / "o.c3d").exists()
 
 
+def test_truncated_and_empty_model_files_are_one_line_errors(tmp_path, sample_data):
+    """A damaged model file fails in zipfile, zlib or NumPy's parser, anywhere: one line naming it (fill and batch),
+    never a traceback or click's bare "Aborted!" (an empty file's EOFError)."""
+    whole = tmp_path / "whole.model"
+    save_model(untrained_model(41), whole)
+    cut, empty, other = tmp_path / "t100.model", tmp_path / "empty.model", tmp_path / "other.model"
+    cut.write_bytes(whole.read_bytes()[:100])
+    empty.write_bytes(b"")
+    model = untrained_model(41)
+    model.layers[0] = (model.layers[0][0][:-1], model.layers[0][1])  # unpacks, but the network does not chain
+    save_model(model, other)
+    for bad, why in ((cut, "BadZipFile"), (empty, "the file is empty"), (other, "layer 0 has shapes")):
+        with pytest.raises(ModelError, match=f"{bad.name}: not a readable mocapfill model .*{why}"):
+            load_model(bad)
+    src = sample_data / "85_02.c3d"
+    for bad in (cut, empty):
+        result = CliRunner().invoke(cli, ["fill", str(src), str(tmp_path / "o.c3d"), "-m", "learned", "--model",
+                                          str(bad)])
+        assert result.exit_code == 1
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith(f"Error: {bad}: not a readable mocapfill model (")
+    result = CliRunner().invoke(cli, ["batch", str(src), "-o", str(tmp_path / "out"), "-m", "learned", "--model",
+                                      str(cut)])
+    assert result.exit_code == 1
+    assert f"failed {cut}: not a readable mocapfill model (BadZipFile" in " ".join(result.stderr.split())
+    assert "Traceback" not in result.output
+
+
 def test_the_model_is_a_prior_of_the_default(tiny, cmu, tmp_path):
     """``fill --model M`` with the candidate default: the network's estimate joins the spatial model (its sd learnt
     from hiding observed samples with a gap frame's missing markers), the observed samples come back bit-identical and the report says so."""
