@@ -82,6 +82,31 @@ def test_usage_errors(clip, tmp_path):
     assert res.exit_code == 2
 
 
+def test_option_of_the_wrong_type_is_one_line_naming_it(clip, tmp_path):
+    """``-o max_iter=abc`` reached dynammo as a string (a TypeError in its loop): refused before the file is read,
+    naming the option as typed; numbers stay numbers, and a method that ignores the option does not judge it."""
+    absent = tmp_path / "absent.c3d"  # not read: the options are checked first
+    for option, wanted in (("max_iter=abc", "an integer for max_iter"), ("max-iter=2.5", "an integer for max_iter"),
+                           ("tol=fast", "a number for tol"), ("energy=yes", "a number or none for energy")):
+        res = run(absent, "-m", "linear,dynammo", "-n", "2", "-s", "1", "-o", option)
+        assert res.exit_code == 1, res.output
+        assert res.stderr.strip().splitlines() == [f"Error: -o {option}: method 'dynammo' takes {wanted}"]
+    res = run(clip, "-m", "linear,dynammo", "-n", "1", "-s", "1", "--occlusion-max", "20", "-o", "max_iter=3",
+              "-o", "tol=1e-3", "-o", "energy=none", "--json", "-q")
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.stdout)["settings"]["options"] == {"max_iter": 3, "tol": 0.001, "energy": None}
+
+
+def test_evaluate_checks_option_types_in_python(sample_data):
+    import mocapfill
+    from mocapfill.errors import MethodError
+    from mocapfill.evaluation import evaluate
+
+    data = mocapfill.read(sample_data / "85_02.c3d")
+    with pytest.raises(MethodError, match=r"option max_iter='abc': method 'msvd' takes an integer for max_iter"):
+        evaluate(data, ["msvd"], trials=1, seed=1, options={"max_iter": "abc"})
+
+
 def test_ignored_option_is_a_warning_not_an_error(clip):
     res = run(clip, "-m", "linear", "-n", "1", "-s", "0", "-o", "max_iter=5")
     assert res.exit_code == 0, res.output

@@ -48,6 +48,19 @@ def _parse_options(pairs: tuple[str, ...]) -> dict:
     return out
 
 
+def _check_option_types(pairs: tuple[str, ...], options: dict, names: list[str]) -> None:
+    """A ``-o`` value of the wrong type for a method that takes the option (``-o max_iter=abc`` for dynammo): one
+    line naming the option as typed, before the file is read."""
+    from ..methods import get_method
+
+    typed = {item.partition("=")[0].strip().replace("-", "_"): item for item in pairs}
+    for name in names:
+        for key, value in options.items():
+            problem = get_method(name).option_problem(key, value)
+            if problem:
+                raise click.ClickException(f"-o {typed[key]}: {problem}")
+
+
 def _default_methods(given: set[str] = frozenset()) -> tuple[list[str], list[str]]:
     """Every registered method that can be loaded in this build and whose required option is in ``given``, and
     those that cannot run."""
@@ -299,6 +312,7 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
             if spec.requires and spec.requires not in given:
                 needs = "--ik-model MODEL.osim" if spec.requires == "ik_model" else f"-o {spec.requires}=FILE"
                 raise MethodError(f"method {name!r} needs {needs}")
+    _check_option_types(option_pairs, options, names)
     if ik_setup or any(get_method(n).requires == "ik_model" for n in names):
         from ..kinematics.opensim_ik import require_opensim
 

@@ -387,6 +387,10 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
         if ignored:  # once here, not once per trial
             warnings.warn(f"method {name!r} ignores option(s): {', '.join(ignored)}", UserWarning, stacklevel=2)
         per_method[name] = {k: v for k, v in merged.items() if k in accepted[name]}
+        for key, value in per_method[name].items():  # here once, not a TypeError deep in every trial
+            problem = get_method(name).option_problem(key, value)
+            if problem:
+                raise MethodError(f"option {key}={value!r}: {problem}")
         required = get_method(name).requires
         if required and per_method[name].get(required) is None:
             raise MethodError(f"method {name!r} needs --{required.replace('_', '-')} (evaluate(..., {required}=...))")
