@@ -371,6 +371,12 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
 
     chosen = select_markers(data.labels, data.kinds, settings.markers, settings.exclude, path=data.path)
     max_gap = None if settings.max_gap is None else parse_max_gap(settings.max_gap, data.rate)
+    if settings.lowpass is not None:  # a cutoff the take cannot carry fails now, not after the fill
+        from .guards.lowpass import check_cutoff, parse_cutoff
+
+        cutoff, _ = parse_cutoff(settings.lowpass)
+        if not isinstance(cutoff, str):
+            check_cutoff(cutoff, data.rate, data.n_frames, path=data.path)
     columns = fill_columns(data, chosen)
     every = columns.size == data.n_markers
     view = data if every else subset(data, columns)
