@@ -25,7 +25,7 @@ from .errors import MethodError
 from .markers import MarkerData
 from .status import Status
 from .methods import DEFAULT_METHOD, METHODS, get_method
-from .methods.base import MARKER_RECORDS, FillResult
+from .methods.base import MARKER_RECORDS, FillResult, check_magnitude
 
 
 #: The report lists at most this many repaired samples (the count is always complete).
@@ -385,6 +385,7 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
     if not every:
         record["points_kept"] = {kind: sum(1 for k in data.kinds if k == kind) for kind in ("model", "unlabelled")}
 
+    check_magnitude(view.positions, name=data.path, labels=view.labels)  # before the guards square them too
     from .guards.held import find_held, held_summary
 
     quantum = None

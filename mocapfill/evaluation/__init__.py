@@ -24,6 +24,7 @@ import numpy as np
 
 from ..errors import MethodError, MocapfillError
 from ..markers import MarkerData
+from ..methods.base import check_magnitude
 from ..report.json_report import jsonable
 from .metrics import bone_error, point_errors, score
 from .occlusions import (DEFAULT_GAPS, PROTOCOLS, Occlusion, Shift, Trial, gap_range, make_occlusions,
@@ -354,6 +355,7 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
         from ..pipeline import fill_columns, subset
 
         data = subset(data, fill_columns(data))
+    check_magnitude(data.positions, name=data.path, labels=data.labels)  # once, not as every trial's failure
     methods = list(methods)
     if seed is None:
         seed = int(np.random.SeedSequence().entropy % (2 ** 63))
