@@ -51,6 +51,20 @@ def test_json_save_and_replay_give_the_same_numbers(clip, tmp_path):
             assert a["scores"][method]["rmse"] == b["scores"][method]["rmse"]
 
 
+def test_no_best_when_every_hidden_sample_is_left_unfilled(test_data):
+    """newwalk.c3d's marker trials fall in its blackouts: every RMSE is "-", so no method is named best; the CSV and
+    the JSON have no score either."""
+    walk = test_data / "newwalk.c3d"
+    res = run(walk, "-m", "linear,pca", "-n", "2", "-s", "1")
+    assert res.exit_code == 0, res.output
+    assert "best by mean RMSE: none (no method scored any hidden sample)" in res.stderr
+    assert "best by mean RMSE: linear" not in res.stderr
+    rows = list(csv.DictReader(io.StringIO(run(walk, "-m", "linear,pca", "-n", "2", "-s", "1", "--csv", "-q").stdout)))
+    assert len(rows) == 4 and all(r["rmse"] == "" and r["unfilled"] == r["n_scored"] for r in rows)
+    doc = json.loads(run(walk, "-m", "linear,pca", "-n", "2", "-s", "1", "--json", "-q").stdout)
+    assert all(doc["summary"][m]["rmse"]["mean"] is None for m in ("linear", "pca"))
+
+
 def test_unknown_method(clip):
     res = run(clip, "--methods", "linear,nope", "-n", "1")
     assert res.exit_code == 1

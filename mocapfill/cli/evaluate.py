@@ -123,6 +123,7 @@ def _show(result, quiet: bool) -> None:
     if any_problem:
         table.add_column("problems")
     ranking = result.ranking("rmse", "mean")
+    best = result.best("rmse", "mean")
     for method in ranking:
         row = summary[method]
         cells = [_fmt(row["rmse"]["mean"]), _fmt(row["rmse"]["median"]), _fmt(row["max_error"]["mean"]),
@@ -139,7 +140,7 @@ def _show(result, quiet: bool) -> None:
             problems.append(f"{row['unfilled']} samples unfilled")
         if row["not_converged"]:
             problems.append(f"{row['not_converged']} not converged")
-        style = "bold green" if method == ranking[0] and len(ranking) > 1 else None
+        style = "bold green" if method == best and len(ranking) > 1 else None
         if any_problem:
             cells.append(", ".join(problems))
         table.add_row(method, *cells, style=style)
@@ -182,7 +183,10 @@ def _show(result, quiet: bool) -> None:
     errors = sorted({f"{s.method}: {s.error}" for s in result.scores if s.error})
     for message in errors[:10]:
         out.print(f"[yellow]failure[/yellow] {message}", highlight=False)
-    out.print(f"best by mean RMSE: [bold]{ranking[0]}[/bold]")
+    if best is None:  # every RMSE is "-": naming the first of them would crown a method that scored nothing
+        out.print("best by mean RMSE: none (no method scored any hidden sample)")
+    else:
+        out.print(f"best by mean RMSE: [bold]{best}[/bold]")
     if ik:
         out.print(angle_headline(result))
 

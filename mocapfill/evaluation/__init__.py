@@ -158,9 +158,11 @@ class EvaluationResult:
         key = lambda m: (summ[m][metric][statistic] is None, summ[m][metric][statistic] or 0.0)  # noqa: E731
         return sorted(self.methods, key=key)
 
-    def best(self, metric: str = "rmse", statistic: str = "mean") -> str:
-        """The method with the lowest ``statistic`` of ``metric``."""
-        return self.ranking(metric, statistic)[0]
+    def best(self, metric: str = "rmse", statistic: str = "mean") -> str | None:
+        """The method with the lowest ``statistic`` of ``metric``; None when no method has one (every hidden sample
+        left unfilled, every trial failed): then no method is best."""
+        first = self.ranking(metric, statistic)[0]
+        return first if self.summary()[first][metric][statistic] is not None else None
 
     def trial_records(self) -> list[dict[str, Any]]:
         """Per trial: its occlusions/shifts in the spec layout and per-method scores (JSON-ready)."""
