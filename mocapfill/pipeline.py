@@ -371,6 +371,10 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
 
     chosen = select_markers(data.labels, data.kinds, settings.markers, settings.exclude, path=data.path)
     max_gap = None if settings.max_gap is None else parse_max_gap(settings.max_gap, data.rate)
+    if settings.smooth and settings.smooth_window is not None and int(settings.smooth_window) > data.n_frames:
+        # every stretch would be shorter than the window and left as it is: a no-op "smoothed" is an error
+        raise MethodError(f"{data.path}: --smooth-window {settings.smooth_window} is longer than the take "
+                          f"({data.n_frames} frames): nothing would be smoothed")
     if settings.lowpass is not None:  # a cutoff the take cannot carry fails now, not after the fill
         from .guards.lowpass import check_cutoff, parse_cutoff
 
@@ -542,6 +546,8 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
         smoothed = np.flatnonzero(chosen)  # the chosen markers only
         positions[:, smoothed] = savgol_smooth(positions[:, smoothed], **smooth_options)
         record["smooth"] = {"window": settings.smooth_window, "order": settings.smooth_order}
+        _warn_unsmoothed(positions[:, smoothed], [data.labels[k] for k in smoothed], data.first_frame,
+                         smooth_options, path=data.path)
     if settings.lowpass is not None:
         from .guards.lowpass import describe, lowpass, parse_cutoff
 
@@ -565,6 +571,23 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
                           chosen=chosen, left=left)
     outcome.status = sample_status(outcome)
     return outcome
+
+
+def _warn_unsmoothed(positions: np.ndarray, labels: list[str], first_frame: int, options: dict[str, Any], *,
+                     path: str | None, shown: int = 5) -> None:
+    """One warning naming the stretches (of ``positions`` (n_frames, n_smoothed, 3)) that ``--smooth`` left as they
+    were, shorter than its window; nothing when every stretch was smoothed."""
+    from .guards.smooth import DEFAULT_ORDER, default_window, short_runs
+
+    window = options.get("window") or default_window(options.get("order", DEFAULT_ORDER), options.get("rate"))
+    left = short_runs(positions, window)
+    if not left:
+        return
+    items = [f"{labels[m]} {first_frame + start}-{first_frame + start + length - 1}" for m, start, length in left]
+    more = f", ... {len(items) - shown} more" if len(items) > shown else ""
+    warnings.warn(f"{path or 'the take'}: --smooth left {len(items)} stretch{'es' if len(items) != 1 else ''} "
+                  f"shorter than its {window}-frame window unsmoothed: {', '.join(items[:shown])}{more}",
+                  UserWarning, stacklevel=2)
 
 
 def either(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray | None:

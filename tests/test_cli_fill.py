@@ -192,6 +192,29 @@ def test_smooth_changes_observed_samples_and_is_reported(runner, gappy, tmp_path
     assert doc["summary"].get("smoothed") is True
 
 
+def test_smooth_window_longer_than_the_take_or_a_stretch_is_said(runner, gappy, tmp_path):
+    """A window longer than the take smoothed nothing and said "output smoothed": now one line naming the file and
+    the option, before the fill; stretches shorter than the window (left as they are, as before) are named in one
+    warning."""
+    out = tmp_path / "sm.c3d"
+    result = runner.invoke(cli, ["fill", str(gappy), str(out), "-m", "linear", "--smooth", "--smooth-window", "1093"])
+    assert result.exit_code == 1, result.output
+    assert result.stderr.strip().splitlines() == [f"Error: {gappy}: --smooth-window 1093 is longer than the take "
+                                                  "(1092 frames): nothing would be smoothed"]
+    assert not out.exists()
+    # gaps over 2 frames left missing: RSHO's observed 522-549 (28 frames) is shorter than a 31-frame window
+    result = runner.invoke(cli, ["fill", str(gappy), str(out), "-m", "linear", "--smooth", "--smooth-window", "31",
+                                 "--max-gap", "2"])
+    assert result.exit_code == 0, result.output
+    assert (f"warning UserWarning: {gappy}: --smooth left 1 stretch shorter than its 31-frame window unsmoothed: "
+            "Derrick:RSHO 522-549") in " ".join(result.stderr.split())
+    before, after = mocapfill.read(gappy), mocapfill.read(out)
+    rsho = before.labels.index("Derrick:RSHO")
+    np.testing.assert_array_equal(after.positions[521:549, rsho], before.positions[521:549, rsho])
+    result = runner.invoke(cli, ["fill", str(gappy), str(out), "-m", "linear", "--smooth"])
+    assert result.exit_code == 0 and "unsmoothed" not in result.stderr  # every stretch takes the default window
+
+
 def test_every_method_is_offered(runner):
     result = runner.invoke(cli, ["fill", "--help"])
     assert result.exit_code == 0
