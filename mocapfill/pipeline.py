@@ -271,7 +271,7 @@ class FillOutcome:
 
     def observed_changed(self) -> list[str]:
         """The options that changed or dropped observed samples in this fill, with how many (for the reports);
-        empty when every observed sample is returned bit-identical."""
+        empty when none did (what the output's format does to them: :meth:`observed_stored`)."""
         out = []
         for option, mask in (("--reject-outliers", self.rejected), ("held-sample guard", self.held),
                              ("--min-fragment", self.fragments), ("--denoise", self.repaired)):
@@ -283,6 +283,16 @@ class FillOutcome:
                 if key in self.settings and smoothed:
                     out.append(f"{option} ({smoothed} samples)")
         return out
+
+    def observed_stored(self, path: Any, format: str | None = None) -> str | None:
+        """How writing ``output`` to ``path`` (in ``format``, as :func:`mocapfill.io.write`) stores the observed
+        samples this fill returned as they were: :func:`mocapfill.io.storage_change` ("rounded to the TSV's 0.001
+        mm"); None when the file holds them exactly, or when options changed them (:meth:`observed_changed`)."""
+        from .io import storage_change
+
+        if self.observed_changed():
+            return None
+        return storage_change(self.output, path, format, samples=~self.data.missing)
 
 
 def fill_columns(data: MarkerData, chosen: Any = None) -> np.ndarray:
@@ -675,9 +685,11 @@ def _csv_field(text: str) -> str:
 
 
 def write_fill_report(outcome: FillOutcome, path: str, *, method: str, input_path: str | None,
-                      output_path: str | None, smoothed: bool, jobs: int | None = None) -> None:
+                      output_path: str | None, smoothed: bool, jobs: int | None = None,
+                      stored: str | None = None) -> None:
     """Write the JSON or HTML report (by ``path``'s extension) of one fill (``jobs``: processes an HTML page's
-    plots are drawn on, as :func:`~mocapfill.report.write_report`).
+    plots are drawn on, as :func:`~mocapfill.report.write_report`; ``stored``: how the output's format stores the
+    observed samples, :func:`mocapfill.io.storage_change`, None = exactly).
 
     The report's bone-length checks use the given bones, else bones estimated from the observed frames of the
     input (as bone-aware methods do), never from filled samples.
@@ -712,7 +724,7 @@ def write_fill_report(outcome: FillOutcome, path: str, *, method: str, input_pat
                                seconds=outcome.seconds, input_path=input_path, output_path=output_path,
                                bones=bones, rejected=dropped, smoothed=smoothed, fragments=fragments, left=left,
                                chosen=chosen, edges=outcome.settings.get("edges", "fill"),
-                               observed_changed=outcome.observed_changed())
+                               observed_changed=outcome.observed_changed(), observed_stored=stored)
     report["summary"]["points"] = points_line(outcome.data)
     if outcome.held_summary is not None:
         report["summary"]["held"] = held_report(outcome.held_summary, kept=outcome.held is None)
