@@ -101,7 +101,8 @@ def fill(data: MarkerData | np.ndarray, method: str = DEFAULT_METHOD, *, max_gap
     if ignored:
         warnings.warn(f"method {method!r} ignores option(s): {', '.join(sorted(ignored))}", UserWarning,
                       stacklevel=2)
-    positions = check_positions(positions)
+    positions = check_positions(positions, name=data.path if isinstance(data, MarkerData) else None,
+                                labels=context["labels"])
     limits = None
     if max_gap is not None or edges != "fill" or markers is not None or exclude is not None:
         from .guards.limits import check_edges, parse_max_gap

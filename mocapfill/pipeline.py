@@ -25,7 +25,7 @@ from .errors import MethodError
 from .markers import MarkerData
 from .status import Status
 from .methods import DEFAULT_METHOD, METHODS, get_method
-from .methods.base import MARKER_RECORDS, FillResult
+from .methods.base import MARKER_RECORDS, FillResult, check_magnitude
 
 
 #: The report lists at most this many repaired samples (the count is always complete).
@@ -271,7 +271,7 @@ class FillOutcome:
 
     def observed_changed(self) -> list[str]:
         """The options that changed or dropped observed samples in this fill, with how many (for the reports);
-        empty when every observed sample is returned bit-identical."""
+        empty when none did (what the output's format does to them: :meth:`observed_stored`)."""
         out = []
         for option, mask in (("--reject-outliers", self.rejected), ("held-sample guard", self.held),
                              ("--min-fragment", self.fragments), ("--denoise", self.repaired)):
@@ -283,6 +283,16 @@ class FillOutcome:
                 if key in self.settings and smoothed:
                     out.append(f"{option} ({smoothed} samples)")
         return out
+
+    def observed_stored(self, path: Any, format: str | None = None) -> str | None:
+        """How writing ``output`` to ``path`` (in ``format``, as :func:`mocapfill.io.write`) stores the observed
+        samples this fill returned as they were: :func:`mocapfill.io.storage_change` ("rounded to the TSV's 0.001
+        mm"); None when the file holds them exactly, or when options changed them (:meth:`observed_changed`)."""
+        from .io import storage_change
+
+        if self.observed_changed():
+            return None
+        return storage_change(self.output, path, format, samples=~self.data.missing)
 
 
 def fill_columns(data: MarkerData, chosen: Any = None) -> np.ndarray:
@@ -371,6 +381,16 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
 
     chosen = select_markers(data.labels, data.kinds, settings.markers, settings.exclude, path=data.path)
     max_gap = None if settings.max_gap is None else parse_max_gap(settings.max_gap, data.rate)
+    if settings.smooth and settings.smooth_window is not None and int(settings.smooth_window) > data.n_frames:
+        # every stretch would be shorter than the window and left as it is: a no-op "smoothed" is an error
+        raise MethodError(f"{data.path}: --smooth-window {settings.smooth_window} is longer than the take "
+                          f"({data.n_frames} frames): nothing would be smoothed")
+    if settings.lowpass is not None:  # a cutoff the take cannot carry fails now, not after the fill
+        from .guards.lowpass import check_cutoff, parse_cutoff
+
+        cutoff, _ = parse_cutoff(settings.lowpass)
+        if not isinstance(cutoff, str):
+            check_cutoff(cutoff, data.rate, data.n_frames, path=data.path)
     columns = fill_columns(data, chosen)
     every = columns.size == data.n_markers
     view = data if every else subset(data, columns)
@@ -379,6 +399,7 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
     if not every:
         record["points_kept"] = {kind: sum(1 for k in data.kinds if k == kind) for kind in ("model", "unlabelled")}
 
+    check_magnitude(view.positions, name=data.path, labels=view.labels)  # before the guards square them too
     from .guards.held import find_held, held_summary
 
     quantum = None
@@ -535,6 +556,8 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
         smoothed = np.flatnonzero(chosen)  # the chosen markers only
         positions[:, smoothed] = savgol_smooth(positions[:, smoothed], **smooth_options)
         record["smooth"] = {"window": settings.smooth_window, "order": settings.smooth_order}
+        _warn_unsmoothed(positions[:, smoothed], [data.labels[k] for k in smoothed], data.first_frame,
+                         smooth_options, path=data.path)
     if settings.lowpass is not None:
         from .guards.lowpass import describe, lowpass, parse_cutoff
 
@@ -558,6 +581,23 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
                           chosen=chosen, left=left)
     outcome.status = sample_status(outcome)
     return outcome
+
+
+def _warn_unsmoothed(positions: np.ndarray, labels: list[str], first_frame: int, options: dict[str, Any], *,
+                     path: str | None, shown: int = 5) -> None:
+    """One warning naming the stretches (of ``positions`` (n_frames, n_smoothed, 3)) that ``--smooth`` left as they
+    were, shorter than its window; nothing when every stretch was smoothed."""
+    from .guards.smooth import DEFAULT_ORDER, default_window, short_runs
+
+    window = options.get("window") or default_window(options.get("order", DEFAULT_ORDER), options.get("rate"))
+    left = short_runs(positions, window)
+    if not left:
+        return
+    items = [f"{labels[m]} {first_frame + start}-{first_frame + start + length - 1}" for m, start, length in left]
+    more = f", ... {len(items) - shown} more" if len(items) > shown else ""
+    warnings.warn(f"{path or 'the take'}: --smooth left {len(items)} stretch{'es' if len(items) != 1 else ''} "
+                  f"shorter than its {window}-frame window unsmoothed: {', '.join(items[:shown])}{more}",
+                  UserWarning, stacklevel=2)
 
 
 def either(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray | None:
@@ -645,9 +685,11 @@ def _csv_field(text: str) -> str:
 
 
 def write_fill_report(outcome: FillOutcome, path: str, *, method: str, input_path: str | None,
-                      output_path: str | None, smoothed: bool, jobs: int | None = None) -> None:
+                      output_path: str | None, smoothed: bool, jobs: int | None = None,
+                      stored: str | None = None) -> None:
     """Write the JSON or HTML report (by ``path``'s extension) of one fill (``jobs``: processes an HTML page's
-    plots are drawn on, as :func:`~mocapfill.report.write_report`).
+    plots are drawn on, as :func:`~mocapfill.report.write_report`; ``stored``: how the output's format stores the
+    observed samples, :func:`mocapfill.io.storage_change`, None = exactly).
 
     The report's bone-length checks use the given bones, else bones estimated from the observed frames of the
     input (as bone-aware methods do), never from filled samples.
@@ -682,7 +724,7 @@ def write_fill_report(outcome: FillOutcome, path: str, *, method: str, input_pat
                                seconds=outcome.seconds, input_path=input_path, output_path=output_path,
                                bones=bones, rejected=dropped, smoothed=smoothed, fragments=fragments, left=left,
                                chosen=chosen, edges=outcome.settings.get("edges", "fill"),
-                               observed_changed=outcome.observed_changed())
+                               observed_changed=outcome.observed_changed(), observed_stored=stored)
     report["summary"]["points"] = points_line(outcome.data)
     if outcome.held_summary is not None:
         report["summary"]["held"] = held_report(outcome.held_summary, kept=outcome.held is None)

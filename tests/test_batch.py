@@ -75,6 +75,19 @@ def test_mixed_folder_rows_exit_status_and_outputs(session, tmp_path):
     assert not list(out.rglob("*.tmp"))
 
 
+def test_batch_report_says_how_the_output_format_stores_observed_samples(sample_data, tmp_path):
+    """A TSV output rounds to 0.001 mm (converted from metres here): the report says so, not bit-identical."""
+    import json
+
+    out = tmp_path / "out"
+    result = CliRunner().invoke(cli, ["batch", str(sample_data / "kinematics_tennis_serve_nan.c3d"), "--out-dir",
+                                      str(out), "-m", "linear", "--format", "tsv", "--report", "json"])
+    assert result.exit_code == 0, result.output
+    (report,) = out.rglob("*.report.json")
+    assert json.loads(report.read_text())["summary"]["observed_stored"] == \
+        "converted from m to mm and rounded to the TSV's 0.001 mm"
+
+
 def test_rerun_skips_changed_input_or_settings_redo_and_force_redoes(session, tmp_path):
     out = tmp_path / "out"
     first = mocapfill.batch(session, out, method="linear")

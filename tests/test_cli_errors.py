@@ -88,6 +88,25 @@ def test_binary_file_with_a_text_extension(sample_data, tmp_path):
     assert "binary content" in _info_error(path)
 
 
+def test_coordinates_too_large_to_fill(tmp_path):
+    """±1e308 around a gap: spline raised "dydx must contain only finite values", msvd an SVD that did not converge,
+    evaluate failed every trial; now one line naming the file where the data enter the fill."""
+    path = tmp_path / "huge.csv"
+    rows = ["time,A_x,A_y,A_z,B_x,B_y,B_z"]
+    for t in range(30):
+        b = "" if 10 <= t < 20 else f"{(-1) ** t * 1e308},1,2"
+        rows.append(f"{t / 100},{(-1) ** t * 1e308},0,0,{b or ',,'}")
+    path.write_text("\n".join(rows) + "\n")
+    for args in (["fill", str(path), str(tmp_path / "o.csv"), "-m", "spline"],
+                 ["fill", str(path), str(tmp_path / "o.csv"), "-m", "msvd", "--reject-outliers"],
+                 ["evaluate", str(path), "-m", "linear", "-n", "1", "-s", "1"]):
+        result = CliRunner().invoke(cli, args + ["--rate", "100"])
+        assert result.exit_code == 1, result.output
+        lines = [x for x in result.stderr.splitlines() if x.strip() and not x.startswith("note: ")]  # units assumed
+        assert len(lines) == 1 and lines[0].startswith(f"Error: {path}: coordinates too large to fill (A reaches ")
+        assert "Traceback" not in result.output
+
+
 # --- output paths (exercised through `fill` by its owner; tested here directly) ----------------------------------
 
 def test_output_equal_to_input(tmp_path):

@@ -51,6 +51,20 @@ def test_json_save_and_replay_give_the_same_numbers(clip, tmp_path):
             assert a["scores"][method]["rmse"] == b["scores"][method]["rmse"]
 
 
+def test_no_best_when_every_hidden_sample_is_left_unfilled(test_data):
+    """newwalk.c3d's marker trials fall in its blackouts: every RMSE is "-", so no method is named best; the CSV and
+    the JSON have no score either."""
+    walk = test_data / "newwalk.c3d"
+    res = run(walk, "-m", "linear,pca", "-n", "2", "-s", "1")
+    assert res.exit_code == 0, res.output
+    assert "best by mean RMSE: none (no method scored any hidden sample)" in res.stderr
+    assert "best by mean RMSE: linear" not in res.stderr
+    rows = list(csv.DictReader(io.StringIO(run(walk, "-m", "linear,pca", "-n", "2", "-s", "1", "--csv", "-q").stdout)))
+    assert len(rows) == 4 and all(r["rmse"] == "" and r["unfilled"] == r["n_scored"] for r in rows)
+    doc = json.loads(run(walk, "-m", "linear,pca", "-n", "2", "-s", "1", "--json", "-q").stdout)
+    assert all(doc["summary"][m]["rmse"]["mean"] is None for m in ("linear", "pca"))
+
+
 def test_unknown_method(clip):
     res = run(clip, "--methods", "linear,nope", "-n", "1")
     assert res.exit_code == 1
@@ -80,6 +94,31 @@ def test_usage_errors(clip, tmp_path):
     assert res.exit_code == 1 and "absent.c3d" in res.stderr
     res = run(clip, "-m", "linear", "-p", "sideways")
     assert res.exit_code == 2
+
+
+def test_option_of_the_wrong_type_is_one_line_naming_it(clip, tmp_path):
+    """``-o max_iter=abc`` reached dynammo as a string (a TypeError in its loop): refused before the file is read,
+    naming the option as typed; numbers stay numbers, and a method that ignores the option does not judge it."""
+    absent = tmp_path / "absent.c3d"  # not read: the options are checked first
+    for option, wanted in (("max_iter=abc", "an integer for max_iter"), ("max-iter=2.5", "an integer for max_iter"),
+                           ("tol=fast", "a number for tol"), ("energy=yes", "a number or none for energy")):
+        res = run(absent, "-m", "linear,dynammo", "-n", "2", "-s", "1", "-o", option)
+        assert res.exit_code == 1, res.output
+        assert res.stderr.strip().splitlines() == [f"Error: -o {option}: method 'dynammo' takes {wanted}"]
+    res = run(clip, "-m", "linear,dynammo", "-n", "1", "-s", "1", "--occlusion-max", "20", "-o", "max_iter=3",
+              "-o", "tol=1e-3", "-o", "energy=none", "--json", "-q")
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.stdout)["settings"]["options"] == {"max_iter": 3, "tol": 0.001, "energy": None}
+
+
+def test_evaluate_checks_option_types_in_python(sample_data):
+    import mocapfill
+    from mocapfill.errors import MethodError
+    from mocapfill.evaluation import evaluate
+
+    data = mocapfill.read(sample_data / "85_02.c3d")
+    with pytest.raises(MethodError, match=r"option max_iter='abc': method 'msvd' takes an integer for max_iter"):
+        evaluate(data, ["msvd"], trials=1, seed=1, options={"max_iter": "abc"})
 
 
 def test_ignored_option_is_a_warning_not_an_error(clip):

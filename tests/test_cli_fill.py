@@ -258,6 +258,72 @@ def test_smooth_changes_observed_samples_and_is_reported(runner, gappy, tmp_path
     assert doc["summary"].get("smoothed") is True
 
 
+def test_smooth_window_longer_than_the_take_or_a_stretch_is_said(runner, gappy, tmp_path):
+    """A window longer than the take smoothed nothing and said "output smoothed": now one line naming the file and
+    the option, before the fill; stretches shorter than the window (left as they are, as before) are named in one
+    warning."""
+    out = tmp_path / "sm.c3d"
+    result = runner.invoke(cli, ["fill", str(gappy), str(out), "-m", "linear", "--smooth", "--smooth-window", "1093"])
+    assert result.exit_code == 1, result.output
+    assert result.stderr.strip().splitlines() == [f"Error: {gappy}: --smooth-window 1093 is longer than the take "
+                                                  "(1092 frames): nothing would be smoothed"]
+    assert not out.exists()
+    # gaps over 2 frames left missing: RSHO's observed 522-549 (28 frames) is shorter than a 31-frame window
+    result = runner.invoke(cli, ["fill", str(gappy), str(out), "-m", "linear", "--smooth", "--smooth-window", "31",
+                                 "--max-gap", "2"])
+    assert result.exit_code == 0, result.output
+    assert (f"warning UserWarning: {gappy}: --smooth left 1 stretch shorter than its 31-frame window unsmoothed: "
+            "Derrick:RSHO 522-549") in " ".join(result.stderr.split())
+    before, after = mocapfill.read(gappy), mocapfill.read(out)
+    rsho = before.labels.index("Derrick:RSHO")
+    np.testing.assert_array_equal(after.positions[521:549, rsho], before.positions[521:549, rsho])
+    result = runner.invoke(cli, ["fill", str(gappy), str(out), "-m", "linear", "--smooth"])
+    assert result.exit_code == 0 and "unsmoothed" not in result.stderr  # every stretch takes the default window
+
+
+def test_bit_identical_only_where_the_output_format_holds_the_observed_samples(runner, gappy, sample_data, test_data,
+                                                                              tmp_path):
+    """The summary said "bit-identical" for a TSV (mm to 0.001, converted from metres) and a new C3D (float32): now
+    it says how the format stores them, there only; the report's observed_stored says the same."""
+    cases = [(gappy, "o.tsv", "converted from m to mm and rounded to the TSV's 0.001 mm"),
+             (gappy, "o.c3d", None),  # a rewrite keeps the original's words
+             (gappy, "o.trc", None),
+             (sample_data / "markers.csv", "o.c3d", "stored as float32 by C3D"),
+             (sample_data / "markers.csv", "o.tsv", "rounded to the TSV's 0.001 mm"),
+             (test_data / "qtm_JaneDoe_Dynamic_2.tsv", "o.tsv", None)]  # already on the TSV's grid
+    for src, name, stored in cases:
+        out, report = tmp_path / name, tmp_path / "r.json"
+        result = runner.invoke(cli, ["fill", str(src), str(out), "-m", "linear", "--report", str(report)])
+        assert result.exit_code == 0, result.output
+        line = ("observed samples returned bit-identical" if stored is None else
+                f"observed samples returned as the output format stores them: {stored}")
+        assert line in " ".join(result.stderr.split()), (src, name)
+        assert json.loads(report.read_text())["summary"]["observed_stored"] == stored
+        if stored is None:
+            before, after = mocapfill.read(src), mocapfill.read(out)
+            seen = ~before.missing
+            assert np.array_equal(after.positions[seen], before.positions[seen])
+    result = runner.invoke(cli, ["fill", str(gappy), str(tmp_path / "s.tsv"), "-m", "linear", "--smooth"])
+    assert "observed samples changed by: --smooth" in result.stderr and "stores them" not in result.stderr
+
+
+def test_storage_change_judges_the_numbers():
+    from mocapfill.io import storage_change
+    from mocapfill.markers import MarkerData
+
+    on_grid = np.round(np.random.default_rng(0).normal(0, 500, (20, 2, 3)), 3)
+    data = MarkerData(on_grid, ["A", "B"], 100.0, "mm")
+    assert storage_change(data, "x.tsv") is None and storage_change(data, "x.csv") is None
+    assert storage_change(data, "x.c3d") == "stored as float32 by C3D"
+    off = data.with_positions(on_grid + 1e-4)
+    assert storage_change(off, "x.tsv") == "rounded to the TSV's 0.001 mm"
+    assert storage_change(off, "-", "trc") is None
+    halves = data.with_positions(np.round(on_grid * 2) / 2)  # exact in float32
+    assert storage_change(halves, "x.c3d") is None
+    samples = np.zeros((20, 2), dtype=bool)  # only the samples asked about count
+    assert storage_change(off, "x.tsv", samples=samples) is None
+
+
 def test_every_method_is_offered(runner):
     result = runner.invoke(cli, ["fill", "--help"])
     assert result.exit_code == 0

@@ -262,6 +262,22 @@ def test_method_options_reach_the_method_and_failures_are_recorded(clip, stub):
     assert ok.scores[0].n_iter == 5
 
 
+def test_no_best_method_when_nothing_was_scored(clip, stub, capsys):
+    """Every trial failed: no method is best (the first of the unranked ones was named), in the table, the page and
+    the JSON."""
+    from mocapfill.cli.evaluate import _show
+    from mocapfill.report.evaluation_html import render_evaluation_html
+
+    result = evaluate(clip, [stub], "blackout", trials=2, seed=1, occlusion_min=60, occlusion_max=60)
+    assert result.summary()["stub"]["failures"] == 2
+    assert result.best() is None and result.ranking() == ["stub"]
+    _show(result, quiet=False)
+    assert "best by mean RMSE: none (no method scored any hidden sample)" in capsys.readouterr().err
+    assert "Best by mean RMSE: none (no method scored any hidden sample)." in render_evaluation_html(result)
+    doc = result.to_dict()
+    assert doc["summary"]["stub"]["rmse"] == {"mean": None, "median": None} and "best" not in json.dumps(doc)
+
+
 def test_unknown_method_and_ignored_options(clip):
     with pytest.raises(MethodError, match="unknown method 'nope'"):
         evaluate(clip, ["linear", "nope"], trials=1, seed=0)

@@ -128,6 +128,26 @@ def test_train_command(cmu, tmp_path, sample_data):
     assert load_model(out).settings["takes"] == [str(sample_data / "85_02.c3d")]
 
 
+def test_train_on_a_capture_with_nothing_observed_names_it(cmu, tmp_path, sample_data):
+    """Every sample missing: one line naming the take (it was a zero-size reduction in the body frame)."""
+    pytest.importorskip("jax")
+    empty = tmp_path / "empty.csv"
+    mocapfill.write(cmu.with_positions(np.full_like(cmu.positions, np.nan)), empty)
+    result = CliRunner().invoke(cli, ["train", str(empty), "-o", str(tmp_path / "t.model")])
+    assert result.exit_code == 1
+    assert result.stderr.strip().splitlines() == [f"Error: {empty}: nothing observed to train on (every sample of "
+                                                  "the layout's markers is missing)"]
+    # two takes observing different markers share nothing to train on
+    first, second = cmu.positions.copy(), cmu.positions.copy()
+    first[:, 20:], second[:, :20] = np.nan, np.nan
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    mocapfill.write(cmu.with_positions(first), a)
+    mocapfill.write(cmu.with_positions(second), b)
+    result = CliRunner().invoke(cli, ["train", str(a), str(b), "-o", str(tmp_path / "t.model")])
+    assert result.exit_code == 1 and "no marker is observed in every take" in result.stderr
+    assert "Traceback" not in result.output and not (tmp_path / "t.model").exists()
+
+
 def test_without_the_extra_train_says_which(monkeypatch, sample_data, tmp_path):
     real_import = builtins.__import__
 
@@ -161,6 +181,34 @@ def test_bad_model_files_and_missing_model(tmp_path, cmu):
     assert result.exit_code == 2 and "--model is used by --denoise and by the methods auto, learned, not pca" in \
         result.output
     assert not (tmp_path / "o.c3d").exists()
+
+
+def test_truncated_and_empty_model_files_are_one_line_errors(tmp_path, sample_data):
+    """A damaged model file fails in zipfile, zlib or NumPy's parser, anywhere: one line naming it (fill and batch),
+    never a traceback or click's bare "Aborted!" (an empty file's EOFError)."""
+    whole = tmp_path / "whole.model"
+    save_model(untrained_model(41), whole)
+    cut, empty, other = tmp_path / "t100.model", tmp_path / "empty.model", tmp_path / "other.model"
+    cut.write_bytes(whole.read_bytes()[:100])
+    empty.write_bytes(b"")
+    model = untrained_model(41)
+    model.layers[0] = (model.layers[0][0][:-1], model.layers[0][1])  # unpacks, but the network does not chain
+    save_model(model, other)
+    for bad, why in ((cut, "BadZipFile"), (empty, "the file is empty"), (other, "layer 0 has shapes")):
+        with pytest.raises(ModelError, match=f"{bad.name}: not a readable mocapfill model .*{why}"):
+            load_model(bad)
+    src = sample_data / "85_02.c3d"
+    for bad in (cut, empty):
+        result = CliRunner().invoke(cli, ["fill", str(src), str(tmp_path / "o.c3d"), "-m", "learned", "--model",
+                                          str(bad)])
+        assert result.exit_code == 1
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith(f"Error: {bad}: not a readable mocapfill model (")
+    result = CliRunner().invoke(cli, ["batch", str(src), "-o", str(tmp_path / "out"), "-m", "learned", "--model",
+                                      str(cut)])
+    assert result.exit_code == 1
+    assert f"failed {cut}: not a readable mocapfill model (BadZipFile" in " ".join(result.stderr.split())
+    assert "Traceback" not in result.output
 
 
 def test_the_model_is_a_prior_of_the_default(tiny, cmu, tmp_path):

@@ -8,7 +8,8 @@ import pytest
 from scipy.signal import butter, filtfilt
 
 from mocapfill.errors import MethodError
-from mocapfill.guards.lowpass import MIN_STRETCH, butterworth, lowpass, residual_cutoff
+from mocapfill.guards.lowpass import (MIN_STRETCH, PRECISION, butterworth, check_cutoff, lowest_cutoff, lowpass,
+                                      residual_cutoff)
 
 RATE = 100.0
 
@@ -98,3 +99,40 @@ def test_bad_cutoffs_fail_in_one_line():
         lowpass(x, float("nan"), 6.0)
     with pytest.raises(MethodError, match="'auto'"):
         lowpass(x, RATE, "fast")
+
+
+def test_a_cutoff_too_low_for_the_rate_or_the_take_fails_in_one_line():
+    """1e-8 Hz at 50 Hz made filtfilt's initial-state system singular (LinAlgError); 1e-7 Hz passed it and returned
+    positions hundreds of mm off a constant.  The bound comes from the design: sum(a) ~ 4 (pi fc / rate)^2 against
+    eps / PRECISION; and a take must hold a period of the cutoff."""
+    rate = 50.0
+    lowest = lowest_cutoff(rate)
+    b, a = butter(2, lowest, fs=rate)
+    assert a.sum() == pytest.approx(np.finfo(float).eps / PRECISION, rel=0.01)
+    x = np.full((1092, 1, 3), 1000.0)
+    x[:, 0, 0] += np.arange(1092) * 0.1
+    # at the bound the filter keeps a constant to within PRECISION
+    assert np.abs(butterworth(x, lowest, rate)[:, 0, 1] - 1000.0).max() < 1000.0 * PRECISION
+    for cutoff in (1e-8, 1e-7, 0.5 * lowest):
+        with pytest.raises(MethodError, match=r"too low for a frame rate of 50 Hz"):
+            lowpass(x, rate, cutoff)
+    assert lowest_cutoff(rate, 1092) == pytest.approx(rate / 1092)
+    with pytest.raises(MethodError, match=r"take\.c3d: --lowpass 0\.04 Hz is too low for the take: its 1092 frames"):
+        check_cutoff(0.04, rate, 1092, path="take.c3d")
+    check_cutoff(0.05, rate, 1092)  # one period fits
+
+
+def test_fill_lowpass_too_low_is_one_line_before_the_fill(sample_data, tmp_path):
+    from click.testing import CliRunner
+
+    from mocapfill.cli import cli
+
+    src = sample_data / "kinematics_tennis_serve_nan.c3d"
+    for cutoff, why in (("1e-8", "too low for a frame rate of 50 Hz"), ("0.01", "too low for the take")):
+        result = CliRunner().invoke(cli, ["fill", str(src), str(tmp_path / "x.c3d"), "-m", "linear", "--lowpass",
+                                          cutoff])
+        assert result.exit_code == 1, result.output
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith(f"Error: {src}: --lowpass {float(cutoff):g} Hz is") and \
+            why in lines[0]
+        assert not (tmp_path / "x.c3d").exists()

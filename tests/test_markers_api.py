@@ -52,6 +52,23 @@ def test_check_positions_rejects_inf_and_spreads_nan():
     assert np.isnan(check_positions(pos)[0, 0]).all()
 
 
+def test_coordinates_too_large_to_square_are_refused_where_they_enter_the_fill():
+    """|x| > 1e150 overflows a square: one MethodError naming the file and the marker, for every method."""
+    from mocapfill.methods.base import MAX_COORDINATE, check_magnitude
+
+    pos = np.zeros((40, 2, 3))
+    pos[:, 0, 0] = (-1.0) ** np.arange(40) * 1e308
+    pos[10:20, 1] = np.nan
+    with pytest.raises(MethodError, match=r"^take\.csv: coordinates too large to fill \(A reaches 1e\+308"):
+        check_positions(pos, name="take.csv", labels=["A", "B"])
+    for method in ("linear", "spline", "msvd"):
+        with pytest.raises(MethodError, match="coordinates too large to fill"):
+            mocapfill.fill(pos, method)
+    pos[:, 0, 0] = (-1.0) ** np.arange(40) * MAX_COORDINATE  # the bound itself still fills
+    check_magnitude(pos)
+    assert mocapfill.fill(pos, "spline").filled[10:20, 1].all()
+
+
 def test_registry_names_and_unknown_method():
     assert {"linear", "spline", "msvd", "dynammo", "bolero-hc", "bolero-sc", "bilinear", "pca", "auto"} <= set(METHODS)
     with pytest.raises(MethodError, match="unknown method 'nope'"):

@@ -7,7 +7,7 @@ import pytest
 from scipy.signal import savgol_filter
 
 from mocapfill.errors import MocapfillError
-from mocapfill.guards.smooth import default_window, savgol_smooth
+from mocapfill.guards.smooth import default_window, savgol_smooth, short_runs
 from synthetic import moving_body
 
 
@@ -43,6 +43,7 @@ def test_each_run_separately_and_short_runs_untouched():
     np.testing.assert_allclose(out[0:20, 0], savgol_filter(data[0:20, 0], 7, 2, axis=0, mode="interp"))
     np.testing.assert_allclose(out[23:40, 0], savgol_filter(data[23:40, 0], 7, 2, axis=0, mode="interp"))
     np.testing.assert_array_equal(out[55:60, 0], data[55:60, 0])
+    assert short_runs(data, 7) == [(0, 55, 5)] and short_runs(data, 1) == []  # what it left, for the warning
 
 
 def test_default_window_from_rate():

@@ -154,7 +154,8 @@ def _fill_file(task: FileTask, row: BatchRow) -> None:
                     if task.report is not None:
                         write_fill_report(outcome, task.report, method=task.settings.method, input_path=task.input,
                                           output_path=task.output,
-                                          smoothed=task.settings.smooth or task.settings.lowpass is not None)
+                                          smoothed=task.settings.smooth or task.settings.lowpass is not None,
+                                          stored=outcome.observed_stored(task.output, task.output_format))
                         written.append(task.report)
                     if task.status is not None:
                         from ..pipeline import write_status_csv

@@ -48,6 +48,19 @@ def _parse_options(pairs: tuple[str, ...]) -> dict:
     return out
 
 
+def _check_option_types(pairs: tuple[str, ...], options: dict, names: list[str]) -> None:
+    """A ``-o`` value of the wrong type for a method that takes the option (``-o max_iter=abc`` for dynammo): one
+    line naming the option as typed, before the file is read."""
+    from ..methods import get_method
+
+    typed = {item.partition("=")[0].strip().replace("-", "_"): item for item in pairs}
+    for name in names:
+        for key, value in options.items():
+            problem = get_method(name).option_problem(key, value)
+            if problem:
+                raise click.ClickException(f"-o {typed[key]}: {problem}")
+
+
 def _default_methods(given: set[str] = frozenset()) -> tuple[list[str], list[str]]:
     """Every registered method that can be loaded in this build and whose required option is in ``given``, and
     those that cannot run."""
@@ -110,6 +123,7 @@ def _show(result, quiet: bool) -> None:
     if any_problem:
         table.add_column("problems")
     ranking = result.ranking("rmse", "mean")
+    best = result.best("rmse", "mean")
     for method in ranking:
         row = summary[method]
         cells = [_fmt(row["rmse"]["mean"]), _fmt(row["rmse"]["median"]), _fmt(row["max_error"]["mean"]),
@@ -126,7 +140,7 @@ def _show(result, quiet: bool) -> None:
             problems.append(f"{row['unfilled']} samples unfilled")
         if row["not_converged"]:
             problems.append(f"{row['not_converged']} not converged")
-        style = "bold green" if method == ranking[0] and len(ranking) > 1 else None
+        style = "bold green" if method == best and len(ranking) > 1 else None
         if any_problem:
             cells.append(", ".join(problems))
         table.add_row(method, *cells, style=style)
@@ -169,7 +183,10 @@ def _show(result, quiet: bool) -> None:
     errors = sorted({f"{s.method}: {s.error}" for s in result.scores if s.error})
     for message in errors[:10]:
         out.print(f"[yellow]failure[/yellow] {message}", highlight=False)
-    out.print(f"best by mean RMSE: [bold]{ranking[0]}[/bold]")
+    if best is None:  # every RMSE is "-": naming the first of them would crown a method that scored nothing
+        out.print("best by mean RMSE: none (no method scored any hidden sample)")
+    else:
+        out.print(f"best by mean RMSE: [bold]{best}[/bold]")
     if ik:
         out.print(angle_headline(result))
 
@@ -299,6 +316,7 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
             if spec.requires and spec.requires not in given:
                 needs = "--ik-model MODEL.osim" if spec.requires == "ik_model" else f"-o {spec.requires}=FILE"
                 raise MethodError(f"method {name!r} needs {needs}")
+    _check_option_types(option_pairs, options, names)
     if ik_setup or any(get_method(n).requires == "ik_model" for n in names):
         from ..kinematics.opensim_ik import require_opensim
 

@@ -100,13 +100,14 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
         if force:
             # The writer refuses the path the data came from; --force says the user wants exactly that.
             out_data = dataclasses.replace(out_data, path=None)
+        stored = outcome.observed_stored(output_path, output_format)  # what the format does to them: TSV's 0.001 mm
         # The output last: a report or status that fails leaves it (under --force, the input) untouched, and one
         # that fails to write takes the report and status already written with it.
         with removed_on_failure() as written:
             if report_path is not None:
                 write_fill_report(outcome, report_path, method=method, input_path=input_path,
                                   output_path=output_path, smoothed=settings.smooth or settings.lowpass is not None,
-                                  jobs=jobs)
+                                  jobs=jobs, stored=stored)
                 written.append(report_path)
             if status_path is not None:
                 write_status_csv(outcome, status_path)
@@ -115,8 +116,9 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
 
     show_warnings(caught, quiet)
     _references(outcome.references, data.units, quiet)
-    _summary(outcome, method, report_path, status_path, quiet)
+    _summary(outcome, method, report_path, status_path, quiet, stored)
     _found(outcome, quiet)
+
 
 def _found(outcome, quiet: bool) -> None:
     """One line each on what the reader and the held-sample guard found (only when there is something)."""
@@ -142,9 +144,9 @@ def _references(references, units: str, quiet: bool) -> None:
                   f"weight {ref.weight:.2f}): {stages}", markup=False, highlight=False, soft_wrap=True)
 
 
-def _summary(outcome, method: str, report_path, status_path, quiet: bool) -> None:
+def _summary(outcome, method: str, report_path, status_path, quiet: bool, stored: str | None = None) -> None:
     """A few lines on stderr: method, filled samples, gaps left (and why), time, convergence, what changed observed
-    samples."""
+    samples (or, when nothing did, how the output format stores them: ``stored``, None = exactly)."""
     from ..gaps import all_missing_markers, find_gaps
     from ..guards.limits import left_records
 
@@ -197,8 +199,13 @@ def _summary(outcome, method: str, report_path, status_path, quiet: bool) -> Non
         out.print(f"edges: {edges}; {len(edge_filled)} gaps at the first or last frame filled", markup=False,
                   highlight=False, soft_wrap=True)
     changed = outcome.observed_changed()
-    out.print("observed samples changed by: " + ", ".join(changed) if changed else
-              "observed samples returned bit-identical", markup=False, highlight=False, soft_wrap=True)
+    if changed:
+        line = "observed samples changed by: " + ", ".join(changed)
+    elif stored:
+        line = f"observed samples returned as the output format stores them: {stored}"
+    else:
+        line = "observed samples returned bit-identical"
+    out.print(line, markup=False, highlight=False, soft_wrap=True)
     declined = result.info.get("declined") or []
     if declined:
         shown_gaps = ", ".join(f"{rec['marker']} at frame {data.first_frame + rec['start']} ({rec['length']} frames: "

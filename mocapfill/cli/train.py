@@ -10,6 +10,7 @@ from __future__ import annotations
 import click
 import numpy as np
 
+from ..errors import MocapfillError
 from . import cli
 from .common import ReadOptions, StderrProgress, console, input_options, quiet_option, read_input
 
@@ -60,7 +61,13 @@ def train_command(takes: tuple[str, ...], output_path: str, steps, hidden, block
     labels = [bare_label(first.labels[k]) for k in keep]
     matched = [match_reference(labels, first.units, d.positions, list(d.labels), d.units, name=path)
                for d, path in zip(datas, takes)]
+    for m, path in zip(matched, takes):
+        if np.isnan(m.positions).all():  # one line naming the take, not a reduction over no markers downstream
+            raise MocapfillError(f"{path}: nothing observed to train on (every sample of the layout's markers is "
+                                 "missing)")
     shared = np.all([~np.isnan(m.positions).any(axis=2).all(axis=0) for m in matched], axis=0)
+    if not shared.any():
+        raise MocapfillError(f"{', '.join(takes)}: no marker is observed in every take; nothing to train on")
     layout = [label for label, ok in zip(labels, shared) if ok]
     arrays = [m.positions[:, shared] for m in matched]
     options = {k: v for k, v in (("steps", steps), ("hidden", hidden), ("blocks", blocks), ("batch", batch_size))

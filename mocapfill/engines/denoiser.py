@@ -132,16 +132,41 @@ def load_model(path: str | os.PathLike) -> DenoiserModel:
                 raise ModelError(f"{name}: not a mocapfill denoiser model (format {meta.get('format')!r})")
             layers = [(z[f"w{k}"].astype(np.float64), z[f"b{k}"].astype(np.float64))
                       for k in range(int(meta["n_layers"]))]
-            return DenoiserModel(list(meta["labels"]), str(meta["units"]), z["frame_markers"].astype(int),
-                                 z["template"], z["mean"], z["scale"], layers, z["residual"],
-                                 dict(meta.get("settings", {})))
+            model = DenoiserModel(list(meta["labels"]), str(meta["units"]), z["frame_markers"].astype(int),
+                                  z["template"], z["mean"], z["scale"], layers, z["residual"],
+                                  dict(meta.get("settings", {})))
+        _check_shapes(model)
+        return model
     except ModelError:
         raise
     except FileNotFoundError:
         raise ModelError(f"{name}: no such model file") from None
-    except (OSError, ValueError, KeyError, json.JSONDecodeError) as exc:
-        raise ModelError(f"{name}: not a readable mocapfill model ({type(exc).__name__}: "
-                         f"{' '.join(str(exc).split())[:120]})") from None
+    except MemoryError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a damaged file fails anywhere in zipfile, zlib or NumPy's header parser
+        problem = "the file is empty" if isinstance(exc, EOFError) else f"{type(exc).__name__}: {exc}"
+        raise ModelError(f"{name}: not a readable mocapfill model ({' '.join(problem.split())[:120]})") from None
+
+
+def _check_shapes(model: DenoiserModel) -> None:
+    """Raise ValueError unless the arrays of ``model`` fit its layout and chain into one network (a damaged file can
+    unpack into arrays that would fail later, in the middle of a fill)."""
+    m = model.n_markers
+    if m == 0 or not model.layers:
+        raise ValueError("no markers or no layers")
+    expected = {"mean": (3 * m,), "scale": (3 * m,), "residual": (m,), "template": (len(model.frame_markers), 3)}
+    for key, shape in expected.items():
+        if np.shape(getattr(model, key)) != shape:
+            raise ValueError(f"{key} has shape {np.shape(getattr(model, key))}, expected {shape}")
+    if model.frame_markers.ndim != 1 or ((model.frame_markers < 0) | (model.frame_markers >= m)).any():
+        raise ValueError("frame marker indices outside the layout")
+    width = 4 * m  # each layer's input is the previous one's output; the last gives every marker's 3 coordinates
+    for k, (w, b) in enumerate(model.layers):
+        if w.ndim != 2 or w.shape[0] != width or b.shape != (w.shape[1],):
+            raise ValueError(f"layer {k} has shapes {w.shape} and {b.shape}, expected ({width}, n) and (n,)")
+        width = w.shape[1]
+    if width != 3 * m:
+        raise ValueError(f"the network gives {width} outputs, expected {3 * m}")
 
 
 def untrained_model(n_markers: int, units: str = "mm", *, hidden: int = 16, blocks: int = 1, seed: int = 0,

@@ -100,6 +100,8 @@ def train(takes: Sequence[np.ndarray], labels: Sequence[str], units: str, *, hid
         train_parts.append(complete[:cut])
         val_parts.append(complete[cut:])
     clean = np.concatenate(train_parts)
+    if clean.shape[1] == 0:  # every frame of no markers is "complete": say so before the body frame reduces over none
+        raise MocapfillError("training needs markers observed in every take; the takes give none")
     held = np.concatenate(val_parts) if sum(len(v) for v in val_parts) else clean[-max(1, len(clean) // 10):]
     if len(clean) < 50:
         raise MocapfillError(f"training needs at least 50 complete frames of the layout; the takes give {len(clean)}")

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..errors import MethodError, MocapfillError
 from ..markers import MarkerData
+from ..methods.base import check_magnitude
 from ..report.json_report import jsonable
 from .metrics import bone_error, point_errors, score
 from .occlusions import (DEFAULT_GAPS, PROTOCOLS, Occlusion, Shift, Trial, gap_range, make_occlusions,
@@ -157,9 +158,11 @@ class EvaluationResult:
         key = lambda m: (summ[m][metric][statistic] is None, summ[m][metric][statistic] or 0.0)  # noqa: E731
         return sorted(self.methods, key=key)
 
-    def best(self, metric: str = "rmse", statistic: str = "mean") -> str:
-        """The method with the lowest ``statistic`` of ``metric``."""
-        return self.ranking(metric, statistic)[0]
+    def best(self, metric: str = "rmse", statistic: str = "mean") -> str | None:
+        """The method with the lowest ``statistic`` of ``metric``; None when no method has one (every hidden sample
+        left unfilled, every trial failed): then no method is best."""
+        first = self.ranking(metric, statistic)[0]
+        return first if self.summary()[first][metric][statistic] is not None else None
 
     def trial_records(self) -> list[dict[str, Any]]:
         """Per trial: its occlusions/shifts in the spec layout and per-method scores (JSON-ready)."""
@@ -354,6 +357,7 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
         from ..pipeline import fill_columns, subset
 
         data = subset(data, fill_columns(data))
+    check_magnitude(data.positions, name=data.path, labels=data.labels)  # once, not as every trial's failure
     methods = list(methods)
     if seed is None:
         seed = int(np.random.SeedSequence().entropy % (2 ** 63))
@@ -387,6 +391,10 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
         if ignored:  # once here, not once per trial
             warnings.warn(f"method {name!r} ignores option(s): {', '.join(ignored)}", UserWarning, stacklevel=2)
         per_method[name] = {k: v for k, v in merged.items() if k in accepted[name]}
+        for key, value in per_method[name].items():  # here once, not a TypeError deep in every trial
+            problem = get_method(name).option_problem(key, value)
+            if problem:
+                raise MethodError(f"option {key}={value!r}: {problem}")
         required = get_method(name).requires
         if required and per_method[name].get(required) is None:
             raise MethodError(f"method {name!r} needs --{required.replace('_', '-')} (evaluate(..., {required}=...))")

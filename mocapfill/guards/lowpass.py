@@ -11,7 +11,9 @@ design cutoff up by 1/0.802 to put the -3 dB point at fc; we do not).
 Each continuous stretch of a marker (frames where it is finite after the fill) is filtered on its own, its ends
 padded by odd reflection (``filtfilt``'s default, ``3 * 3`` frames); gaps left unfilled stay as they are and nothing
 is filtered across them; a stretch shorter than ``MIN_STRETCH`` frames is left as it is.  Observed samples change:
-the caller reports them (status ``SMOOTHED``).
+the caller reports them (status ``SMOOTHED``).  A cutoff the filter cannot realise is refused in one line
+(:func:`check_cutoff`): below :func:`lowest_cutoff`, where the design loses double precision (``PRECISION``) or
+the take holds less than one period of it.
 
 ``cutoff="auto"``: Winter's residual analysis.  For cutoffs ``fc`` on a grid, the residual ``R(fc)`` is the RMS
 difference between the data and the data filtered at ``fc`` (over observed samples only: a filled sample carries no
@@ -50,6 +52,11 @@ GRID_STEPS = 100
 ANALYSIS_WINDOWS = 4
 #: ... of this many frames each (a 100,000-frame take costs what a 4,000-frame one does).
 ANALYSIS_WINDOW = 1000
+#: Largest relative error the filter may add to a coordinate (a micrometre per metre: below any capture's resolution).
+#: filtfilt's initial state solves (I - A) z = B, whose determinant is sum(a) = 4 K^2 / (1 + sqrt(2) K + K^2) with
+#: K = tan(pi fc / rate): rounding grows as eps / sum(a), so a cutoff below 2.4e-6 of the rate costs more than this,
+#: and below about 1e-9 of it the system is singular (LinAlgError).
+PRECISION = 1e-6
 #: Residual analysis: the straight line of the noise is fitted to the residuals of cutoffs in this range (fractions of
 #: the frame rate: 20 % to 40 %, i.e. 24 Hz to 48 Hz at 120 Hz), above the content of human movement (< 15 Hz).
 FIT_RANGE = (0.2, 0.4)
@@ -65,12 +72,37 @@ class LowpassResult(NamedTuple):
     changed: np.ndarray
 
 
-def _coefficients(cutoff: float, rate: float) -> tuple[np.ndarray, np.ndarray]:
+def lowest_cutoff(rate: float, n_frames: int | None = None) -> float:
+    """The lowest cutoff (Hz) the filter realises at ``rate``: where double rounding stays within :data:`PRECISION`
+    (sum(a) >= eps / PRECISION), and with ``n_frames``, one period of the cutoff within the take (a slower component
+    has no amplitude in the take for the filter to halve)."""
+    k = np.sqrt(np.finfo(np.float64).eps / (4 * PRECISION))  # 4 K^2 = eps / PRECISION, K small
+    lowest = rate / np.pi * np.arctan(k)
+    if n_frames:
+        lowest = max(lowest, rate / n_frames)
+    return float(lowest)
+
+
+def check_cutoff(cutoff: float, rate: float, n_frames: int | None = None, *, path: str | None = None,
+                 name: str = "--lowpass") -> None:
+    """Raise MethodError (naming ``path`` and ``name``) for a cutoff of ``cutoff`` Hz the filter cannot realise on a
+    take of ``n_frames`` at ``rate`` Hz: not below half the rate, or below :func:`lowest_cutoff`."""
+    where = f"{path}: " if path else ""
     if not (rate > 0 and np.isfinite(rate)):
-        raise MethodError("a low-pass filter needs the frame rate (give --rate)")
+        raise MethodError(f"{where}a low-pass filter needs the frame rate (give --rate)")
     if not (0 < cutoff < rate / 2):
-        raise MethodError(f"low-pass cutoff {cutoff:g} Hz must lie between 0 and half the frame rate "
+        raise MethodError(f"{where}low-pass cutoff {cutoff:g} Hz must lie between 0 and half the frame rate "
                           f"({rate / 2:g} Hz)")
+    if cutoff < lowest_cutoff(rate):
+        raise MethodError(f"{where}{name} {cutoff:g} Hz is too low for a frame rate of {rate:g} Hz: the filter's "
+                          f"coefficients lose double precision below {lowest_cutoff(rate):.3g} Hz")
+    if n_frames and cutoff < lowest_cutoff(rate, n_frames):
+        raise MethodError(f"{where}{name} {cutoff:g} Hz is too low for the take: its {n_frames} frames at {rate:g} Hz "
+                          f"hold less than one period of it (the lowest is {lowest_cutoff(rate, n_frames):.3g} Hz)")
+
+
+def _coefficients(cutoff: float, rate: float) -> tuple[np.ndarray, np.ndarray]:
+    check_cutoff(cutoff, rate, name="low-pass cutoff")
     return butter(ORDER, cutoff, btype="low", fs=rate)
 
 

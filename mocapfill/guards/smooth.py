@@ -33,6 +33,16 @@ def default_window(order: int = DEFAULT_ORDER, rate: float | None = None) -> int
     return window if window % 2 == 1 else window + 1
 
 
+def short_runs(positions: np.ndarray, window: int) -> list[tuple[int, int, int]]:
+    """The runs :func:`savgol_smooth` leaves as they are: ``(marker, start, length)`` of every run of finite samples
+    of ``positions`` (n_frames, n_markers, 3) shorter than ``window`` frames (none when ``window`` is 1)."""
+    if window <= 1:
+        return []
+    finite = np.isfinite(positions).all(axis=2)
+    return [(m, start, length) for m in range(finite.shape[1]) for start, length in runs(finite[:, m])
+            if length < window]
+
+
 def savgol_smooth(positions: np.ndarray, *, window: int | None = None, order: int = DEFAULT_ORDER,
                   rate: float | None = None) -> np.ndarray:
     """Savitzky-Golay smoothing of every coordinate, each observed run separately.

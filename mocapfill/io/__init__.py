@@ -3,6 +3,8 @@ module per format.
 
 - :func:`read` turns a file (or ``"-"`` = stdin, or an open binary stream) into one :class:`MarkerData`.
 - :func:`write` writes one back, atomically (temporary file + rename, see :mod:`mocapfill.io.atomic`).
+- :func:`storage_change` says whether the written file holds the samples exactly (CSV, TRC: always; TSV: mm on its
+  0.001 mm grid; C3D: words kept from the original, or float32 values), else how it stores them.
 
 The format comes from ``format=`` when given; else a file's extension, refined by its content among the text formats
 (TRC ``PathFileType``, QTM ``NO_OF_FRAMES``, Motive ``Format Version,``: a Motive export saved as ``.csv`` is read as
@@ -24,8 +26,8 @@ from ..errors import FormatError, InputError
 from ..markers import MarkerData
 from .atomic import atomic_write, check_output_path, is_std_stream
 
-__all__ = ["read", "write", "atomic_write", "check_output_path", "detect_format", "sniff_format", "READ_FORMATS",
-           "WRITE_FORMATS"]
+__all__ = ["read", "write", "storage_change", "atomic_write", "check_output_path", "detect_format", "sniff_format",
+           "READ_FORMATS", "WRITE_FORMATS"]
 
 PathOrStream = Union[str, os.PathLike, BinaryIO]
 
@@ -211,6 +213,39 @@ def _decode(raw: bytes, name: str) -> str:
     raise FormatError(f"{name}: cannot decode as text")  # pragma: no cover - latin-1 decodes everything
 
 
+def _write_format(data: MarkerData, path_or_stream: PathOrStream, format: str | None) -> tuple[str, str, bool]:
+    """(name, format, whether a stream) of a :func:`write`: ``format``, else the path's extension, else (stdout and
+    streams) the format the data was read from."""
+    name = _name_of(path_or_stream)
+    stream = is_std_stream(path_or_stream) or not isinstance(path_or_stream, (str, os.PathLike))
+    if format is not None or not stream:
+        fmt = detect_format(name, format)
+    else:
+        fmt = _WRITTEN_AS.get(data.source_format or "", data.source_format) or "csv"
+    if fmt == "vicon-csv":
+        fmt = "csv"  # "the CSV layout" when asked to write what was read
+    if fmt not in WRITE_FORMATS:
+        raise FormatError(f"{name}: cannot write format {fmt!r} (expected one of {', '.join(WRITE_FORMATS)})")
+    return name, fmt, stream
+
+
+def storage_change(data: MarkerData, path_or_stream: PathOrStream, format: str | None = None, *,
+                   samples: np.ndarray | None = None) -> str | None:
+    """How :func:`write` of ``data`` to ``path_or_stream`` changes the numbers of ``samples`` ((n_frames, n_markers)
+    bool, default every observed sample): None when the file holds them exactly as they are (CSV and TRC always:
+    the shortest text that reads back to the same float64); else how the format stores them ("rounded to the TSV's
+    0.001 mm", "stored as float32 by C3D", ...).  Arguments as :func:`write`."""
+    _, fmt, _ = _write_format(data, path_or_stream, format)
+    mask = ~data.missing if samples is None else np.asarray(samples, dtype=bool) & ~data.missing
+    if fmt == "tsv":
+        from .tsv import tsv_storage
+        return tsv_storage(data, mask)
+    if fmt == "c3d":
+        from .c3d import c3d_storage
+        return c3d_storage(data, mask)
+    return None
+
+
 def write(data: MarkerData, path_or_stream: PathOrStream, format: str | None = None) -> None:
     """Write ``data`` to a file (atomically), ``"-"`` (stdout) or a binary stream.
 
@@ -229,16 +264,7 @@ def write(data: MarkerData, path_or_stream: PathOrStream, format: str | None = N
     InputError (unwritable directory, the path of the file ``data`` was read from, ...), FormatError (unknown
     extension, data the format cannot hold).
     """
-    name = _name_of(path_or_stream)
-    stream = is_std_stream(path_or_stream) or not isinstance(path_or_stream, (str, os.PathLike))
-    if format is not None or not stream:
-        fmt = detect_format(name, format)
-    else:
-        fmt = _WRITTEN_AS.get(data.source_format or "", data.source_format) or "csv"
-    if fmt == "vicon-csv":
-        fmt = "csv"  # "the CSV layout" when asked to write what was read
-    if fmt not in WRITE_FORMATS:
-        raise FormatError(f"{name}: cannot write format {fmt!r} (expected one of {', '.join(WRITE_FORMATS)})")
+    name, fmt, stream = _write_format(data, path_or_stream, format)
     if not stream:
         check_output_path(path_or_stream, data.path)  # never overwrite the file the data came from
     if fmt == "c3d":

@@ -31,7 +31,7 @@ from .labels import make_unique, normalise_units, point_kinds, rename_notes
 
 MODEL_OUTPUT_PARAMS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS")
 
-__all__ = ["C3DExtra", "read_c3d", "c3d_bytes", "mark_refilled", "c3d_kinds", "MODEL_OUTPUT_PARAMS",
+__all__ = ["C3DExtra", "read_c3d", "c3d_bytes", "c3d_storage", "mark_refilled", "c3d_kinds", "MODEL_OUTPUT_PARAMS",
            "MODEL_POINT_PARAMS"]
 
 
@@ -197,6 +197,24 @@ def c3d_bytes(data: MarkerData, name: str = "<c3d>") -> bytes:
         warnings.warn(f"{name}: the markers or frames differ from the original C3D; writing a new C3D without the "
                       "original's analog data and parameters", DataWarning, stacklevel=3)
     return _fresh(data, name)
+
+
+def c3d_storage(data: MarkerData, samples: np.ndarray) -> str | None:
+    """None when the C3D :func:`c3d_bytes` writes holds the ``samples`` ((n_frames, n_markers) bool) of ``data``
+    exactly: a rewrite keeps the words of every sample equal to the original's, a float C3D holds float32 values;
+    else how it stores them."""
+    extra = data.extra
+    if isinstance(extra, C3DExtra) and (data.n_frames == extra.file.n_frames
+                                        and data.n_markers == len(extra.marker_points)):
+        if data.n_frames and data.n_markers:
+            original, _ = decode_points(extra.file, extra.file.point_block()[:, extra.marker_points, :])
+            samples = samples & ~(data.positions == original).all(axis=2)  # written back word for word
+        if not extra.file.is_float:
+            return (f"stored as integers of {abs(extra.file.scale):g} {data.units} by the C3D" if samples.any()
+                    else None)
+    values = data.positions[samples]
+    return None if np.array_equal(values.astype(np.float32).astype(np.float64), values) else \
+        "stored as float32 by C3D"
 
 
 def _word_bytes(values: np.ndarray, f: C3DFile) -> np.ndarray:

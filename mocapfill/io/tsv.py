@@ -44,7 +44,7 @@ from ..units import length_factor
 from .csv import frame_number, parse_numbers
 from .labels import make_unique, point_kinds, rename_notes
 
-__all__ = ["read_tsv", "tsv_text", "looks_like_tsv", "TSVExtra"]
+__all__ = ["read_tsv", "tsv_text", "tsv_storage", "looks_like_tsv", "TSVExtra"]
 
 _KEY = re.compile(r"^[A-Z][A-Z0-9_]*$")
 #: header keys the writer always computes itself (the rest are copied from a TSV source).
@@ -210,6 +210,16 @@ def _rate_text(rate: float) -> str:
     if not np.isfinite(rate):
         return "EXT"
     return str(int(rate)) if float(rate).is_integer() else repr(float(rate))
+
+
+def tsv_storage(data: MarkerData, samples: np.ndarray) -> str | None:
+    """None when :func:`tsv_text` writes the ``samples`` ((n_frames, n_markers) bool) of ``data`` exactly; else how it
+    changes them (converted to mm, rounded to 0.001 mm)."""
+    if data.units != "mm":
+        return f"converted from {data.units} to mm and rounded to the TSV's 0.001 mm"
+    values = data.positions[samples]
+    # a value on the 0.001 grid (the nearest float64 to k / 1000, as a TSV read gives) prints and reads back as itself
+    return None if np.array_equal(np.round(values, 3), values) else "rounded to the TSV's 0.001 mm"
 
 
 def tsv_text(data: MarkerData, name: str = "<tsv>") -> str:

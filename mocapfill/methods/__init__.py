@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import importlib
 import inspect
-from typing import Callable, NamedTuple
+import numbers
+from typing import Any, Callable, NamedTuple
 
 from ..errors import MethodError
 from .base import FillResult, finish
@@ -39,6 +40,41 @@ class MethodSpec(NamedTuple):
     def parameters(self) -> set[str]:
         """Names of the keyword options the function accepts."""
         return set(inspect.signature(self.load()).parameters) - {"positions"}
+
+    def option_problem(self, key: str, value: Any) -> str | None:
+        """Why ``value`` does not fit the function's option ``key`` ("method 'dynammo' takes an integer for
+        max_iter"), or None.  Only options annotated with int / float / bool / str / None are judged (a value typed
+        on a command line is one of those); an option the method does not take, or one of another type (arrays,
+        callables, paths, models), is left to the method."""
+        try:
+            param = inspect.signature(self.load()).parameters.get(key)
+        except (ImportError, AttributeError):  # not in this build: said where the method is loaded
+            return None
+        if param is None or param.annotation is inspect.Parameter.empty:
+            return None
+        annotation = param.annotation
+        text = annotation if isinstance(annotation, str) else getattr(annotation, "__name__", str(annotation))
+        kinds = [kind.strip() for kind in text.split("|")]
+        if not all(kind in _VALUE_KINDS for kind in kinds) or any(_fits(value, kind) for kind in kinds):
+            return None
+        return f"method {self.name!r} takes {' or '.join(_VALUE_KINDS[k] for k in kinds)} for {key}"
+
+
+#: The annotations :meth:`MethodSpec.option_problem` judges, and how a message names them.
+_VALUE_KINDS = {"int": "an integer", "float": "a number", "bool": "true or false", "str": "text", "None": "none"}
+
+
+def _fits(value: Any, kind: str) -> bool:
+    """Whether ``value`` is of the annotation ``kind`` (a key of ``_VALUE_KINDS``); an integer is a float, a bool is
+    neither (``True`` for ``max_iter`` is a slip, not 1)."""
+    if kind == "None":
+        return value is None
+    if kind == "bool":
+        return isinstance(value, bool)
+    if kind == "str":
+        return isinstance(value, str)
+    wanted = numbers.Integral if kind == "int" else numbers.Real
+    return isinstance(value, wanted) and not isinstance(value, bool)
 
 
 METHODS: dict[str, MethodSpec] = {

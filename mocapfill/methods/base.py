@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -117,8 +117,33 @@ def declined_mask(info: dict[str, Any] | None, shape: tuple[int, int]) -> np.nda
     return records_mask((info or {}).get("declined"), shape)
 
 
-def check_positions(positions: np.ndarray) -> np.ndarray:
-    """Validate and return ``positions`` as float64 (n_frames, n_markers, 3); a partly-NaN sample becomes all-NaN."""
+#: Largest coordinate a fill takes.  Methods square coordinates (distances, covariances, sums of squares over
+#: frames); past ~1.3e154 a square overflows to inf, and each method then fails its own way (a spline's "dydx must
+#: be finite", an SVD that does not converge, a fill quietly left missing).  1e150 leaves 1e8 squares of headroom.
+MAX_COORDINATE = 1e150
+
+
+def check_magnitude(positions: np.ndarray, *, name: str | None = None, labels: Sequence[str] | None = None) -> None:
+    """Raise MethodError, naming ``name`` (the file) and the first marker at fault (from ``labels``), when a
+    coordinate of ``positions`` (n_frames, n_markers, 3; NaN = missing) exceeds :data:`MAX_COORDINATE` in size."""
+    from ..errors import MethodError
+
+    large = np.abs(np.nan_to_num(positions)) > MAX_COORDINATE  # NaN counts as missing; inf is caught as infinite
+    if not large.any():
+        return
+    frame, marker, axis = np.argwhere(large)[0]
+    where = f"{name}: " if name else ""
+    who = labels[marker] if labels is not None and marker < len(labels) else f"marker {marker + 1}"
+    raise MethodError(f"{where}coordinates too large to fill ({who} reaches {positions[frame, marker, axis]:g}; a "
+                      f"fill squares coordinates, and past {MAX_COORDINATE:g} its arithmetic overflows)")
+
+
+def check_positions(positions: np.ndarray, *, name: str | None = None,
+                    labels: Sequence[str] | None = None) -> np.ndarray:
+    """Validate and return ``positions`` as float64 (n_frames, n_markers, 3); a partly-NaN sample becomes all-NaN.
+
+    Infinite values, and coordinates too large to square (:func:`check_magnitude`, naming ``name`` and ``labels``),
+    raise MethodError."""
     from ..errors import MethodError
 
     positions = np.array(positions, dtype=np.float64)
@@ -126,5 +151,6 @@ def check_positions(positions: np.ndarray) -> np.ndarray:
         raise MethodError(f"positions must have shape (n_frames, n_markers, 3), got {positions.shape}")
     if np.isinf(positions).any():
         raise MethodError("positions contain infinite values")
+    check_magnitude(positions, name=name, labels=labels)
     positions[np.isnan(positions).any(axis=2)] = np.nan
     return positions

@@ -65,7 +65,9 @@ def render_evaluation_html(result) -> str:
     parts = [f"<h1>Evaluation of fill methods<small>{escape(data.path)}: {data.n_markers} markers, {data.n_frames} "
              f"frames at {data.rate:g} Hz; protocol {escape(result.protocol)}, {len(result.trials)} trials, seed "
              f"{result.seed}</small></h1>"]
-    headline = [f"Best by mean RMSE: <strong>{escape(ranking[0])}</strong>."]
+    by_mm = result.best("rmse", "mean")
+    headline = [f"Best by mean RMSE: <strong>{escape(by_mm)}</strong>." if by_mm is not None else
+                "Best by mean RMSE: none (no method scored any hidden sample)."]
     if ik:
         best = result.best_for_angles()
         left = result.left_missing_summary()

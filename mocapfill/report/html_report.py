@@ -122,7 +122,8 @@ def _summary_rows(report: dict) -> list[tuple[str, str]]:
         rows.append(("Short fragments", f"{s['fragments']} dropped and filled over ({s['fragment_samples']} samples)"))
     if "observed_changed" in s:
         rows.append(("Observed samples", "changed by " + ", ".join(s["observed_changed"]) if s["observed_changed"]
-                     else "returned bit-identical"))
+                     else f"returned as the output format stores them: {s['observed_stored']}"
+                     if s.get("observed_stored") else "returned bit-identical"))
     rows += [
         ("Outliers rejected" if not s.get("held") else "Rejected (outliers, held)", str(s["rejected_samples"])),
         *[(f"Reference take {k + 1}", f"{r['name']}: {r['frames']} frames{' (static trial)' if r['static'] else ''}, "

@@ -137,7 +137,8 @@ def build_fill_report(data, result, *, method: str, settings: dict[str, Any] | N
                       input_path: str | None, output_path: str | None, bones=None, rejected: np.ndarray | None = None,
                       smoothed: bool = False, fragments: np.ndarray | None = None, left: np.ndarray | None = None,
                       chosen: np.ndarray | None = None, edges: str = "fill",
-                      observed_changed: list[str] | None = None) -> dict[str, Any]:
+                      observed_changed: list[str] | None = None,
+                      observed_stored: str | None = None) -> dict[str, Any]:
     """The JSON-ready record of one fill.
 
     Parameters
@@ -172,7 +173,10 @@ def build_fill_report(data, result, *, method: str, settings: dict[str, Any] | N
     edges : "fill" or "leave"
         What the fill did with the gaps touching the first or last frame.
     observed_changed : list of str, optional
-        The options that changed or dropped observed samples, with counts (empty: all returned bit-identical).
+        The options that changed or dropped observed samples, with counts (empty: none changed them).
+    observed_stored : str, optional
+        How the output's format stores the observed samples ("rounded to the TSV's 0.001 mm"); None: exactly (with
+        no ``observed_changed``, bit-identical).
 
     Returns
     -------
@@ -284,6 +288,7 @@ def build_fill_report(data, result, *, method: str, settings: dict[str, Any] | N
         "fragment_samples": int(frag.sum()),
         "markers_not_chosen": [] if chosen is None else [labels[m] for m in np.flatnonzero(~np.asarray(chosen))],
         "observed_changed": [str(c) for c in (observed_changed or [])],
+        "observed_stored": observed_stored,
         "convergence": {
             "n_iter": int(result.n_iter),
             "converged": bool(result.converged),
