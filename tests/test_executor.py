@@ -65,6 +65,16 @@ def test_forked_map_keeps_the_items_order_and_runs_closures_elsewhere():
     assert forked_map(lambda x: x, [], 2) == []
 
 
+def test_a_process_that_imported_jax_does_not_fork(monkeypatch):
+    import sys
+
+    from mocapfill.runtime.executor import can_fork, forked_map
+
+    monkeypatch.setitem(sys.modules, "jax", object())  # JAX's threads are native: the thread count misses them
+    assert not can_fork()
+    assert forked_map(lambda x: os.getpid(), range(4), 2) == [os.getpid()] * 4  # one item after the other, here
+
+
 def test_forked_map_raises_a_workers_exception():
     from mocapfill.runtime.executor import forked_map
 

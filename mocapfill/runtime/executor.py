@@ -303,11 +303,13 @@ def _run_dask(func: Callable[[Any], Any], tasks: Sequence[Any], scheduler: Any, 
 def can_fork() -> bool:
     """Whether :func:`forked_map` may fork here: on Linux, from a process that may have children (not a daemonic
     pool worker) and runs no other thread (a fork copies only the calling thread, and a lock another thread held
-    would stay locked in the child)."""
+    would stay locked in the child).  A process that imported JAX (the learned denoiser) runs JAX's own threads,
+    which Python's thread count does not see and JAX warns a fork may deadlock on: it does not fork either."""
     import threading
 
     return (sys.platform.startswith("linux") and "fork" in multiprocessing.get_all_start_methods()
-            and not multiprocessing.current_process().daemon and threading.active_count() == 1)
+            and not multiprocessing.current_process().daemon and threading.active_count() == 1
+            and "jax" not in sys.modules)
 
 
 def forked_map(func: Callable[[Any], Any], items: Sequence[Any], jobs: int | None,
