@@ -85,7 +85,8 @@ def fill_options(func: Callable) -> Callable:
         click.option("-m", "--method", type=click.Choice(list(METHODS)), default=DEFAULT_METHOD, show_default=True,
                      help="Fill method (listed below; 'auto' is the most accurate measured)."),
         click.option("--hidden", type=click.IntRange(min=1), default=None,
-                     help="Hidden dimension of the dynamical models (dynammo, bolero-*; default 16)."),
+                     help="Hidden dimension of the dynamical models (dynammo, bolero-*; default 16); at most 3 x the "
+                          "observed markers (a larger value is capped there, with a warning)."),
         click.option("--max-iter", type=click.IntRange(min=0), default=None,
                      help="Iteration cap of iterative methods."),
         click.option("--tol", type=click.FloatRange(min=0), default=None,
