@@ -11,7 +11,7 @@ import numpy as np
 from .errors import MethodError
 from .markers import MarkerData
 from .methods import DEFAULT_METHOD, get_method
-from .methods.base import FillResult, check_positions
+from .methods.base import FillResult, check_frames, check_positions
 
 #: Keywords that describe the data rather than tune a method; passed only to methods that accept them.
 CONTEXT_KEYS = ("units", "rate", "labels")
@@ -103,6 +103,7 @@ def fill(data: MarkerData | np.ndarray, method: str = DEFAULT_METHOD, *, max_gap
                       stacklevel=2)
     positions = check_positions(positions, name=data.path if isinstance(data, MarkerData) else None,
                                 labels=context["labels"])
+    check_frames(positions.shape[0], name=data.path if isinstance(data, MarkerData) else None)
     limits = None
     if max_gap is not None or edges != "fill" or markers is not None or exclude is not None:
         from .guards.limits import check_edges, parse_max_gap

@@ -25,7 +25,7 @@ from .errors import MethodError
 from .markers import MarkerData
 from .status import Status
 from .methods import DEFAULT_METHOD, METHODS, get_method
-from .methods.base import MARKER_RECORDS, FillResult, check_magnitude
+from .methods.base import MARKER_RECORDS, FillResult, check_frames, check_magnitude
 
 
 #: The report lists at most this many repaired samples (the count is always complete).
@@ -379,6 +379,7 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
     """
     from .guards.limits import apply_limits, leave_reasons, parse_max_gap
 
+    check_frames(data.n_frames, name=data.path)
     chosen = select_markers(data.labels, data.kinds, settings.markers, settings.exclude, path=data.path)
     max_gap = None if settings.max_gap is None else parse_max_gap(settings.max_gap, data.rate)
     if settings.smooth and settings.smooth_window is not None and int(settings.smooth_window) > data.n_frames:

@@ -107,6 +107,24 @@ def test_coordinates_too_large_to_fill(tmp_path):
         assert "Traceback" not in result.output
 
 
+def test_header_only_file_is_refused_by_fill_evaluate_and_batch(tmp_path):
+    """A CSV of labels and no rows: `fill` wrote a 0-frame file and called it done; now one line naming the file
+    (info still shows its 0 frames)."""
+    path = tmp_path / "hdr.csv"
+    path.write_text("frame,time,A_x,A_y,A_z,B_x,B_y,B_z\n")
+    for args in (["fill", str(path), str(tmp_path / "o.csv"), "-m", "linear"],
+                 ["evaluate", str(path), "-m", "linear", "-n", "1", "-s", "1"],
+                 ["batch", str(path), "-o", str(tmp_path / "out"), "-m", "linear"]):
+        result = CliRunner().invoke(cli, args + ["--rate", "100"])
+        assert result.exit_code == 1, result.output
+        assert "Traceback" not in result.output
+        lines = [x for x in result.stderr.splitlines() if x.strip() and not x.startswith("note: ")]  # units assumed
+        assert f"{path}: no frames (a header only): nothing to fill" in lines[0], result.stderr
+    assert not (tmp_path / "o.csv").exists()
+    shown = CliRunner().invoke(cli, ["info", str(path), "--rate", "100"])
+    assert shown.exit_code == 0 and "0 (first frame 1)" in shown.stderr
+
+
 # --- output paths (exercised through `fill` by its owner; tested here directly) ----------------------------------
 
 def test_output_equal_to_input(tmp_path):

@@ -53,6 +53,21 @@ def test_pipe_csv_stdin_to_stdout(runner, gappy, tmp_path):
     assert "filled 145 of 145" in result.stderr and "filled" not in result.stdout.splitlines()[0]
 
 
+def test_format_that_disagrees_with_the_extension_is_warned_and_written_as_asked(runner, test_data, tmp_path):
+    """`-f c3d` into out.csv wrote binary C3D silently, which `info out.csv` then could not read."""
+    out = tmp_path / "out.csv"
+    result = runner.invoke(cli, ["fill", str(test_data / "T.trc"), str(out), "-f", "c3d", "-m", "linear"])
+    assert result.exit_code == 0, result.output
+    warned = [line for line in result.stderr.splitlines() if line.startswith("warning")]
+    assert warned == [f"warning {out}: --format c3d writes C3D into a .csv file; reading it back will need "
+                      "--input-format c3d"]
+    assert mocapfill.read(out, format="c3d").n_frames == mocapfill.read(test_data / "T.trc").n_frames
+    for name, fmt in (("same.c3d", "c3d"), ("none.dat", "trc")):  # agreeing, or an extension of no format
+        result = runner.invoke(cli, ["fill", str(test_data / "T.trc"), str(tmp_path / name), "-f", fmt, "-m",
+                                     "linear"])
+        assert result.exit_code == 0 and "warning" not in result.stderr, result.output
+
+
 def test_output_equal_to_input_is_refused_unless_forced(runner, gappy, tmp_path):
     copy = tmp_path / "copy.c3d"
     shutil.copy(gappy, copy)

@@ -64,3 +64,28 @@ def test_info_notes_shown(test_data):
     result = CliRunner().invoke(cli, ["info", str(test_data / "markers.trc")])
     assert result.exit_code == 0, result.output
     assert "note: header says 652 frames, the file holds 93" in result.stderr
+
+
+def test_info_tables_uncut_when_stderr_is_not_a_terminal(tmp_path):
+    # rich lays a pipe's output out in 80 columns and cut these cells with an ellipsis
+    label = "Subject_With_A_Rather_Long_Name:LEFT_ANTERIOR_SUPERIOR_ILIAC_SPINE"
+    rows = ["# mocapfill csv: units=mm rate=120 first_frame=1",
+            "frame,time," + ",".join(f"{m}_{c}" for m in (label, "B") for c in "xyz")]
+    for i in range(400):
+        a = ",," if 50 <= i < 300 else f"{i},{i},{i}"
+        rows.append(f"{i + 1},{i / 120},{a},{i},{i + 1},{i + 2}")
+    path = tmp_path / "long.csv"
+    path.write_text("\n".join(rows) + "\n")
+    result = CliRunner().invoke(cli, ["info", str(path)])
+    assert result.exit_code == 0, result.output
+    assert label in result.stderr and "250 (2.08 s)" in result.stderr and "missing %" in result.stderr
+    assert "…" not in result.stderr
+
+
+def test_console_keeps_rich_width_on_a_terminal():
+    from rich.console import Console
+
+    from mocapfill.cli.common import UNBOUNDED_WIDTH, _StderrConsole
+
+    assert _StderrConsole(stderr=True, force_terminal=True).width == Console(stderr=True, force_terminal=True).width
+    assert _StderrConsole(stderr=True, force_terminal=False, width=80).width == UNBOUNDED_WIDTH  # COLUMNS=80 too

@@ -176,6 +176,23 @@ def test_recovers_lds_data_far_better_than_linear_interpolation():
     assert res.converged
 
 
+def test_hidden_is_capped_at_the_observed_coordinates():
+    """--hidden 1000 on a few markers ran EM with 1000 states for minutes; now capped at 3 x the observed markers."""
+    P, _ = lds_markers(T=80, M=5, H=3, seed=4)
+    X = with_gaps(P)
+    X[:, 4] = np.nan  # missing throughout: not observed, 4 markers = 12 coordinates left
+    with pytest.warns(UserWarning, match=r"hidden=1000 is more than the 12 coordinates of the 4 observed markers: "
+                                         r"capped at 12"):
+        res = run_quiet(X, hidden=1000, max_iter=5, seed=0)
+    assert res.info["hidden"] == 12 and res.info["hidden_capped"] == 1000
+    capped = run_quiet(X, hidden=12, max_iter=5, seed=0)
+    np.testing.assert_array_equal(res.positions, capped.positions)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)  # the default (16) is capped quietly: the user did not ask
+        quiet = run_quiet(X, max_iter=2, seed=0)
+    assert quiet.info["hidden"] == 12 and quiet.info["hidden_capped"] == 16
+
+
 def test_determinism_under_seed_and_edge_cases():
     P, _ = lds_markers(T=80, M=5, H=3, seed=4)
     X = with_gaps(P)

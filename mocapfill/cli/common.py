@@ -9,7 +9,7 @@ import warnings
 from typing import Callable, NamedTuple
 
 import click
-from rich.console import Console
+from rich.console import Console, ConsoleDimensions
 
 from ..errors import ConvergenceWarning, DataWarning, MethodError, warning_line
 
@@ -85,7 +85,8 @@ def fill_options(func: Callable) -> Callable:
         click.option("-m", "--method", type=click.Choice(list(METHODS)), default=DEFAULT_METHOD, show_default=True,
                      help="Fill method (listed below; 'auto' is the most accurate measured)."),
         click.option("--hidden", type=click.IntRange(min=1), default=None,
-                     help="Hidden dimension of the dynamical models (dynammo, bolero-*; default 16)."),
+                     help="Hidden dimension of the dynamical models (dynammo, bolero-*; default 16); at most 3 x the "
+                          "observed markers (a larger value is capped there, with a warning)."),
         click.option("--max-iter", type=click.IntRange(min=0), default=None,
                      help="Iteration cap of iterative methods."),
         click.option("--tol", type=click.FloatRange(min=0), default=None,
@@ -148,10 +149,34 @@ def fill_options(func: Callable) -> Callable:
     return wrapper
 
 
+#: the width a console writing to a file or a pipe lays its tables out in: wide enough that no cell is cut.
+UNBOUNDED_WIDTH = 10_000
+
+
+class _StderrConsole(Console):
+    """A rich console whose width, when its stream is not a terminal, is :data:`UNBOUNDED_WIDTH`.
+
+    rich lays out a file's or a pipe's output in 80 columns (or the width of whichever standard stream is a
+    terminal, or ``COLUMNS``), cutting table cells with an ellipsis; a log or a CI's output has no width to fit.
+    Decided at each print, since the stream may be replaced (click's test runner); a terminal keeps rich's width.
+    """
+
+    @property
+    def size(self) -> ConsoleDimensions:
+        size = super().size
+        if not self.is_terminal:
+            return ConsoleDimensions(UNBOUNDED_WIDTH, size.height)
+        return size
+
+    @size.setter
+    def size(self, new_size: tuple[int, int]) -> None:
+        Console.size.fset(self, new_size)
+
+
 @functools.lru_cache(maxsize=2)
 def console(quiet: bool = False) -> Console:
-    """The stderr console for people: tables, progress, warnings.  Plain when stderr is not a terminal."""
-    return Console(stderr=True, quiet=quiet, highlight=False)
+    """The stderr console for people: tables, progress, warnings.  Plain and uncut when stderr is not a terminal."""
+    return _StderrConsole(stderr=True, quiet=quiet, highlight=False)
 
 
 class StderrProgress:

@@ -322,6 +322,9 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
 
         require_opensim()  # one line naming the extra, before the file is read
     data = read_input(clean_file, reading, quiet=quiet)
+    from ..methods.base import check_frames
+
+    check_frames(data.n_frames, name=clean_file)  # else a header only reads as "every sample is missing"
     if data.missing.all():
         raise MocapfillError(f"{clean_file}: every sample is missing; nothing to hide")
     protocol_options = {}

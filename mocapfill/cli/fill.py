@@ -9,6 +9,7 @@ The command is a thin door: read with :func:`mocapfill.io.read`, optionally reje
 from __future__ import annotations
 
 import dataclasses
+import os
 import warnings
 
 import click
@@ -83,6 +84,9 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
             raise click.BadParameter("stdout carries the output; write the status to a file", param_hint="--status")
     for path in (output_path, report_path, status_path):  # a bad path found now, not after the fill
         check_writable(path)
+    mismatch = _format_mismatch(output_path, output_format)
+    if mismatch is not None:  # written as asked (the user chose the format), but said now, before the fill
+        console(quiet).print(f"[yellow]warning[/yellow] {mismatch}", markup=True, highlight=False, soft_wrap=True)
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -118,6 +122,27 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
     _references(outcome.references, data.units, quiet)
     _summary(outcome, method, report_path, status_path, quiet, stored)
     _found(outcome, quiet)
+
+
+def _format_mismatch(output_path: str, output_format: str | None) -> str | None:
+    """The warning when ``--format`` disagrees with OUT's extension (``-f c3d`` into ``out.csv``), else None.
+
+    Only an extension that names another format counts; readers go by the extension where the content allows, so
+    the file would not read back as it was written."""
+    from ..errors import FormatError
+    from ..io import detect_format
+
+    if output_format is None or output_path == "-":
+        return None
+    try:
+        by_extension = detect_format(output_path)
+    except FormatError:  # no extension, or one of no format: nothing to disagree with
+        return None
+    if by_extension == output_format:
+        return None
+    suffix = os.path.splitext(output_path)[1]
+    return (f"{output_path}: --format {output_format} writes {output_format.upper()} into a {suffix} file; "
+            f"reading it back will need --input-format {output_format}")
 
 
 def _found(outcome, quiet: bool) -> None:

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import MethodError, MocapfillError
 from ..markers import MarkerData
-from ..methods.base import check_magnitude
+from ..methods.base import check_frames, check_magnitude
 from ..report.json_report import jsonable
 from .metrics import bone_error, point_errors, score
 from .occlusions import (DEFAULT_GAPS, PROTOCOLS, Occlusion, Shift, Trial, gap_range, make_occlusions,
@@ -342,6 +342,7 @@ def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), pr
     """
     if not isinstance(data, MarkerData):
         raise MocapfillError("evaluate needs a MarkerData (use mocapfill.read)")
+    check_frames(data.n_frames, name=data.path)
     renamed = [old for old in ("gap_min", "gap_max") if old in protocol_options]
     if renamed:
         raise MocapfillError(f"{' and '.join(renamed)} are now "

@@ -138,6 +138,18 @@ def check_magnitude(positions: np.ndarray, *, name: str | None = None, labels: S
                       f"fill squares coordinates, and past {MAX_COORDINATE:g} its arithmetic overflows)")
 
 
+def check_frames(n_frames: int, *, name: str | None = None) -> None:
+    """Raise InputError, naming ``name`` (the file), when a capture has no frames (a header without rows).
+
+    Called where a capture enters a fill (``api.fill``, ``pipeline.fill_capture``, ``evaluate``): an empty fill
+    would write a 0-frame file and call it a success."""
+    from ..errors import InputError
+
+    if n_frames == 0:
+        raise InputError(f"{name}: no frames (a header only): nothing to fill" if name
+                         else "positions hold no frames: nothing to fill")
+
+
 def check_positions(positions: np.ndarray, *, name: str | None = None,
                     labels: Sequence[str] | None = None) -> np.ndarray:
     """Validate and return ``positions`` as float64 (n_frames, n_markers, 3); a partly-NaN sample becomes all-NaN.

@@ -345,7 +345,9 @@ def run_dynammo(
     ----------
     positions : ndarray (n_frames, n_markers, 3), NaN = missing.
     hidden : int
-        Hidden dimension H (ignored when ``energy`` is given).
+        Hidden dimension H (ignored when ``energy`` is given); at most the observed coordinates, 3 x the markers
+        not missing throughout: a larger H is capped there (a UserWarning unless it is the default,
+        ``info["hidden_capped"]`` the value asked).
     max_iter, tol : EM cap and the convergence tolerance on the objective (see the module docstring).
     seed : int or None
         Only used when H exceeds the rank of the data (random extra columns of G); otherwise the start is PCA.
@@ -448,6 +450,14 @@ def _run_dynammo(positions, *, hidden, max_iter, tol, seed, progress, project, p
         return out
 
     H = choose_hidden(X, energy) if energy is not None else int(hidden)
+    if H > m:
+        # States beyond the observed coordinates add nothing the data can pin down, and EM's cost grows as H^3
+        # (--hidden 1000 ran for minutes); a default the user did not choose is capped quietly.
+        if H != DEFAULT_HIDDEN:
+            warnings.warn(f"hidden={H} is more than the {m} coordinates of the {Mk} observed markers: capped at {m}",
+                          UserWarning, stacklevel=4)
+        info["hidden_capped"] = H
+        H = m
     params = initial_params(X, H, rng, noise=init_noise)
     log_scale = float(np.log(scale))
     # The imputation touches only the missing entries: per marker, the frames where it is missing.  |x_t|^2 and
