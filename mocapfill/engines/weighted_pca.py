@@ -84,29 +84,34 @@ def weight_width(units: str, scale: float | None) -> float:
     return DEFAULT_SCALE_MM * length_factor("mm", units)
 
 
+def _plane_distances(planes: list[np.ndarray], m: int) -> np.ndarray:
+    """|x_j - x_m| per frame (n_frames, n_markers) from the coordinate planes (3 of (n_frames, n_markers)), NaN where
+    either is missing: |d|^2 = (d0^2 + d1^2) + d2^2, numpy's norm to round-off (~1e-12 relative on real captures)
+    without its per-sample loop over a length-3 axis."""
+    sq = None
+    for plane in planes:
+        d = plane - plane[:, m:m + 1]
+        d *= d
+        if sq is None:
+            sq = d
+        else:
+            sq += d
+    return np.sqrt(sq, out=sq)
+
+
 def distances_to(positions: np.ndarray):
     """:func:`mean_distances` as a function of the target, positions (n_frames, n_markers, 3) read once.
 
-    The coordinate planes are split once for all targets: a norm over the length-3 last axis costs a loop per
-    sample, three plane differences do not (|d|^2 = (d0^2 + d1^2) + d2^2: numpy's norm to round-off, ~1e-12 relative on
-    real captures).
+    The coordinate planes are split once for all targets (:func:`_plane_distances`).
     Per target m: (n_markers,), NaN where never co-observed.
     """
     planes = [np.ascontiguousarray(positions[..., c]) for c in range(3)]
 
     def mean_to(m: int) -> np.ndarray:
-        sq = None
-        for plane in planes:
-            d = plane - plane[:, m:m + 1]
-            d *= d
-            if sq is None:
-                sq = d
-            else:
-                sq += d
-        np.sqrt(sq, out=sq)
-        counts = np.isfinite(sq).sum(axis=0)
-        np.copyto(sq, 0.0, where=np.isnan(sq))  # nansum
-        total = sq.sum(axis=0)
+        dist = _plane_distances(planes, m)
+        counts = np.isfinite(dist).sum(axis=0)
+        np.copyto(dist, 0.0, where=np.isnan(dist))  # nansum
+        total = dist.sum(axis=0)
         with np.errstate(invalid="ignore"):
             return np.where(counts > 0, total / np.maximum(counts, 1), np.nan)
 
@@ -120,7 +125,7 @@ def distance_spreads_to(positions: np.ndarray):
     planes = [np.ascontiguousarray(positions[..., c]) for c in range(3)]
 
     def spread_to(m: int) -> np.ndarray:
-        dist = np.sqrt(sum((plane - plane[:, m:m + 1]) ** 2 for plane in planes))
+        dist = _plane_distances(planes, m)
         seen = np.isfinite(dist)
         counts = seen.sum(axis=0)
         dist[~seen] = 0.0
