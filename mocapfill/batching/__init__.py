@@ -27,7 +27,7 @@ from typing import Any, Callable, Iterable
 
 from ..errors import InputError, MocapfillError
 from ..pipeline import FillSettings
-from .inputs import INDEX_NAME, RESULTS_NAME, STATUS_SUFFIX, find_inputs, output_paths
+from .inputs import INDEX_NAME, REPORT_KINDS, RESULTS_NAME, STATUS_SUFFIX, find_inputs, output_paths
 from .order import longest_first
 from .resume import STATE_NAME, compact_state, file_digest, load_state, row_from_state, settings_digest
 from .task import COLUMNS, BatchRow, FileTask, run_task
@@ -35,7 +35,6 @@ from .task import COLUMNS, BatchRow, FileTask, run_task
 __all__ = ["batch", "BatchRow", "COLUMNS", "RESULTS_NAME", "STATE_NAME", "INDEX_NAME", "find_inputs", "run_task",
            "FileTask"]
 
-REPORT_KINDS = ("html", "json")
 
 
 def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str | os.PathLike, *,

@@ -16,6 +16,8 @@ RESULTS_NAME = "mocapfill-batch.csv"
 INDEX_NAME = "index.html"
 #: What a batch appends to an output's name for its per-sample status CSV.
 STATUS_SUFFIX = ".status.csv"
+#: The per-file reports a batch writes, ``<output>.report.<kind>``.
+REPORT_KINDS = ("html", "json")
 
 
 def _bookkeeping(path: Path) -> bool:
@@ -25,7 +27,12 @@ def _bookkeeping(path: Path) -> bool:
     if name in (RESULTS_NAME, STATE_NAME, INDEX_NAME):
         return True
     return any(name.endswith(suffix) and path.with_name(name[:-len(suffix)]).is_file()
-               for suffix in (STATUS_SUFFIX, ".report.json", ".report.html"))
+               for suffix in (STATUS_SUFFIX, *(_report_suffix(kind) for kind in REPORT_KINDS)))
+
+
+def _report_suffix(kind: str) -> str:
+    """What a batch appends to an output's name for its report of ``kind`` (one of :data:`REPORT_KINDS`)."""
+    return f".report.{kind}"
 
 
 def _batch_output(folder: Path) -> bool:
@@ -153,4 +160,4 @@ def output_paths(rel: Path, out_dir: Path, output_format: str | None, report: st
     out = out_dir / rel
     if output_format is not None:
         out = out.with_suffix("." + output_format)
-    return out, (out.with_name(f"{out.name}.report.{report}") if report else None)
+    return out, (out.with_name(out.name + _report_suffix(report)) if report else None)
