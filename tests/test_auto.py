@@ -237,6 +237,29 @@ def test_gap_records_flag_uncertain_gaps_with_the_config_number():
     assert "moved" not in recs[1]["reason"]  # named only in a gap flagged for review
 
 
+def test_gap_records_claim_bones_only_for_markers_on_a_bone_and_never_round_a_part_to_nothing():
+    missing = np.zeros((400, 3), bool)
+    missing[10:20, 0] = missing[30:35, 1] = True
+    sd = np.where(missing, 1.0, 0.0)
+    spatial = missing.copy()
+    globbed = np.zeros_like(missing)
+    spatial[31:35, 1], globbed[31:35, 1] = False, True  # the global PCA predicts 4 of its 5 frames
+    boneset = type("Bones", (), {"pairs": np.array([[0, 2]]), "__len__": lambda self: 1})()
+    recs = gap_records(missing, sd, spatial, np.zeros_like(missing), DEFAULT_CONFIG, 1.0, ["a", "b", "c"], boneset,
+                       globbed=globbed)
+    assert "refined with the bone lengths" in recs[0]["reason"]
+    assert "bone" not in recs[1]["reason"]  # marker b is on no bone: the bone stage never moved it
+    assert "predicted 20% of the frames" in recs[1]["reason"]
+    missing[40:397, 2] = True  # one frame of 357 predicted locally: not "0%"
+    sd = np.where(missing, 1.0, 0.0)
+    spatial, globbed = np.zeros_like(missing), np.zeros_like(missing)
+    spatial[40, 2], globbed[41:397, 2] = True, True
+    rec = gap_records(missing, sd, spatial, np.zeros_like(missing), DEFAULT_CONFIG, 1.0, ["a", "b", "c"], None,
+                      globbed=globbed)[-1]
+    assert "local weighted PCA predicted <1% of the frames" in rec["reason"]
+    assert "global weighted PCA" in rec["reason"] and "predicted >99% of the frames" in rec["reason"]
+
+
 def test_fill_keeps_observed_samples_and_gives_std():
     pos = tumbling_body()
     gapped = pos.copy()

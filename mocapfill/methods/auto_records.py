@@ -44,6 +44,21 @@ def stretched_text(m: int, sl: slice, reach, stretched: np.ndarray | None, label
             + _named(parts, labels) if parts else "")
 
 
+def share_text(share: float) -> str:
+    """A share (0..1) of a gap's frames as a percentage that never reads 0 % for a part that is there, nor 100 % for
+    one that is not whole: '<1%' and '>99%' at the ends."""
+    if 0.0 < share < 0.005:
+        return "<1%"
+    if 0.995 <= share < 1.0:
+        return ">99%"
+    return f"{share:.0%}"
+
+
+def on_bone(m: int, boneset) -> bool:
+    """Whether marker ``m`` is an end of a bone of ``boneset`` (None or empty: no)."""
+    return boneset is not None and bool(len(boneset)) and bool((np.asarray(boneset.pairs) == m).any())
+
+
 def displaced_records(positions: np.ndarray, displaced: np.ndarray, edge: np.ndarray, mm: float, labels
                       ) -> list[dict]:
     """One JSON-ready record per observed run judged displaced (:func:`~mocapfill.methods.auto.displaced_runs`):
@@ -102,9 +117,9 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
         by_anchor = 0.0 if anchored is None else float(anchored[sl, m].mean())
         by_global = 0.0 if globbed is None else float(globbed[sl, m].mean())
         anchor_text = ("the body anchor (the position the markers seen with it give by their mean offsets, no "
-                       f"rotation) predicted {by_anchor:.0%} of the frames")
+                       f"rotation) predicted {share_text(by_anchor)} of the frames")
         global_text = (f"the global weighted PCA (the `pca` method, weighed with an sd of {config.global_sd_mm:g} mm) "
-                       f"predicted {by_global:.0%} of the frames")
+                       f"predicted {share_text(by_global)} of the frames")
         others = [text for text, part in ((global_text, by_global), (anchor_text, by_anchor)) if part > 0]
         if share == 0 and others:
             method = "global-pca+motion" if by_global > 0 else "anchor+motion"
@@ -118,7 +133,7 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
                       "white-jerk motion model bridges the gap from its ends")
         else:
             method = "local-pca+motion"
-            reason = (f"local weighted PCA predicted {share:.0%} of the frames, fused with the white-jerk motion "
+            reason = (f"local weighted PCA predicted {share_text(share)} of the frames, fused with the white-jerk motion "
                       f"model by the smoother")
             for text in others:
                 reason += f"; {text}"
@@ -128,7 +143,7 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
             if by_segment:
                 reason += (f"; the prediction is its segment model's (the markers within {config.segment_mm:g} mm "
                            f"observed throughout the gap), where the neighbourhood model extrapolated more")
-            if boneset is not None and len(boneset) and not by_segment:
+            if on_bone(m, boneset) and not by_segment:  # (a marker on no bone: the bone stage never moves it)
                 reason += "; predictions refined with the bone lengths"
                 reason += broken_text(m, sl, boneset, broken, labels)
             if not by_segment:
