@@ -112,6 +112,27 @@ def test_max_gap_in_python_and_html(gappy_data, tmp_path, monkeypatch):
     assert "Left missing as asked (3 gaps)" in text and "left missing (too long)" in text
 
 
+
+def test_a_gap_left_missing_is_recorded_as_not_filled():
+    from mocapfill.guards.limits import apply_limits
+    from mocapfill.methods.base import FillResult
+
+    missing = np.zeros((60, 2), bool)
+    missing[5:10, 0] = missing[20:50, 1] = True
+    records = [{"marker": "a", "marker_index": 0, "start": 5, "length": 5, "method": "local-pca+motion",
+                "reason": "local weighted PCA predicted 100% of the frames", "review": False, "max_std": 1.0},
+               {"marker": "b", "marker_index": 1, "start": 20, "length": 30, "method": "local-pca+motion",
+                "reason": "local weighted PCA predicted 100% of the frames", "review": True, "max_std": 40.0,
+                "extrapolation": 2.0}]
+    result = FillResult(np.zeros((60, 2, 3)), missing.copy(), np.where(missing, 1.0, 0.0),
+                        info={"gap_methods": records, "review": [1]})
+    left, _ = apply_limits(result, missing, max_gap=10)
+    kept, gone = left.info["gap_methods"]
+    assert kept == records[0]  # the gap filled keeps its record
+    assert gone["method"] == "none" and gone["reason"] == "left missing (too long): not filled"
+    assert gone["review"] is False and gone["max_std"] is None and "extrapolation" not in gone
+    assert left.info["review"] == [] and records[1]["method"] == "local-pca+motion"  # (the input left as it was)
+
 def test_max_gap_in_batch(gappy, tmp_path):
     rows = mocapfill.batch([str(gappy)], tmp_path / "out", method="linear", max_gap=20, status=True)
     assert rows[0].status == "filled" and rows[0].left_samples == 143

@@ -125,6 +125,10 @@ def leave_missing(result: FillResult, reasons: np.ndarray) -> FillResult:
     info["left_missing"] = left_records(reasons)
     if not left.any():
         return dataclasses.replace(result, info=info)
+    if isinstance(info.get("gap_methods"), list):  # a gap left is not filled: its record says so, not how it was
+        info["gap_methods"] = [_left_record(rec, reasons) for rec in info["gap_methods"]]
+        if "review" in info:
+            info["review"] = [i for i, rec in enumerate(info["gap_methods"]) if rec.get("review")]
     positions = result.positions.copy()
     positions[left] = np.nan
     filled = np.asarray(result.filled, dtype=bool) & ~left
@@ -133,6 +137,22 @@ def leave_missing(result: FillResult, reasons: np.ndarray) -> FillResult:
         std = np.array(result.std, dtype=np.float64)
         std[left] = np.nan
     return dataclasses.replace(result, positions=positions, filled=filled, std=std, info=info)
+
+
+def _left_record(rec: Any, reasons: np.ndarray) -> Any:
+    """A fill's record of one gap (``{"marker_index", "start", "length", ...}``, e.g. ``auto``'s ``gap_methods``) as
+    it stands once ``reasons`` ((n_frames, n_markers) :class:`Status` codes) left that gap missing: method "none",
+    the reason's name, nothing to review; records of gaps filled, and anything else, unchanged."""
+    try:
+        m, start, length = int(rec["marker_index"]), int(rec["start"]), int(rec["length"])
+    except (KeyError, TypeError, ValueError):
+        return rec
+    codes = reasons[start:start + length, m] if 0 <= m < reasons.shape[1] else np.zeros(0)
+    if not length or len(codes) != length or not (codes != 0).all():
+        return rec
+    out = {k: v for k, v in rec.items() if k not in ("extrapolation",)}
+    out.update(method="none", reason=f"{NAMES[Status(int(codes[0]))]}: not filled", review=False, max_std=None)
+    return out
 
 
 def left_records(reasons: np.ndarray) -> list[dict[str, Any]]:
