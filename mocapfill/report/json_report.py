@@ -234,7 +234,8 @@ def build_fill_report(data, result, *, method: str, settings: dict[str, Any] | N
             "max_std": max_std,
             "method": "+".join(names) if names else None,
             "reason": "; ".join(why_text) if why_text else None,
-            # a gap left missing (never observed, too long, declined) has no fill to check: it is listed as left
+            # a gap nothing filled has no fill to check: it is listed in ``left_missing`` (too long, at an edge,
+            # not chosen: as asked) or in ``unfilled`` (never observed, declined), with the summary's alert
             "review": n_filled > 0 and any(rev for _, _, rev in hits),
             "left": NAMES[Status(left_code)] if left_code else None,
             "fragment_samples": int(frag[sl, gap.marker].sum()),
