@@ -17,7 +17,8 @@ How (:func:`fill_in_windows`):
    its mirror on the last, 1 between.  A gap that a window sees *cut* (it runs into the window's edge where the take
    goes on, so that window filled it with context on one side only) gets that window's weight times 1e-12: the
    window that holds the whole gap with an observed frame on each side decides it, and where two windows both hold
-   it whole their fills cross-fade within the gap.  Only when no window holds a gap whole (a gap longer than the
+   it whole, the one whose cross-fade weighs the gap most decides it (the other gets the same factor): one window's
+   fill, sd and record then describe the gap.  Only when no window holds a gap whole (a gap longer than the
    overlap across an edge) does the plain cross-fade decide.  A window that left a sample NaN gives it no weight.
    ``std`` blends with the same weights (NaN where no window gave one).  Observed samples come back bit-identical
    (:func:`mocapfill.methods.base.finish`).
@@ -112,6 +113,30 @@ def _ramp(length: int, start: int, stop: int, n: int, overlaps: tuple[int, int])
     return w
 
 
+def _overlaps(bounds: list[tuple[int, int]], k: int) -> tuple[int, int]:
+    """Frames window ``k`` shares with the window before and the one after (0 where there is none)."""
+    start, stop = bounds[k]
+    return (bounds[k - 1][1] - start if k > 0 else 0, stop - bounds[k + 1][0] if k + 1 < len(bounds) else 0)
+
+
+def _deciders(missing: np.ndarray, bounds: list[tuple[int, int]], ramps: list[np.ndarray]) -> np.ndarray:
+    """(n_frames, n_markers) intp: at each sample of a gap that two or more windows hold whole (an observed frame, or
+    the take's own edge, on each side within the window), the window that decides it: of those, the one whose
+    cross-fade weighs the gap most; -1 elsewhere.  One window's fill, sd and record then describe the whole gap (a
+    cross-fade inside it would leave the record of one window beside the blended sd of two)."""
+    n = missing.shape[0]
+    decider = np.full(missing.shape, -1, dtype=np.intp)
+    for m in range(missing.shape[1]):
+        for start, length in runs(missing[:, m]):
+            stop = start + length
+            holders = [k for k, (a, b) in enumerate(bounds)
+                       if a <= start and stop <= b and (start > a or a == 0) and (stop < b or b == n)]
+            if len(holders) > 1:
+                decider[start:stop, m] = max(holders, key=lambda k: ramps[k][start - bounds[k][0]:
+                                                                             stop - bounds[k][0]].sum())
+    return decider
+
+
 def _cut_gaps(missing: np.ndarray, at_take_start: bool, at_take_end: bool) -> np.ndarray:
     """(n, n_markers) bool: samples of a window's gaps that run into one of its edges where the take goes on."""
     cut = np.zeros_like(missing)
@@ -135,7 +160,8 @@ def _window_results(positions: np.ndarray, bounds: list[tuple[int, int]], fill: 
 
 
 def fill_in_windows(positions: np.ndarray, fill: Callable[[np.ndarray], Any], *, window: int = DEFAULT_WINDOW,
-                    overlap: int = DEFAULT_OVERLAP, jobs: int = 1, executor: Executor | None = None) -> FillResult:
+                    overlap: int = DEFAULT_OVERLAP, jobs: int = 1, executor: Executor | None = None,
+                    restate: Callable[[dict, np.ndarray], dict] | None = None) -> FillResult:
     """Fill ``positions`` (n_frames, n_markers, 3), NaN = missing, window by window with ``fill`` (see the module
     docstring).
 
@@ -157,6 +183,10 @@ def fill_in_windows(positions: np.ndarray, fill: Callable[[np.ndarray], Any], *,
         one task.  Off this process, ``fill`` must be picklable (a module-level function or a
         :func:`functools.partial` of one, not a lambda), and a script needs the ``if __name__ == "__main__":`` guard
         (workers are spawned).
+    restate : callable or None
+        ``restate(record, std) -> record``: each merged per-gap record (the heaviest window's) given the blended
+        ``std`` (length,) over its gap, for a fill whose records quote their sd (``auto``'s
+        :func:`~mocapfill.methods.auto_records.restate_record`); None: the records as the windows gave them.
 
     Returns
     -------
@@ -185,14 +215,17 @@ def fill_in_windows(positions: np.ndarray, fill: Callable[[np.ndarray], Any], *,
     # per sample, the window with the most weight there: its entry describes the gap in the merged info
     owner_weight = np.zeros((n, n_markers))
     owner = np.full((n, n_markers), -1, dtype=np.intp)
+    ramps = [_ramp(b - a, a, b, n, _overlaps(bounds, k)) for k, (a, b) in enumerate(bounds)]
+    decider = _deciders(missing, bounds, ramps)
     for k, ((start, stop), res) in enumerate(zip(bounds, _window_results(positions, bounds, fill, runner))):
         part = positions[start:stop]
         est = np.asarray(res.positions, dtype=np.float64)
         if est.shape != part.shape:
             raise MethodError(f"the fill returned shape {est.shape} for a window of shape {part.shape}")
-        overlaps = (bounds[k - 1][1] - start if k > 0 else 0, stop - bounds[k + 1][0] if k + 1 < len(bounds) else 0)
-        w = np.repeat(_ramp(stop - start, start, stop, n, overlaps)[:, None], n_markers, axis=1)
+        w = np.repeat(ramps[k][:, None], n_markers, axis=1)
         w[_cut_gaps(missing[start:stop], start == 0, stop == n)] *= CUT_WEIGHT
+        others = decider[start:stop]
+        w[(others >= 0) & (others != k)] *= CUT_WEIGHT  # another window holding the gap whole decides it
         usable = np.isfinite(est).all(axis=2) & missing[start:stop]
         w = np.where(usable, w, 0.0)
         total[start:stop] += w[:, :, None] * np.where(usable[:, :, None], est, 0.0)
@@ -217,6 +250,11 @@ def fill_in_windows(positions: np.ndarray, fill: Callable[[np.ndarray], Any], *,
     if std_out is not None:
         std_out[var_weight == 0] = np.nan
     info = _merge_info(infos, bounds, missing, owner)
+    if restate is not None and std_out is not None:
+        for key, value in info.items():
+            if key not in RUN_LISTS and _is_gap_list(value):
+                info[key] = [restate(e, std_out[e["start"]:e["start"] + int(e.get("length", 1)), e["marker_index"]])
+                             for e in value]
     return finish(positions, blended, std=std_out, n_iter=n_iter, converged=converged, info=info)
 
 
@@ -275,13 +313,17 @@ def _merge_gap_lists(values: list, bounds: list[tuple[int, int]], missing: np.nd
     for m in range(missing.shape[1]):
         for start, length in runs(missing[:, m]):
             ks, counts = np.unique(owner[start:start + length, m], return_counts=True)
-            if ks[-1] < 0 and ks.size == 1:
-                continue
-            k = int(ks[ks >= 0][np.argmax(counts[ks >= 0])])
-            w0 = bounds[k][0]
-            entries = values[k] or []
-            local = [e for e in entries if e.get("marker_index") == m
-                     and e["start"] < start + length - w0 and e["start"] + e.get("length", 1) > start - w0]
+            if (ks >= 0).any():
+                order = [int(ks[ks >= 0][np.argmax(counts[ks >= 0])])]
+            else:  # no window filled it (a marker never observed): the first window that says why
+                order = [k for k, (a, b) in enumerate(bounds) if a < start + length and start < b]
+            local = []
+            for k in order:
+                w0 = bounds[k][0]
+                local = [e for e in values[k] or [] if e.get("marker_index") == m
+                         and e["start"] < start + length - w0 and e["start"] + e.get("length", 1) > start - w0]
+                if local:
+                    break
             if not local:
                 continue
             entry = dict(local[0])
