@@ -17,7 +17,7 @@ from mocapfill.engines.local_pca import prefer_segment, refit_parts, rigid_predi
 from mocapfill.methods.auto import (body_stage, displaced_runs, fill_auto, global_prediction, global_stage,
                                    model_changes, motion_model, rough_variance, seed_elsewhere, spatial_stage,
                                    temporal_stage)
-from mocapfill.methods.auto_records import gap_records
+from mocapfill.methods.auto_records import gap_records, restate_record
 from mocapfill.methods.auto_config import DEFAULT_CONFIG, ModelConfig
 
 
@@ -259,6 +259,20 @@ def test_gap_records_claim_bones_only_for_markers_on_a_bone_and_never_round_a_pa
     assert "local weighted PCA predicted <1% of the frames" in rec["reason"]
     assert "global weighted PCA" in rec["reason"] and "predicted >99% of the frames" in rec["reason"]
 
+
+
+def test_a_record_restated_for_its_blended_sd():
+    missing = np.zeros((50, 1), bool)
+    missing[10:20, 0] = True
+    config = ModelConfig(review_sd_mm=40.0)
+    (rec,) = gap_records(missing, np.where(missing, 50.0, 0.0), missing.copy(), np.zeros_like(missing), config, 1.0,
+                         ["a"], None)
+    assert rec["review"] and "largest posterior sd 50.0 mm > 40 mm: review this gap" in rec["reason"]
+    calm = restate_record(rec, np.full(10, 30.0), config=config, mm=1.0)
+    assert calm["max_std"] == 30.0 and not calm["review"]
+    assert "largest posterior sd 30.0 mm" in calm["reason"] and "review this gap" not in calm["reason"]
+    assert restate_record(rec, np.full(10, 50.0), config=config, mm=1.0) is rec
+    assert restate_record(calm, np.full(10, 45.0), config=config, mm=1.0)["review"]
 
 def test_fill_keeps_observed_samples_and_gives_std():
     pos = tumbling_body()
@@ -959,7 +973,7 @@ def test_bone_breaks_keeps_a_bone_against_an_overconfident_miss():
 
 
 def test_gap_records_name_the_bones_left_out():
-    from mocapfill.methods.auto_records import gap_records
+    from mocapfill.methods.auto_records import gap_records, restate_record
 
     pos, gapped, pred, sd, bones = _bone_case(150.0)
     missing = np.isnan(gapped).any(axis=2)

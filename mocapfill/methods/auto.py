@@ -73,7 +73,7 @@ from ..runtime.blas import single_blas_thread
 from ..runtime.executor import resolve_jobs
 from ..units import length_factor
 from .auto_config import DEFAULT_CONFIG, ModelConfig
-from .auto_records import displaced_records, gap_records
+from .auto_records import displaced_records, gap_records, restate_record
 from .base import FillResult, check_positions, finish
 
 
@@ -162,7 +162,11 @@ def fill_auto(
     jobs = resolve_jobs(jobs)
     with single_blas_thread():
         if positions.shape[0] > DEFAULT_WINDOW:  # long takes: overlapping windows, time linear in frames
-            return fill_in_windows(positions, core, jobs=jobs)  # (each window's models in its own worker)
+            # (each window's models in its own worker; a gap's record restated for the sd the blend gave it)
+            result = fill_in_windows(positions, core, jobs=jobs,
+                                     restate=partial(restate_record, config=config, mm=length_factor("mm", units)))
+            result.info["review"] = [i for i, r in enumerate(result.info.get("gap_methods", [])) if r["review"]]
+            return result
         return core(positions, jobs=jobs)
 
 

@@ -59,6 +59,36 @@ def on_bone(m: int, boneset) -> bool:
     return boneset is not None and bool(len(boneset)) and bool((np.asarray(boneset.pairs) == m).any())
 
 
+def sd_clause(worst: float, config: ModelConfig, mm: float) -> str:
+    """The reason's words for a gap's largest posterior sd ``worst`` (data units; NaN: none), with the review
+    threshold where it is above :attr:`ModelConfig.review_sd_mm`."""
+    flagged = not np.isfinite(worst) or worst > config.review_sd_mm * mm
+    return (f"; largest posterior sd {worst / mm:.1f} mm"
+            + (f" > {config.review_sd_mm:g} mm: review this gap" if flagged else ""))
+
+
+def restate_record(record: dict, std: np.ndarray, *, config: ModelConfig, mm: float) -> dict:
+    """A gap's record (:func:`gap_records`) restated for the sd its gap ended up with, ``std`` (length,): a long
+    take's windows blend their sds where no window holds a gap whole, and the record is the heaviest window's.
+    ``max_std``, the reason's :func:`sd_clause` and ``review`` follow the largest of ``std`` (a review that a run
+    judged displaced beside the gap asked for stays); a record without an sd, or whose sd is that one, unchanged."""
+    old = record.get("max_std")
+    std = np.asarray(std, dtype=float)
+    if old is None or not np.isfinite(std).any():
+        return record
+    worst = float(np.nanmax(std))
+    if worst == old:
+        return record
+    limit = config.review_sd_mm * mm
+    out = dict(record, max_std=worst)
+    before = sd_clause(old, config, mm)
+    if isinstance(record.get("reason"), str) and before in record["reason"]:
+        out["reason"] = record["reason"].replace(before, sd_clause(worst, config, mm), 1)
+    beside = bool(record.get("review")) and not old > limit  # flagged for a displaced run, not for its sd
+    out["review"] = bool(worst > limit or beside)
+    return out
+
+
 def displaced_records(positions: np.ndarray, displaced: np.ndarray, edge: np.ndarray, mm: float, labels
                       ) -> list[dict]:
     """One JSON-ready record per observed run judged displaced (:func:`~mocapfill.methods.auto.displaced_runs`):
@@ -154,8 +184,7 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
                            f"down-weighted")
         uncertain = not np.isfinite(worst) or worst > limit
         far = float(np.nanmax(off[sl, m])) if off is not None and np.isfinite(off[sl, m]).any() else None
-        reason += (f"; largest posterior sd {worst / mm:.1f} mm" + (f" > {config.review_sd_mm:g} mm: review this gap"
-                                                                  if uncertain else ""))
+        reason += sd_clause(worst, config, mm)
         if uncertain and far is not None and far > 1.0:
             reason += (f" (the neighbours took poses the spatial model never learnt: its sd raised up to "
                        f"{np.sqrt(far):.1f}x)")
