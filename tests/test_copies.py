@@ -184,6 +184,20 @@ def test_a_copy_fills_its_twins_gap_exactly_and_says_so():
     assert any(g["marker"] == "M2" and g["start"] == 60 and g["method"] != "copy" for g in out.info["gap_methods"])
 
 
+
+def test_a_gap_a_copy_fills_in_part_has_one_record():
+    truth, pos = _with_copies()
+    labels = [f"M{i}" for i in range(8)] + ["M2_copy", "M2_again", "M5_copy"]
+    pos[100:130, 2] = np.nan
+    pos[115:140, 8] = pos[115:140, 9] = np.nan  # the copies see 100-114 only: a copy lends those, the model the rest
+    out = fill_auto(pos, labels=labels, rate=100.0)
+    mine = [g for g in out.info["gap_methods"]
+            if g["marker"] == "M2" and g["start"] < 140 and g["start"] + g["length"] > 100]
+    assert len(mine) == 1 and (mine[0]["start"], mine[0]["length"]) == (100, 30)
+    assert mine[0]["method"].startswith("copy+")
+    assert mine[0]["reason"].startswith("frames 100-114: taken from its exact copy")
+    assert np.array_equal(out.positions[100:115, 2], truth[100:115, 2])
+
 def test_evaluation_hides_a_sample_in_every_copy_whose_gaps_differ():
     from mocapfill.evaluation.runner import copies_hidden_together
 

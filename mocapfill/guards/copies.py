@@ -129,12 +129,49 @@ def with_lent(result: FillResult, original: np.ndarray, lent: np.ndarray, lender
                             "method": "copy", "reason": f"taken from its exact copy {copies}, observed there",
                             "review": False, "max_std": 0.0})
     records.sort(key=lambda r: (int(r["marker_index"]), int(r["start"])))
+    records = one_record_per_gap(records, np.isnan(original).any(axis=2))
     info["gap_methods"] = records
     info["review"] = [i for i, r in enumerate(records) if r.get("review")]
     info["lent"] = [{"marker": name(m), "marker_index": int(m), "copy": name(o)}
                     for m, o in dict.fromkeys(lenders)]
     return finish(original, result.positions, std=result.std, n_iter=result.n_iter, converged=result.converged,
                   objective=list(result.objective), info=info)
+
+
+def one_record_per_gap(records: list[dict], missing: np.ndarray) -> list[dict]:
+    """``records`` (``marker_index``, ``start``, ``length``, ``method``, ``reason``, ``review``, ``max_std``; sorted by
+    marker and start) of the pieces of the gaps of ``missing`` (n_frames, n_markers), one record per gap: a gap
+    filled in pieces (partly from a copy, partly by the fill) gets the methods joined by '+', each piece's reason
+    after its frames, review if any piece asks for it and the largest sd."""
+    from ..gaps import runs
+
+    out: list[dict] = []
+    by_marker: dict[int, list[dict]] = {}
+    for r in records:
+        by_marker.setdefault(int(r["marker_index"]), []).append(r)
+    for m, mine in by_marker.items():
+        used = [False] * len(mine)
+        for start, length in runs(missing[:, m]) if 0 <= m < missing.shape[1] else []:
+            parts = [i for i, r in enumerate(mine) if r["start"] < start + length and r["start"] + r["length"] > start]
+            for i in parts:
+                used[i] = True
+            if len(parts) == 1:
+                out.append(dict(mine[parts[0]], start=int(start), length=int(length)))
+            elif parts:
+                pieces = [mine[i] for i in parts]
+                sds = [p["max_std"] for p in pieces if p.get("max_std") is not None]
+                merged = dict(pieces[0], start=int(start), length=int(length),
+                              method="+".join(dict.fromkeys(str(p.get("method")) for p in pieces)),
+                              reason="; ".join(f"frames {p['start']}-{p['start'] + p['length'] - 1}: {p.get('reason')}"
+                                               for p in pieces),
+                              review=any(bool(p.get("review")) for p in pieces), max_std=max(sds) if sds else None)
+                offs = [p["extrapolation"] for p in pieces if p.get("extrapolation") is not None]
+                if "extrapolation" in merged:
+                    merged["extrapolation"] = max(offs) if offs else None
+                out.append(merged)
+        out.extend(r for r, u in zip(mine, used) if not u)  # (a record of no gap of ``missing``: kept as it was)
+    out.sort(key=lambda r: (int(r["marker_index"]), int(r["start"])))
+    return out
 
 
 def bones_on_distinct(bones, source: np.ndarray):

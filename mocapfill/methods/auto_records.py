@@ -163,8 +163,8 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
                       "white-jerk motion model bridges the gap from its ends")
         else:
             method = "local-pca+motion"
-            reason = (f"local weighted PCA predicted {share_text(share)} of the frames, fused with the white-jerk motion "
-                      f"model by the smoother")
+            reason = (f"local weighted PCA predicted {share_text(share)} of the frames, fused with the white-jerk "
+                      f"motion model by the smoother")
             for text in others:
                 reason += f"; {text}"
             if share + by_anchor + by_global < 1:
