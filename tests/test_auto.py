@@ -273,6 +273,8 @@ def test_a_record_restated_for_its_blended_sd():
     assert "largest posterior sd 30.0 mm" in calm["reason"] and "review this gap" not in calm["reason"]
     assert restate_record(rec, np.full(10, 50.0), config=config, mm=1.0) is rec
     assert restate_record(calm, np.full(10, 45.0), config=config, mm=1.0)["review"]
+    part = restate_record(calm, np.r_[np.full(4, 30.0), np.full(6, np.nan)], config=config, mm=1.0)
+    assert part["review"] and "6 of its 10 frames left missing" in part["reason"]
 
 def test_fill_keeps_observed_samples_and_gives_std():
     pos = tumbling_body()

@@ -71,21 +71,30 @@ def restate_record(record: dict, std: np.ndarray, *, config: ModelConfig, mm: fl
     """A gap's record (:func:`gap_records`) restated for the sd its gap ended up with, ``std`` (length,): a long
     take's windows blend their sds where no window holds a gap whole, and the record is the heaviest window's.
     ``max_std``, the reason's :func:`sd_clause` and ``review`` follow the largest of ``std`` (a review that a run
-    judged displaced beside the gap asked for stays); a record without an sd, or whose sd is that one, unchanged."""
+    judged displaced beside the gap asked for stays); frames without an sd (NaN: no window filled them, e.g. a
+    marker lost for good within a window that never sees it) are named and put the gap up for review.  A record
+    without an sd, or whose sd is that one throughout, unchanged."""
     old = record.get("max_std")
     std = np.asarray(std, dtype=float)
     if old is None or not np.isfinite(std).any():
         return record
     worst = float(np.nanmax(std))
-    if worst == old:
+    left = int(np.sum(~np.isfinite(std)))
+    if worst == old and not left:
         return record
     limit = config.review_sd_mm * mm
     out = dict(record, max_std=worst)
     before = sd_clause(old, config, mm)
-    if isinstance(record.get("reason"), str) and before in record["reason"]:
-        out["reason"] = record["reason"].replace(before, sd_clause(worst, config, mm), 1)
+    reason = record.get("reason")
+    if isinstance(reason, str):
+        if before in reason:
+            reason = reason.replace(before, sd_clause(worst, config, mm), 1)
+        if left:
+            reason += (f"; {left} of its {len(std)} frames left missing: a long take is filled in windows of "
+                       f"frames, and the windows over them never see the marker")
+        out["reason"] = reason
     beside = bool(record.get("review")) and not old > limit  # flagged for a displaced run, not for its sd
-    out["review"] = bool(worst > limit or beside)
+    out["review"] = bool(worst > limit or beside or left)
     return out
 
 
