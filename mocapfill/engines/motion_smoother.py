@@ -81,19 +81,34 @@ def jerk_density(positions: np.ndarray, missing: np.ndarray, *, floor: float) ->
     positions (n_frames, n_markers, 3); missing (n_frames, n_markers).  For white jerk, E[(x[t+2] - 3 x[t+1] +
     3 x[t] - x[t-1])^2] = JERK_GAIN q per axis: q is the mean square over runs of four observed frames, divided by
     that; a marker with no such run takes the median of the others; ``floor`` (data units^2 / frame^5) bounds it
-    below (a marker that never moved would otherwise pin its fill).
+    below (a marker that never moved would otherwise pin its fill).  Where no marker has four observed frames in a
+    row (every other frame dropped, a capture upsampled with empty frames), the third differences of frames s apart
+    measure it, E[...^2] = JERK_GAIN q s^5, at the smallest stride s that has any: without them q was the floor,
+    and the fill a stiff path tens of millimetres off the observed frames it passes between, with a tiny sd.
     """
     n_frames, n_markers, _ = positions.shape
     q = np.full(n_markers, np.nan)
-    if n_frames >= 4:
-        d3 = positions[3:] - 3 * positions[2:-1] + 3 * positions[1:-2] - positions[:-3]  # (T - 3, M, 3)
-        ok = ~(missing[3:] | missing[2:-1] | missing[1:-2] | missing[:-3])
-        sq = np.where(ok[..., None], np.nan_to_num(d3) ** 2, 0.0).sum(axis=(0, 2))
-        count = 3 * ok.sum(axis=0)
-        q = np.where(count > 0, sq / np.maximum(count, 1) / JERK_GAIN, np.nan)
+    for stride in range(1, n_frames // 3 + 1):
+        q = _strided_jerk(positions, missing, stride)
+        if np.isfinite(q).any():
+            break
     known = np.isfinite(q)
     fill = float(np.median(q[known])) if known.any() else floor
     return np.maximum(np.where(known, q, fill), floor)
+
+
+def _strided_jerk(positions: np.ndarray, missing: np.ndarray, stride: int) -> np.ndarray:
+    """q (n_markers,) from the third differences of frames ``stride`` apart whose four frames are observed (NaN where
+    a marker has none): their mean square per axis / (JERK_GAIN stride^5)."""
+    s = int(stride)
+    if positions.shape[0] < 3 * s + 1:
+        return np.full(positions.shape[1], np.nan)
+    end = positions.shape[0]
+    d3 = positions[3 * s:] - 3 * positions[2 * s:end - s] + 3 * positions[s:end - 2 * s] - positions[:end - 3 * s]
+    ok = ~(missing[3 * s:] | missing[2 * s:end - s] | missing[s:end - 2 * s] | missing[:end - 3 * s])
+    sq = np.where(ok[..., None], np.nan_to_num(d3) ** 2, 0.0).sum(axis=(0, 2))
+    count = 3 * ok.sum(axis=0)
+    return np.where(count > 0, sq / np.maximum(count, 1) / (JERK_GAIN * float(s) ** 5), np.nan)
 
 
 def acceleration_memory(positions: np.ndarray, missing: np.ndarray, *, max_lag: int) -> float:

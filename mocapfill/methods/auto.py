@@ -853,6 +853,12 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
     white, bias = split(sp_sd)
     sub = model._replace(q=model.q[todo])
     short = fragments(missing[:, todo], config.fragment_frames)
+    # a fragment is distrusted beside the marker's longer runs; a marker seen only in fragments (every other frame
+    # dropped) has nothing surer, and at 20 mm its fill strayed millimetres from the samples it passes between
+    seen = ~missing[:, todo]
+    longer = np.array([any(length > config.fragment_frames for _, length in runs(seen[:, j]))
+                       for j in range(len(todo))], dtype=bool)
+    short &= longer[None, :]
     obs_var = np.where(short, (config.fragment_sd_mm * mm) ** 2, model.r_obs)
     if displaced is not None:  # measured with the displacement's spread: the fill does not bend to them
         obs_var = np.where(displaced[:, todo], (config.displacement_mm * mm) ** 2, obs_var)

@@ -56,7 +56,7 @@ class ModelConfig:
     measured_acc_memory: bool = False
     #: Sd of an observed sample: sub-millimetre camera noise.
     obs_sd_mm: float = 0.5
-    #: Sd of a sample in an observed fragment between gaps: flickering samples are often a take's worst.
+    #: Sd of a fragment's sample where its marker has longer runs: flickering samples are often a take's worst.
     fragment_sd_mm: float = 20.0
     #: Longest observed run between two gaps that counts as such a fragment.
     fragment_frames: int = 2
