@@ -104,3 +104,24 @@ def test_forked_map_says_when_a_worker_dies():
     with pytest.raises(MocapfillError, match="worker process died"):
         forked_map(die_if_forked, range(5), 2)
     assert forked_map(lambda x: x, range(5), 2) == list(range(5))  # and the next call works
+
+
+def test_workers_that_die_starting_are_one_error_not_a_retry_for_ever(tmp_path):
+    """A script without the ``__main__`` guard: each spawned worker runs it again, and its own spawn fails while it
+    starts.  A task too large for the pipe's buffer saw the worker die during the send and was retried on a fresh
+    worker, without end; now the first such death is one error that names the guard."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "no_guard.py"
+    script.write_text("from mocapfill.runtime.executor import LocalProcesses\n"
+                      "print(LocalProcesses(2).results(len, [b'x' * 10_000_000] * 3))\n")
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert done.returncode != 0
+    assert 'if __name__ == "__main__":' in done.stderr.splitlines()[-1], done.stderr[-500:]
+
+
+def test_workers_hold_blas_to_one_thread():
+    from mocapfill.runtime.executor import blas_threads
+
+    assert LocalProcesses(2).results(blas_threads, [0, 1]) == [1, 1]

@@ -39,6 +39,12 @@ WORKER_NAME = "mocapfill-worker"
 CONNECT_TIMEOUT = "20s"
 
 
+#: What a worker that could not start says: the usual cause, a script run on spawned processes without its guard.
+START_FAILED = ("the worker processes exited as they started ({how}); a script that fills on several processes "
+                "(jobs other than 1) must start from an `if __name__ == \"__main__\":` block, which the workers do "
+                "not run again")
+
+
 class SchedulerUnreachable(Exception):
     """No Dask scheduler answered at the address given (the message says why)."""
 
@@ -157,6 +163,15 @@ def make_executor(jobs: int | None = 1, scheduler: Any = None, *, n_tasks: int |
     return InProcess() if jobs <= 1 else LocalProcesses(jobs)
 
 
+def blas_threads(_: Any = None) -> int:
+    """The most threads any loaded BLAS library may use in this process (1 where none is loaded)."""
+    import numpy  # noqa: F401  (its BLAS, loaded)
+    from threadpoolctl import threadpool_info
+
+    return max([int(pool.get("num_threads", 1)) for pool in threadpool_info() if pool.get("user_api") == "blas"],
+               default=1)
+
+
 def _worker_loop(func: Callable[[Any], Any], conn) -> None:
     """A local worker: run the tasks the parent sends, one at a time, until it sends None or goes away."""
     try:
@@ -173,11 +188,32 @@ def _worker_loop(func: Callable[[Any], Any], conn) -> None:
         return  # the parent is gone
 
 
+#: The variables that size the BLAS libraries' thread pools, set to 1 for a worker where the caller set none: the
+#: workers are the parallelism (a spawned worker would otherwise start one BLAS thread per core, and a long take's
+#: windows on two workers took twice the time of one process, their threads fighting over the cores).
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def _one_blas_thread_environment():
+    """The BLAS_THREAD_VARIABLES the caller left unset at 1 while a worker starts (a spawned process takes the
+    environment as it is at its start, before its BLAS is loaded), then unset again."""
+    added = [name for name in BLAS_THREAD_VARIABLES if name not in os.environ]
+    for name in added:
+        os.environ[name] = "1"
+    try:
+        yield
+    finally:
+        for name in added:
+            os.environ.pop(name, None)
+
+
 class _Worker:
     def __init__(self, ctx, func: Callable[[Any], Any]) -> None:
         self.conn, child = ctx.Pipe()
         self.process = ctx.Process(target=_worker_loop, args=(func, child), daemon=True, name=WORKER_NAME)
-        self.process.start()
+        with _one_blas_thread_environment():
+            self.process.start()
         child.close()
         self.task: Any = None
 
@@ -206,6 +242,14 @@ def _run_local(func: Callable[[Any], Any], tasks: Sequence[Any], jobs: int, on_r
     ctx = multiprocessing.get_context("spawn")
     pending = collections.deque(tasks)
     workers: list[_Worker] = []
+    done = 0  # tasks a worker finished: until one has, a worker that dies unasked died starting (no retry for ever)
+
+    def start_failed(w: _Worker) -> None:  # (w stopped: its process joined)
+        if not done:
+            from ..errors import MocapfillError
+
+            raise MocapfillError(START_FAILED.format(how=WorkerLost(w.process.exitcode)))
+
     try:
         while pending or any(w.task is not None for w in workers):
             while pending:
@@ -218,6 +262,7 @@ def _run_local(func: Callable[[Any], Any], tasks: Sequence[Any], jobs: int, on_r
                 if not idle.process.is_alive():  # died while idle (killed from outside): nothing was lost
                     idle.stop(0)
                     workers.remove(idle)
+                    start_failed(idle)
                     continue
                 task = pending.popleft()
                 try:
@@ -227,6 +272,7 @@ def _run_local(func: Callable[[Any], Any], tasks: Sequence[Any], jobs: int, on_r
                     pending.appendleft(task)
                     idle.stop(0)
                     workers.remove(idle)
+                    start_failed(idle)
             busy = [w for w in workers if w.task is not None]
             ready = set(wait_connections([w.conn for w in busy] + [w.process.sentinel for w in busy]))
             for w in busy:
@@ -241,6 +287,7 @@ def _run_local(func: Callable[[Any], Any], tasks: Sequence[Any], jobs: int, on_r
                 except (EOFError, OSError):
                     died = True
                 w.task = None
+                done += not died
                 if died:
                     w.process.join()
                     result = on_failure(task, WorkerLost(w.process.exitcode))
