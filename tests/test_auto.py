@@ -51,6 +51,18 @@ def test_frames_dropped_in_turn_are_interpolated_not_strayed_from():
     assert np.array_equal(res.positions[~missing], gapped[~missing])
     assert np.median(err) < 0.5 and np.median(err) < 3 * np.median(res.std[missing])
 
+
+def test_a_capture_where_nothing_moves_fills_without_a_numpy_warning():
+    import warnings
+
+    pos = np.repeat(np.array([[[0.0, 0, 1000], [100, 0, 1000], [0, 100, 1000], [0, 0, 1100]]]), 200, axis=0)
+    gapped = pos.copy()
+    gapped[50:80, 1] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        res = fill_auto(gapped, rate=120.0)
+    np.testing.assert_allclose(res.positions, pos, atol=1e-6)
+
 def test_transition_is_the_white_jerk_model():
     F, Q = transition(model(2, q=2.0))
     assert F.shape == (4, 4) and Q.shape == (2, 4, 4)

@@ -169,7 +169,9 @@ def jerk_gain(positions: np.ndarray, missing: np.ndarray, q: np.ndarray, *, wind
     cnt = np.convolve(known.astype(float), kernel, mode="same")
     gain = np.where(cnt > 0, tot / np.maximum(cnt, 1), np.nan)
     if np.isfinite(gain).any():
-        gain = gain / np.nanmean(gain)  # mean 1 over the frames: q stays the capture's average
+        mean = np.nanmean(gain)
+        # mean 1 over the frames: q stays the capture's average (where nothing moved, no moment is faster: 1)
+        gain = gain / mean if mean > 0 else np.ones(n_frames)
     gain = np.where(np.isfinite(gain), gain, 1.0)
     return np.maximum(gain, floor)
 
