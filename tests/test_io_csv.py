@@ -208,3 +208,13 @@ def test_write_csv_to_stdout_and_read_from_a_stream(sample_data, capfd):
     assert out.startswith("# mocapfill csv:")
     back = mocapfill.read(io.BytesIO(out.encode()))
     assert np.array_equal(back.positions, data.positions, equal_nan=True)
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".tsv"])
+def test_an_empty_label_is_written_as_a_name_its_reader_takes_back(tmp_path, suffix):
+    pos = np.random.default_rng(0).normal(size=(10, 3, 3)) * 100
+    path = tmp_path / f"x{suffix}"
+    mocapfill.write(MarkerData(pos, ["", "B", "C"], 100.0, "mm"), path)
+    back = mocapfill.read(path)
+    assert back.labels == ["M001", "B", "C"]
+    np.testing.assert_allclose(back.positions, pos, atol=1e-3)

@@ -308,7 +308,9 @@ def csv_text(data: MarkerData) -> str:
     out = io.StringIO()
     out.write(f"# mocapfill csv: units={data.units} rate={float(data.rate)!r} first_frame={int(data.first_frame)}\n")
     writer = _csv.writer(out, lineterminator="\n")
-    writer.writerow(["frame", "time"] + [f"{lab}_{a}" for lab in data.labels for a in "xyz"])
+    # an empty label would write "_x", a column no reader takes: named by its place, as the TRC writer does
+    labels = [lab or f"M{k + 1:03d}" for k, lab in enumerate(data.labels)]
+    writer.writerow(["frame", "time"] + [f"{lab}_{a}" for lab in labels for a in "xyz"])
     flat = data.positions.reshape(data.n_frames, 3 * data.n_markers)
     times = data.times
     for t in range(data.n_frames):

@@ -229,6 +229,7 @@ def tsv_text(data: MarkerData, name: str = "<tsv>") -> str:
         if "\t" in lab or "\n" in lab or "\r" in lab:
             raise FormatError(f"{name}: marker label {lab!r} holds a tab or line break; TSV cannot hold it")
     source = data.extra if isinstance(data.extra, TSVExtra) and data.extra.labels == labels else None
+    labels = [lab or f"M{k + 1:03d}" for k, lab in enumerate(labels)]  # (an empty name: no reader takes it back)
     kept = {}
     events = []
     if source is not None:
