@@ -363,3 +363,9 @@ def test_more_than_65535_frames(tmp_path):
     with pytest.warns(DataWarning, match="frame count taken from the size of the data section"):
         back = read_c3d(hidden, "long.c3d")
     assert back.n_frames == n and np.array_equal(back.positions, pos)
+
+
+def test_labels_c3d_cannot_hold_are_named_when_written(tmp_path):
+    pos = np.random.default_rng(0).normal(size=(10, 3, 3))
+    with pytest.warns(DataWarning, match="2 label.*written with '\\?'.*some now read the same"):
+        mocapfill.write(MarkerData(pos, ["Knie_\u811a", "Knie_\u2713", "C"], 100.0, "mm"), tmp_path / "x.c3d")

@@ -356,6 +356,13 @@ def _fresh(data: MarkerData, name: str) -> bytes:
     for label in data.labels:
         if len(label.encode("latin-1", "replace")) > 255:
             raise FormatError(f"{name}: label {label[:20]!r}... is longer than the 255 characters C3D allows")
+    stored = [label.encode("latin-1", "replace").decode("latin-1") for label in data.labels]
+    changed = [(a, b) for a, b in zip(data.labels, stored) if a != b]
+    if changed:  # C3D holds one byte per character (Latin-1): say so now, not when it is read back
+        clash = len(set(stored)) < len(set(data.labels))
+        warnings.warn(f"{name}: {len(changed)} label(s) hold characters C3D cannot store, written with '?' (e.g. "
+                      f"{changed[0][0]!r} as {changed[0][1]!r})" + ("; some now read the same" if clash else ""),
+                      DataWarning, stacklevel=3)
     from .. import __version__
 
     def params(data_block: int) -> bytes:
