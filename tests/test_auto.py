@@ -337,6 +337,28 @@ def test_reference_frames_hook():
         fill_auto(gapped, reference_frames=ref[:, :3])
 
 
+
+def test_a_marker_the_take_never_shows_is_filled_from_a_reference_take(sample_data):
+    """A marker missing in every frame of the take but present in a reference take (the static trial, the session's
+    other takes) is modelled from the references alone, smoothed, and its record says so; without the reference it
+    stays empty."""
+    import mocapfill
+
+    data = mocapfill.read(sample_data / "85_02.c3d")
+    j = data.labels.index("Male:LFRM")
+    take = data.positions[:400].copy()
+    take[:, j] = np.nan
+    alone = fill_auto(take, rate=120.0, labels=data.labels)
+    assert np.isnan(alone.positions[:, j]).all()
+    assert [g["method"] for g in alone.info["gap_methods"] if g["marker_index"] == j] == ["none"]
+    res = fill_auto(take, rate=120.0, labels=data.labels, reference_frames=data.positions[400:])
+    err = np.linalg.norm(res.positions[:, j] - data.positions[:400, j], axis=1)
+    assert np.sqrt(np.mean(err ** 2)) < 15.0 and np.isfinite(res.std[:, j]).all()
+    observed = ~np.isnan(take).any(axis=2)
+    assert np.array_equal(res.positions[observed], take[observed])
+    (rec,) = [g for g in res.info["gap_methods"] if g["marker_index"] == j]
+    assert rec["method"] == "local-pca+motion" and "never shows this marker" in rec["reason"]
+
 def test_fragments_are_short_observed_runs_between_gaps():
     from mocapfill.gaps import fragments
 

@@ -124,6 +124,23 @@ def test_cli_repeatable_reference_and_report(halves, sample_data, tmp_path):
     assert refs[1]["weight"] < MIN_WEIGHT
 
 
+
+def test_cli_fills_a_marker_the_take_never_shows_from_a_reference(halves, tmp_path):
+    first, second = halves
+    j = first.labels.index("Male:LFRM")
+    take = first.positions.copy()
+    take[:, j] = np.nan
+    src, ref, out = tmp_path / "take.c3d", tmp_path / "static.c3d", tmp_path / "o.c3d"
+    mocapfill.write(MarkerData(take, list(first.labels), 120.0, "mm"), src)
+    mocapfill.write(second, ref)
+    alone = CliRunner().invoke(cli, ["fill", str(src), str(out)])
+    assert alone.exit_code == 0 and "never observed, left empty: Male:LFRM" in alone.stderr
+    helped = CliRunner().invoke(cli, ["fill", str(src), str(out), "--force", "--reference", str(ref)])
+    assert helped.exit_code == 0 and "never observed" not in helped.stderr, helped.stderr
+    filled = mocapfill.read(out).positions[:, j]
+    err = np.linalg.norm(filled - first.positions[:, j], axis=1)
+    assert np.sqrt(np.mean(err ** 2)) < 15.0
+
 def test_evaluate_refuses_the_test_capture_and_labels_the_oracle(halves):
     first, second = halves
     with pytest.raises(MocapfillError, match="is the test capture itself"):

@@ -267,7 +267,7 @@ def _summary(outcome, method: str, report_path, status_path, quiet: bool, stored
         more = f", ... {len(review) - 8} more (see --report)" if len(review) > 8 else ""
         out.print(f"review {len(review)} gap{'s' if len(review) != 1 else ''} (marker frames; the fill is unsure "
                   f"there): {shown_gaps}{more}", markup=False, highlight=False, soft_wrap=True)
-    dead = [labels[m] for m in all_missing_markers(missing)]
+    dead = [labels[m] for m in all_missing_markers(missing) if not filled[:, m].any()]  # (a --reference fills some)
     if dead:
         out.print(f"never observed, left empty: {', '.join(dead)}", markup=False, highlight=False)
 

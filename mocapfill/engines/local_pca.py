@@ -622,6 +622,11 @@ def reconstruct_local(
     if context is None and ref is not None:  # reference frames join the training rows (never the predicted ones)
         with_refs_src = np.concatenate([positions, ref])
         with_refs_miss = np.concatenate([missing, np.isnan(ref).any(axis=2)])
+        # a marker the take never shows but a reference does: modelled from the references alone, its distances too
+        unseen = missing.all(axis=0) & ~np.isnan(ref).any(axis=2).all(axis=0)
+        if unseen.any():
+            gap_markers = np.flatnonzero(missing.any(axis=0) & (~missing.all(axis=0) | unseen))
+            ref_distances = distances_to(with_refs_src)
 
     def marker_models(m: int) -> list[tuple]:
         """Marker ``m``'s groups: ``(group,)`` where no model could be fitted (the linear fallback), else ``(group,
@@ -635,7 +640,7 @@ def reconstruct_local(
             dist = mean_distances(src, m)
             spread = distance_spreads_to(src)(m) if rigid_align is not None else None
         else:
-            dist = own_distances(m)
+            dist = own_distances(m) if not missing[:, m].all() else ref_distances(m)
             spread = own_spreads(m) if rigid_align is not None else None
         if ref is not None:  # reference frames join the training rows (never the predicted ones)
             if context is None:
@@ -994,7 +999,10 @@ def reconstruct_completed(
                 out.append((fit, False))
         return out, refs
 
-    todo = np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0))
+    shown = ~missing.all(axis=0)  # (a marker the take never shows: where a reference take does)
+    if reference is not None:
+        shown |= np.isfinite(reference).all(axis=2).any(axis=0)
+    todo = np.flatnonzero(missing.any(axis=0) & shown)
     for m, (fits, refs) in zip(todo, forked_map(models, todo, jobs, cost=missing[:, todo].sum(axis=0))):
         if used_references is not None:
             used_references.extend(refs)

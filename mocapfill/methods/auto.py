@@ -823,7 +823,8 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
     observed samples it measured as noisy (fragments, displaced runs) its posterior mean and sd.
     """
     missing = np.isnan(positions).any(axis=2)
-    todo = np.flatnonzero(missing.any(axis=0) & ~missing.all(axis=0))
+    # (a marker the take never shows is smoothed where a reference take let the spatial model predict it)
+    todo = np.flatnonzero(missing.any(axis=0) & (~missing.all(axis=0) | np.isfinite(pred_sd).any(axis=0)))
     fill = positions.copy()
     sd_out = np.where(missing, np.nan, 0.0)
     outliers = np.zeros_like(missing)

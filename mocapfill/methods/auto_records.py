@@ -146,7 +146,8 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
         m, sl = gap.marker, slice(gap.start, gap.stop)
         rec: dict[str, Any] = {"marker": labels[m] if labels is not None else int(m), "marker_index": int(m),
                                "start": int(gap.start), "length": int(gap.length)}
-        if missing[:, m].all():
+        unseen = bool(missing[:, m].all())
+        if unseen and not np.isfinite(sd[sl, m]).any():
             rec.update(method="none", reason="marker missing in every frame: nothing to learn from", review=True,
                        max_std=None)
             out.append(rec)
@@ -191,6 +192,9 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
             if n_out:
                 reason += (f"; {n_out} prediction(s) more than {config.outlier:g} sd off the smoothed path "
                            f"down-weighted")
+        if unseen:  # filled all the same: a reference take showed the marker
+            reason += ("; the take never shows this marker: it was learnt from the reference takes (or a trained "
+                       "model) alone")
         uncertain = not np.isfinite(worst) or worst > limit
         far = float(np.nanmax(off[sl, m])) if off is not None and np.isfinite(off[sl, m]).any() else None
         reason += sd_clause(worst, config, mm)
