@@ -146,6 +146,37 @@ def test_records_follow_the_blended_sd_and_a_marker_no_window_fills_keeps_one():
     assert min(windows) < records[0]["max_std"] < max(windows)  # the blend, not one window's
 
 
+
+def test_a_marker_lost_for_good_is_learnt_in_later_windows_from_the_frames_that_show_it():
+    """``keywords(start, stop)`` reach each window's fill; ``auto``'s lends a window that never shows a marker the
+    take's nearest frames that do, as reference frames, so the marker lost at frame 300 of 900 is filled in every
+    window, not left NaN past the first."""
+    from functools import partial
+
+    from synthetic import tumbling_body
+    from mocapfill.methods.auto import LOST_MARKER_FRAMES, lost_marker_frames, model_fill
+    from mocapfill.methods.auto_config import DEFAULT_CONFIG
+
+    truth = tumbling_body(n_frames=900)
+    pos = truth.copy()
+    pos[300:, 0] = np.nan
+    assert lost_marker_frames(pos, None, None, 0, 400) == {}  # the first window shows it
+    lent = lost_marker_frames(pos, None, None, 480, 900)
+    assert len(lent["reference_frames"]) == min(300, LOST_MARKER_FRAMES)
+    np.testing.assert_array_equal(lent["reference_frames"], pos[:300])
+    seen = []
+
+    def fill(p, **kw):
+        seen.append(sorted(kw))
+        kw.setdefault("reference_frames", None)
+        return model_fill(p, units="mm", labels=None, rate=100.0, bones=None, refine=True, config=DEFAULT_CONFIG,
+                          **kw)
+
+    out = fill_in_windows(pos, fill, window=400, overlap=80, keywords=partial(lost_marker_frames, pos, None, None))
+    assert seen[0] == [] and ["reference_frames", "reference_weights"] in seen[1:]
+    assert np.isfinite(out.positions[:, 0]).all()
+    assert np.sqrt(np.mean((out.positions[300:, 0] - truth[300:, 0]) ** 2)) < 5.0
+
 def test_short_take_is_one_call():
     pos = np.random.default_rng(0).normal(size=(50, 4, 3))
     pos[10:20, 1] = np.nan

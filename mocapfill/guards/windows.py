@@ -132,19 +132,34 @@ def _cut_gaps(missing: np.ndarray, at_take_start: bool, at_take_end: bool) -> np
     return cut
 
 
-def _window_results(positions: np.ndarray, bounds: list[tuple[int, int]], fill: Callable, executor: Executor):
+class _WithKeywords:
+    """``fill(window, **keywords)`` of a ``(window, keywords)`` task (picklable when ``fill`` is)."""
+
+    def __init__(self, fill: Callable) -> None:
+        self.fill = fill
+
+    def __call__(self, task: tuple[np.ndarray, dict]) -> Any:
+        return self.fill(task[0], **task[1])
+
+
+def _window_results(positions: np.ndarray, bounds: list[tuple[int, int]], fill: Callable, executor: Executor,
+                    keywords: Callable[[int, int], dict] | None = None):
     """The fills of the windows, in order: here one after the other (memory: one window's fill at a time), or on
-    the executor's workers (every window's fill is held until the blend)."""
+    the executor's workers (every window's fill is held until the blend); ``keywords(start, stop)``, formed here,
+    are passed to each window's fill."""
+    extra = (lambda start, stop: {}) if keywords is None else keywords
     if isinstance(executor, InProcess):
         for start, stop in bounds:
-            yield fill(positions[start:stop])
+            yield fill(positions[start:stop], **extra(start, stop))
         return
-    yield from executor.results(fill, [positions[start:stop] for start, stop in bounds])
+    yield from executor.results(_WithKeywords(fill), [(positions[start:stop], extra(start, stop))
+                                                      for start, stop in bounds])
 
 
 def fill_in_windows(positions: np.ndarray, fill: Callable[[np.ndarray], Any], *, window: int = DEFAULT_WINDOW,
                     overlap: int = DEFAULT_OVERLAP, jobs: int = 1, executor: Executor | None = None,
-                    restate: Callable[[dict, np.ndarray], dict] | None = None) -> FillResult:
+                    restate: Callable[[dict, np.ndarray], dict] | None = None,
+                    keywords: Callable[[int, int], dict] | None = None) -> FillResult:
     """Fill ``positions`` (n_frames, n_markers, 3), NaN = missing, window by window with ``fill`` (see the module
     docstring).
 
@@ -170,6 +185,9 @@ def fill_in_windows(positions: np.ndarray, fill: Callable[[np.ndarray], Any], *,
         ``restate(record, std) -> record``: each merged per-gap record (the heaviest window's) given the blended
         ``std`` (length,) over its gap, for a fill whose records quote their sd (``auto``'s
         :func:`~mocapfill.methods.auto_records.restate_record`); None: the records as the windows gave them.
+    keywords : callable or None
+        ``keywords(start, stop) -> dict``: keyword arguments for the fill of the window ``[start, stop)``, formed in
+        this process (``auto``: frames of the rest of the take that show a marker the window never does).
 
     Returns
     -------
@@ -198,7 +216,8 @@ def fill_in_windows(positions: np.ndarray, fill: Callable[[np.ndarray], Any], *,
     # per sample, the window with the most weight there: its entry describes the gap in the merged info
     owner_weight = np.zeros((n, n_markers))
     owner = np.full((n, n_markers), -1, dtype=np.intp)
-    for k, ((start, stop), res) in enumerate(zip(bounds, _window_results(positions, bounds, fill, runner))):
+    for k, ((start, stop), res) in enumerate(zip(bounds, _window_results(positions, bounds, fill, runner,
+                                                                                     keywords))):
         part = positions[start:stop]
         est = np.asarray(res.positions, dtype=np.float64)
         if est.shape != part.shape:

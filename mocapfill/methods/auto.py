@@ -164,7 +164,9 @@ def fill_auto(
         if positions.shape[0] > DEFAULT_WINDOW:  # long takes: overlapping windows, time linear in frames
             # (each window's models in its own worker; a gap's record restated for the sd the blend gave it)
             result = fill_in_windows(positions, core, jobs=jobs,
-                                     restate=partial(restate_record, config=config, mm=length_factor("mm", units)))
+                                     restate=partial(restate_record, config=config, mm=length_factor("mm", units)),
+                                     keywords=partial(lost_marker_frames, positions, reference_frames,
+                                                      reference_weights))
             result.info["review"] = [i for i, r in enumerate(result.info.get("gap_methods", [])) if r["review"]]
             return result
         return core(positions, jobs=jobs)
@@ -289,6 +291,34 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     info["displaced"] = displaced_records(positions, displaced, edge, mm, labels)
     info["review"] = [i for i, r in enumerate(info["gap_methods"]) if r["review"]]
     return finish(positions, fill, std=sd, info=info)
+
+
+#: Most frames of the rest of a long take lent to a window as reference frames (:func:`lost_marker_frames`).
+LOST_MARKER_FRAMES = 1000
+
+
+def lost_marker_frames(positions: np.ndarray, reference_frames: np.ndarray | None,
+                       reference_weights: np.ndarray | None, start: int, stop: int) -> dict:
+    """The reference frames for the window ``[start, stop)`` of a long take (positions (n_frames, n_markers, 3)):
+    where the window never shows a marker the rest of the take does (a marker lost for good), the take's nearest
+    frames (at most :data:`LOST_MARKER_FRAMES`) that show it join the caller's ``reference_frames`` / ``weights``,
+    as reference rows of weight 1, so the window's models learn that marker from them; {} where the window shows
+    every marker the take does (its fill is the window's own)."""
+    missing = np.isnan(positions).any(axis=2)
+    lost = missing[start:stop].all(axis=0) & ~missing.all(axis=0)
+    if not lost.any():
+        return {}
+    outside = np.ones(len(positions), dtype=bool)
+    outside[start:stop] = False
+    frames = np.flatnonzero(outside & ~missing[:, lost].all(axis=1))
+    frames = frames[np.argsort(np.minimum(np.abs(frames - start), np.abs(frames - (stop - 1))), kind="stable")]
+    frames = np.sort(frames[:LOST_MARKER_FRAMES])
+    lent = positions[frames]
+    if reference_frames is None:
+        return {"reference_frames": lent, "reference_weights": np.ones(len(frames))}
+    weights = np.ones(len(reference_frames)) if reference_weights is None else reference_weights
+    return {"reference_frames": np.concatenate([reference_frames, lent]),
+            "reference_weights": np.concatenate([weights, np.ones(len(frames))])}
 
 
 def joined(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray, edge: np.ndarray, edge_sd: np.ndarray,

@@ -193,8 +193,8 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
                 reason += (f"; {n_out} prediction(s) more than {config.outlier:g} sd off the smoothed path "
                            f"down-weighted")
         if unseen:  # filled all the same: a reference take showed the marker
-            reason += ("; the take never shows this marker: it was learnt from the reference takes (or a trained "
-                       "model) alone")
+            reason += ("; the take never shows this marker (a long take: this window): it was learnt from "
+                       "reference frames (other takes, the long take's other windows) or a trained model alone")
         uncertain = not np.isfinite(worst) or worst > limit
         far = float(np.nanmax(off[sl, m])) if off is not None and np.isfinite(off[sl, m]).any() else None
         reason += sd_clause(worst, config, mm)
