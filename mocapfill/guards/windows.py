@@ -17,11 +17,11 @@ How (:func:`fill_in_windows`):
    its mirror on the last, 1 between.  A gap that a window sees *cut* (it runs into the window's edge where the take
    goes on, so that window filled it with context on one side only) gets that window's weight times 1e-12: the
    window that holds the whole gap with an observed frame on each side decides it, and where two windows both hold
-   it whole their fills cross-fade within the gap (an average of two fills: on the ten-minute take of
-   ``bench_long_take.py`` one window deciding alone gave an RMSE of 3.24 mm against 3.23).  Only when no window
-   holds a gap whole (a gap longer than the overlap across an edge) does the plain cross-fade decide.  A window
-   that left a sample NaN gives it no weight.  ``std`` blends with the same weights (NaN where no window gave one).
-   Observed samples come back bit-identical (:func:`mocapfill.methods.base.finish`).
+   it whole their fills cross-fade within the gap (an average of two fills, a little more accurate than either:
+   CHANGELOG, twenty-sixth session).  Only when no window holds a gap whole (a gap longer than the overlap across an
+   edge) does the plain cross-fade decide.  A window that left a sample NaN gives it no weight.  ``std`` blends with
+   the same weights (NaN where no window gave one).  Observed samples come back bit-identical
+   (:func:`mocapfill.methods.base.finish`).
 4. **Info.**  Per-gap lists (``info`` values that are lists of dicts with ``start`` and ``marker_index``, such as
    ``auto``'s ``gap_methods``) keep, for each gap of the take, the entry of the window that holds it with the most
    weight, its ``start`` in the take's frames (a gap no window filled: the first window's entry; ``restate``
