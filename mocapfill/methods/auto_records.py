@@ -93,7 +93,7 @@ def restate_record(record: dict, std: np.ndarray, *, config: ModelConfig, mm: fl
             reason += (f"; {left} of its {len(std)} frames left missing: a long take is filled in windows of "
                        f"frames, and the windows over them never see the marker")
         out["reason"] = reason
-    beside = bool(record.get("review")) and not old > limit  # flagged for a displaced run, not for its sd
+    beside = bool(record.get("review")) and not old > limit  # flagged for another reason than its sd
     out["review"] = bool(worst > limit or beside or left)
     return out
 
@@ -148,8 +148,8 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
                                "start": int(gap.start), "length": int(gap.length)}
         unseen = bool(missing[:, m].all())
         if unseen and not np.isfinite(sd[sl, m]).any():
-            rec.update(method="none", reason="marker missing in every frame: nothing to learn from", review=True,
-                       max_std=None)
+            rec.update(method="none", reason="marker missing in every frame: nothing to learn from (nor from a "
+                       "reference take: none given shows it, or none fits this body)", review=True, max_std=None)
             out.append(rec)
             continue
         worst = float(np.nanmax(sd[sl, m])) if np.isfinite(sd[sl, m]).any() else float("nan")
@@ -192,9 +192,10 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
             if n_out:
                 reason += (f"; {n_out} prediction(s) more than {config.outlier:g} sd off the smoothed path "
                            f"down-weighted")
-        if unseen:  # filled all the same: a reference take showed the marker
-            reason += ("; the take never shows this marker (a long take: this window): it was learnt from "
-                       "reference frames (other takes, the long take's other windows) or a trained model alone")
+        if unseen:  # filled all the same: reference frames showed the marker
+            reason += ("; the frames it was filled in never show this marker: it was learnt from reference frames "
+                       "alone (the reference takes; on a long take, its frames that show it), which the take "
+                       "cannot check: review this gap")
         uncertain = not np.isfinite(worst) or worst > limit
         far = float(np.nanmax(off[sl, m])) if off is not None and np.isfinite(off[sl, m]).any() else None
         reason += sd_clause(worst, config, mm)
@@ -220,7 +221,7 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
                        f"than its sd explains (odds with a {config.displaced_prior:.0%} prior of a displaced run, "
                        f"{config.displacement_mm:g} mm per axis): judged displaced (a swap or ghost marker), kept in "
                        f"the output but not followed by the fill: review it")
-        review = uncertain or bool(beside)
+        review = uncertain or bool(beside) or unseen  # (a model the take cannot check: an offset its sd misses)
         rec.update(method=method, reason=reason, review=bool(review),
                    max_std=None if not np.isfinite(worst) else worst, extrapolation=far)
         out.append(rec)
