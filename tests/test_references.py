@@ -145,6 +145,12 @@ def test_evaluate_refuses_the_test_capture_and_labels_the_oracle(halves):
     first, second = halves
     with pytest.raises(MocapfillError, match="is the test capture itself"):
         mocapfill.evaluate(first, ["linear"], "marker", trials=1, seed=0, reference=[first])
+    # the same take in metres, its labels without the subject's prefix, in another marker order
+    order = np.arange(first.n_markers)[::-1]
+    exported = MarkerData(np.round(first.positions[:, order] / 1000.0, 7), [first.labels[k].split(":")[-1]
+                          for k in order], 120.0, "m", path="exported.trc")
+    with pytest.raises(MocapfillError, match="exported.trc is the test capture itself"):
+        mocapfill.evaluate(first, ["linear"], "marker", trials=1, seed=0, reference=[exported])
     result = mocapfill.evaluate(first, ["pca"], "marker", trials=1, seed=0, reference=[second],
                                 reject_outliers="clean")
     assert result.settings["oracle"] is True and result.settings["references"] == ["second"]

@@ -267,11 +267,36 @@ def _check_references(data: MarkerData, reference) -> list[MarkerData]:
         if not isinstance(ref, MarkerData):
             raise MocapfillError("evaluate: reference takes must be MarkerData (use mocapfill.read)")
         same_path = data.path and ref.path and os.path.abspath(str(ref.path)) == os.path.abspath(str(data.path))
-        if same_path or (ref.positions.shape == data.positions.shape
-                         and np.array_equal(ref.positions, data.positions, equal_nan=True)):
+        if same_path or _same_take(data, ref):
             raise MocapfillError(f"evaluate: {ref.path or 'a reference'} is the test capture itself; a fill that "
                                  "has seen the truth is an oracle, not an evaluation")
     return refs
+
+
+def _same_take(data: MarkerData, ref: MarkerData) -> bool:
+    """Whether ``ref`` holds the test capture's samples: as many frames, and its markers, matched by label and
+    converted to the capture's units (:func:`~mocapfill.references.match_reference`), within 0.05 mm of the
+    capture's wherever both are seen (a copy of the file, the take exported to another format or unit and rounded
+    as formats round)."""
+    if ref.positions.shape == data.positions.shape and np.array_equal(ref.positions, data.positions, equal_nan=True):
+        return True
+    if ref.n_frames != data.n_frames:
+        return False
+    import warnings
+
+    from ..references import ReferenceError, match_reference
+    from ..units import length_factor
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            matched = match_reference(data.labels, data.units, ref.positions, ref.labels, ref.units).positions
+    except ReferenceError:
+        return False
+    both = ~np.isnan(matched).any(axis=2) & ~np.isnan(data.positions).any(axis=2)
+    if both.sum() < 0.5 * (~np.isnan(data.positions).any(axis=2)).sum():
+        return False
+    return bool(np.max(np.abs(matched[both] - data.positions[both])) <= 0.05 * length_factor("mm", data.units))
 
 
 def evaluate(data: MarkerData, methods: Sequence[str] = ("linear", "spline"), protocol: str = "marker", *,
