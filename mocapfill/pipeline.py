@@ -531,8 +531,10 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
         if isinstance(used, dict) and used.get("models"):
             for ref in refs:
                 if ref.stages.get("fill", "").endswith(f"weight {ref.weight:.2f}"):
-                    ref.stages["fill"] += (f"; kept by {used['used']} of {used['models']} local models (the others "
-                                           f"fitted the capture better without references)")
+                    others = used["models"] - used["used"]
+                    ref.stages["fill"] += (f"; kept by {used['used']} of {used['models']} local models"
+                                           + (f" (the other {others} fitted the capture better without references)"
+                                              if others else ""))
         record["references"] = [ref.record(data.units) for ref in refs]
     left = np.zeros((data.n_frames, data.n_markers), dtype=np.int8)
     left[:, columns] = left_view

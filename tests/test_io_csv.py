@@ -218,3 +218,10 @@ def test_an_empty_label_is_written_as_a_name_its_reader_takes_back(tmp_path, suf
     back = mocapfill.read(path)
     assert back.labels == ["M001", "B", "C"]
     np.testing.assert_allclose(back.positions, pos, atol=1e-3)
+
+
+def test_an_empty_path_is_named_as_such():
+    from mocapfill.errors import InputError
+
+    with pytest.raises(InputError, match="an empty path names no file"):
+        mocapfill.read("")

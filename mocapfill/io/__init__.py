@@ -102,6 +102,8 @@ def _read_bytes(path_or_stream, name: str) -> bytes:
     if not isinstance(path_or_stream, (str, os.PathLike)):
         raw = path_or_stream.read()
         return raw.encode("utf-8") if isinstance(raw, str) else raw
+    if not os.fspath(path_or_stream):  # ("" would be read as the current folder)
+        raise InputError("an empty path names no file")
     path = Path(os.fspath(path_or_stream))
     if not path.exists():
         raise InputError(f"{name}: no such file")
