@@ -8,6 +8,7 @@ products; OpenBLAS threads gain nothing there and, on a machine whose cores are 
 from __future__ import annotations
 
 import contextlib
+import os
 from typing import Iterator
 
 
@@ -18,3 +19,23 @@ def single_blas_thread() -> Iterator[None]:
 
     with threadpool_limits(limits=1, user_api="blas"):
         yield
+
+
+#: The variables that size the BLAS libraries' thread pools in a process about to start.
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def one_blas_thread_environment() -> Iterator[None]:
+    """The :data:`BLAS_THREAD_VARIABLES` the caller left unset at 1 within the block, then unset again: for a worker
+    process started in it (a spawned process takes the environment as it is at its start, before its BLAS is
+    loaded), where the workers are the parallelism; without it each worker started one BLAS thread per core, and a
+    long take's windows on two workers took twice the time of one process, their threads fighting over the cores."""
+    added = [name for name in BLAS_THREAD_VARIABLES if name not in os.environ]
+    for name in added:
+        os.environ[name] = "1"
+    try:
+        yield
+    finally:
+        for name in added:
+            os.environ.pop(name, None)

@@ -30,6 +30,8 @@ import uuid
 from multiprocessing.connection import wait as wait_connections
 from typing import Any, Callable, Sequence
 
+from .blas import one_blas_thread_environment
+
 __all__ = ["Executor", "InProcess", "LocalProcesses", "DaskCluster", "make_executor", "resolve_jobs", "WorkerLost",
            "SchedulerUnreachable", "WORKER_NAME", "CONNECT_TIMEOUT", "forked_map", "can_fork"]
 
@@ -163,15 +165,6 @@ def make_executor(jobs: int | None = 1, scheduler: Any = None, *, n_tasks: int |
     return InProcess() if jobs <= 1 else LocalProcesses(jobs)
 
 
-def blas_threads(_: Any = None) -> int:
-    """The most threads any loaded BLAS library may use in this process (1 where none is loaded)."""
-    import numpy  # noqa: F401  (its BLAS, loaded)
-    from threadpoolctl import threadpool_info
-
-    return max([int(pool.get("num_threads", 1)) for pool in threadpool_info() if pool.get("user_api") == "blas"],
-               default=1)
-
-
 def _worker_loop(func: Callable[[Any], Any], conn) -> None:
     """A local worker: run the tasks the parent sends, one at a time, until it sends None or goes away."""
     try:
@@ -188,31 +181,11 @@ def _worker_loop(func: Callable[[Any], Any], conn) -> None:
         return  # the parent is gone
 
 
-#: The variables that size the BLAS libraries' thread pools, set to 1 for a worker where the caller set none: the
-#: workers are the parallelism (a spawned worker would otherwise start one BLAS thread per core, and a long take's
-#: windows on two workers took twice the time of one process, their threads fighting over the cores).
-BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
-
-
-@contextlib.contextmanager
-def _one_blas_thread_environment():
-    """The BLAS_THREAD_VARIABLES the caller left unset at 1 while a worker starts (a spawned process takes the
-    environment as it is at its start, before its BLAS is loaded), then unset again."""
-    added = [name for name in BLAS_THREAD_VARIABLES if name not in os.environ]
-    for name in added:
-        os.environ[name] = "1"
-    try:
-        yield
-    finally:
-        for name in added:
-            os.environ.pop(name, None)
-
-
 class _Worker:
     def __init__(self, ctx, func: Callable[[Any], Any]) -> None:
         self.conn, child = ctx.Pipe()
         self.process = ctx.Process(target=_worker_loop, args=(func, child), daemon=True, name=WORKER_NAME)
-        with _one_blas_thread_environment():
+        with one_blas_thread_environment():  # the workers are the parallelism
             self.process.start()
         child.close()
         self.task: Any = None
