@@ -160,8 +160,9 @@ def test_a_marker_lost_for_good_is_learnt_in_later_windows_from_the_frames_that_
     truth = tumbling_body(n_frames=900)
     pos = truth.copy()
     pos[300:, 0] = np.nan
-    assert lost_marker_frames(pos, None, None, 0, 400) == {}  # the first window shows it
-    lent = lost_marker_frames(pos, None, None, 480, 900)
+    missing = np.isnan(pos).any(axis=2)
+    assert lost_marker_frames(pos, missing, None, None, 0, 400) == {}  # the first window shows it
+    lent = lost_marker_frames(pos, missing, None, None, 480, 900)
     assert len(lent["reference_frames"]) == min(300, LOST_MARKER_FRAMES)
     np.testing.assert_array_equal(lent["reference_frames"], pos[:300])
     seen = []
@@ -172,7 +173,8 @@ def test_a_marker_lost_for_good_is_learnt_in_later_windows_from_the_frames_that_
         return model_fill(p, units="mm", labels=None, rate=100.0, bones=None, refine=True, config=DEFAULT_CONFIG,
                           **kw)
 
-    out = fill_in_windows(pos, fill, window=400, overlap=80, keywords=partial(lost_marker_frames, pos, None, None))
+    out = fill_in_windows(pos, fill, window=400, overlap=80,
+                          keywords=partial(lost_marker_frames, pos, missing, None, None))
     assert seen[0] == [] and ["reference_frames", "reference_weights"] in seen[1:]
     assert np.isfinite(out.positions[:, 0]).all()
     assert np.sqrt(np.mean((out.positions[300:, 0] - truth[300:, 0]) ** 2)) < 5.0

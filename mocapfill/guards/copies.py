@@ -17,7 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..methods.base import MARKER_RECORDS, FillResult, finish
+from ..methods.base import MARKER_RECORDS, FillResult, finish, review_indices
 
 
 def distinct_markers(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -131,7 +131,7 @@ def with_lent(result: FillResult, original: np.ndarray, lent: np.ndarray, lender
     records.sort(key=lambda r: (int(r["marker_index"]), int(r["start"])))
     records = one_record_per_gap(records, np.isnan(original).any(axis=2))
     info["gap_methods"] = records
-    info["review"] = [i for i, r in enumerate(records) if r.get("review")]
+    info["review"] = review_indices(records)
     info["lent"] = [{"marker": name(m), "marker_index": int(m), "copy": name(o)}
                     for m, o in dict.fromkeys(lenders)]
     return finish(original, result.positions, std=result.std, n_iter=result.n_iter, converged=result.converged,
@@ -204,7 +204,7 @@ def widened(positions: np.ndarray, result: FillResult, keep: np.ndarray, source:
             info[key] = [dict(r, marker=name(m), marker_index=int(m))
                          for m in range(len(source)) for r in by_marker.get(int(source[m]), [])]
     if isinstance(info.get("gap_methods"), list):
-        info["review"] = [i for i, r in enumerate(info["gap_methods"]) if r.get("review")]
+        info["review"] = review_indices(info["gap_methods"])
     if isinstance(info.get("fallback"), list):
         kept = set(int(i) for i in info["fallback"])
         info["fallback"] = [int(m) for m in range(len(source)) if int(source[m]) in kept]

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import MethodError
 from ..gaps import find_gaps
-from ..methods.base import FillResult
+from ..methods.base import FillResult, review_indices
 from ..status import NAMES, Status
 
 #: What ``--edges`` accepts: fill the gaps that touch the first or last frame (today's behaviour), or leave them.
@@ -128,7 +128,7 @@ def leave_missing(result: FillResult, reasons: np.ndarray) -> FillResult:
     if isinstance(info.get("gap_methods"), list):  # a gap left is not filled: its record says so, not how it was
         info["gap_methods"] = [_left_record(rec, reasons) for rec in info["gap_methods"]]
         if "review" in info:
-            info["review"] = [i for i, rec in enumerate(info["gap_methods"]) if rec.get("review")]
+            info["review"] = review_indices(info["gap_methods"])
     positions = result.positions.copy()
     positions[left] = np.nan
     filled = np.asarray(result.filled, dtype=bool) & ~left

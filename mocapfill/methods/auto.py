@@ -74,7 +74,7 @@ from ..runtime.executor import resolve_jobs
 from ..units import length_factor
 from .auto_config import DEFAULT_CONFIG, ModelConfig
 from .auto_records import displaced_records, gap_records, restate_record
-from .base import FillResult, check_positions, finish
+from .base import FillResult, check_positions, finish, review_indices
 
 
 def fill_auto(
@@ -165,9 +165,9 @@ def fill_auto(
             # (each window's models in its own worker; a gap's record restated for the sd the blend gave it)
             result = fill_in_windows(positions, core, jobs=jobs,
                                      restate=partial(restate_record, config=config, mm=length_factor("mm", units)),
-                                     keywords=partial(lost_marker_frames, positions, reference_frames,
-                                                      reference_weights))
-            result.info["review"] = [i for i, r in enumerate(result.info.get("gap_methods", [])) if r["review"]]
+                                     keywords=partial(lost_marker_frames, positions, np.isnan(positions).any(axis=2),
+                                                      reference_frames, reference_weights))
+            result.info["review"] = review_indices(result.info.get("gap_methods"))
             return result
         return core(positions, jobs=jobs)
 
@@ -289,7 +289,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
                                       boneset, off, displaced, segment_used, anchored, spread=spread, broken=broken,
                                       reach=reach, stretched=stretched, globbed=globbed, moved=moved)
     info["displaced"] = displaced_records(positions, displaced, edge, mm, labels)
-    info["review"] = [i for i, r in enumerate(info["gap_methods"]) if r["review"]]
+    info["review"] = review_indices(info["gap_methods"])
     return finish(positions, fill, std=sd, info=info)
 
 
@@ -297,14 +297,14 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
 LOST_MARKER_FRAMES = 1000
 
 
-def lost_marker_frames(positions: np.ndarray, reference_frames: np.ndarray | None,
+def lost_marker_frames(positions: np.ndarray, missing: np.ndarray, reference_frames: np.ndarray | None,
                        reference_weights: np.ndarray | None, start: int, stop: int) -> dict:
-    """The reference frames for the window ``[start, stop)`` of a long take (positions (n_frames, n_markers, 3)):
+    """The reference frames for the window ``[start, stop)`` of a long take (positions (n_frames, n_markers, 3),
+    missing (n_frames, n_markers) its mask, formed once for all the windows):
     where the window never shows a marker the rest of the take does (a marker lost for good), the take's nearest
     frames (at most :data:`LOST_MARKER_FRAMES`) that show it join the caller's ``reference_frames`` / ``weights``,
     as reference rows of weight 1, so the window's models learn that marker from them; {} where the window shows
     every marker the take does (its fill is the window's own)."""
-    missing = np.isnan(positions).any(axis=2)
     lost = missing[start:stop].all(axis=0) & ~missing.all(axis=0)
     if not lost.any():
         return {}

@@ -95,6 +95,11 @@ def finish(
 MARKER_RECORDS = ("gap_methods", "declined", "displaced")
 
 
+def review_indices(records: Any) -> list[int]:
+    """``info["review"]``: the indices of the per-gap ``records`` (``info["gap_methods"]``) that ask for review."""
+    return [i for i, rec in enumerate(records or []) if rec.get("review")]
+
+
 def records_mask(records: Any, shape: tuple[int, int]) -> np.ndarray:
     """(n_frames, n_markers) bool: the samples covered by a list of per-run records (dicts with ``marker_index``,
     ``start`` (0-based frame) and ``length``; malformed ones skipped), as ``info`` lists them: the gaps a method
