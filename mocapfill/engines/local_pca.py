@@ -623,9 +623,9 @@ def reconstruct_local(
         with_refs_src = np.concatenate([positions, ref])
         with_refs_miss = np.concatenate([missing, np.isnan(ref).any(axis=2)])
         # a marker the take never shows but a reference does: modelled from the references alone, its distances too
-        unseen = missing.all(axis=0) & ~np.isnan(ref).any(axis=2).all(axis=0)
-        if unseen.any():
-            gap_markers = np.flatnonzero(missing.any(axis=0) & (~missing.all(axis=0) | unseen))
+        shown = ~with_refs_miss.all(axis=0)
+        if (missing.all(axis=0) & shown).any():
+            gap_markers = np.flatnonzero(missing.any(axis=0) & shown)
             ref_distances = distances_to(with_refs_src)
 
     def marker_models(m: int) -> list[tuple]:
@@ -999,10 +999,8 @@ def reconstruct_completed(
                 out.append((fit, False))
         return out, refs
 
-    shown = ~missing.all(axis=0)  # (a marker the take never shows: where a reference take does)
-    if reference is not None:
-        shown |= np.isfinite(reference).all(axis=2).any(axis=0)
-    todo = np.flatnonzero(missing.any(axis=0) & shown)
+    # (``known`` holds the references' rows: a marker the take never shows is refitted where a reference shows it)
+    todo = np.flatnonzero(missing.any(axis=0) & known.any(axis=0))
     for m, (fits, refs) in zip(todo, forked_map(models, todo, jobs, cost=missing[:, todo].sum(axis=0))):
         if used_references is not None:
             used_references.extend(refs)

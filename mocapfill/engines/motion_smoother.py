@@ -88,7 +88,10 @@ def jerk_density(positions: np.ndarray, missing: np.ndarray, *, floor: float) ->
     """
     n_frames, n_markers, _ = positions.shape
     q = np.full(n_markers, np.nan)
-    for stride in range(1, n_frames // 3 + 1):
+    # no four observed frames s apart exist past a third of a marker's observed span (and none without four frames)
+    seen = ~missing
+    span = np.where(seen.sum(axis=0) >= 4, n_frames - 1 - np.argmax(seen[::-1], axis=0) - np.argmax(seen, axis=0), 0)
+    for stride in range(1, int(span.max(initial=0)) // 3 + 1):
         q = _strided_jerk(positions, missing, stride)
         if np.isfinite(q).any():
             break

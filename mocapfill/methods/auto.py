@@ -62,6 +62,7 @@ from functools import cache, partial
 from typing import Any, Callable, Sequence
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from ..engines.local_pca import reconstruct_local
 from ..engines.motion_smoother import MotionModel, acceleration_memory, jerk_density, jerk_gain, smooth
@@ -886,9 +887,10 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
     short = fragments(missing[:, todo], config.fragment_frames)
     # a fragment is distrusted beside the marker's longer runs; a marker seen only in fragments (every other frame
     # dropped) has nothing surer, and at 20 mm its fill strayed millimetres from the samples it passes between
+    run = config.fragment_frames + 1  # frames in a row that make a run longer than a fragment
     seen = ~missing[:, todo]
-    longer = np.array([any(length > config.fragment_frames for _, length in runs(seen[:, j]))
-                       for j in range(len(todo))], dtype=bool)
+    longer = (sliding_window_view(seen, run, axis=0).all(axis=2).any(axis=0) if len(seen) >= run
+              else np.zeros(len(todo), dtype=bool))
     short &= longer[None, :]
     obs_var = np.where(short, (config.fragment_sd_mm * mm) ** 2, model.r_obs)
     if displaced is not None:  # measured with the displacement's spread: the fill does not bend to them
