@@ -36,8 +36,8 @@ import numpy as np
 
 from ..errors import DataWarning, FormatError
 from ..markers import MarkerData
-from .labels import (UNLABELLED_NAME, make_unique, match_label_row, normalise_units, point_kinds, rename_notes,
-                     unit_name)
+from .labels import (UNLABELLED_NAME, make_unique, match_label_row, named_by_place, normalise_units, point_kinds,
+                     rename_notes, unit_name)
 from .timing import rate_from_times
 
 __all__ = ["read_csv", "csv_text", "csv_rows", "frame_number", "parse_numbers"]
@@ -278,7 +278,7 @@ def _read_vicon(rows: list[list[str]], name: str) -> MarkerData:
         notes.append(label_note)
     if not matched:
         warnings.warn(f"{name}: {label_note}", DataWarning, stacklevel=3)
-    labels = [lab or f"M{k + 1:03d}" for k, lab in enumerate(labels[:n_markers])]
+    labels = named_by_place(labels[:n_markers])
     data_rows = []
     for r in rows[start + 5:]:
         if not any(c.strip() for c in r):
@@ -308,8 +308,7 @@ def csv_text(data: MarkerData) -> str:
     out = io.StringIO()
     out.write(f"# mocapfill csv: units={data.units} rate={float(data.rate)!r} first_frame={int(data.first_frame)}\n")
     writer = _csv.writer(out, lineterminator="\n")
-    # an empty label would write "_x", a column no reader takes: named by its place, as the TRC writer does
-    labels = [lab or f"M{k + 1:03d}" for k, lab in enumerate(data.labels)]
+    labels = named_by_place(data.labels)  # (an empty one would write "_x", a column no reader takes)
     writer.writerow(["frame", "time"] + [f"{lab}_{a}" for lab in labels for a in "xyz"])
     flat = data.positions.reshape(data.n_frames, 3 * data.n_markers)
     times = data.times

@@ -22,6 +22,12 @@ def rename_notes(renamed: list[tuple[str, str]]) -> list[str]:
     return [f"{RENAMED_NOTE}{old!r} renamed {new!r}" for old, new in renamed]
 
 
+def named_by_place(labels: list[str]) -> list[str]:
+    """``labels`` with each empty one named by its place, ``M001`` for the first marker: what the readers call an
+    unnamed column, and what the writers write for an empty label (no reader takes an empty name back)."""
+    return [label or f"M{k + 1:03d}" for k, label in enumerate(labels)]
+
+
 def make_unique(labels: list[str]) -> tuple[list[str], list[tuple[str, str]]]:
     """Stripped labels made unique by suffixing repeats ``_2``, ``_3`` ...; also returns the (old, new) renames.
 

@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import DataWarning, FormatError
 from ..markers import MarkerData
 from .csv import frame_number, parse_numbers
-from .labels import make_unique, match_label_row, normalise_units, point_kinds, rename_notes
+from .labels import make_unique, match_label_row, named_by_place, normalise_units, point_kinds, rename_notes
 
 __all__ = ["read_trc", "trc_text"]
 
@@ -120,7 +120,7 @@ def trc_labels(label_row: list[str], n_axis: int, in_rows: int, name: str
     unnamed = [k for k, lab in enumerate(labels) if not lab]
     if unnamed and aligned:
         notes.append(f"{len(unnamed)} marker(s) without a label named M###")
-    labels = [lab or f"M{k + 1:03d}" for k, lab in enumerate(labels)]
+    labels = named_by_place(labels)
     kinds = point_kinds(labels)
     if in_rows > n_named:
         extra = in_rows - n_named

@@ -42,7 +42,7 @@ from ..errors import DataWarning, FormatError
 from ..markers import MarkerData
 from ..units import length_factor
 from .csv import frame_number, parse_numbers
-from .labels import make_unique, point_kinds, rename_notes
+from .labels import make_unique, named_by_place, point_kinds, rename_notes
 
 __all__ = ["read_tsv", "tsv_text", "tsv_storage", "looks_like_tsv", "TSVExtra"]
 
@@ -111,7 +111,7 @@ def read_tsv(text: str, name: str) -> MarkerData:
     declared = _int(meta.get("NO_OF_MARKERS"))
     if declared is not None and declared != n_markers:
         notes.append(f"header says {declared} markers, MARKER_NAMES lists {n_markers}")
-    labels = [lab or f"M{k + 1:03d}" for k, lab in enumerate(raw_labels)]
+    labels = named_by_place(raw_labels)
     labels, renamed = make_unique(labels)
     notes.extend(rename_notes(renamed))
 
@@ -229,7 +229,7 @@ def tsv_text(data: MarkerData, name: str = "<tsv>") -> str:
         if "\t" in lab or "\n" in lab or "\r" in lab:
             raise FormatError(f"{name}: marker label {lab!r} holds a tab or line break; TSV cannot hold it")
     source = data.extra if isinstance(data.extra, TSVExtra) and data.extra.labels == labels else None
-    labels = [lab or f"M{k + 1:03d}" for k, lab in enumerate(labels)]  # (an empty name: no reader takes it back)
+    labels = named_by_place(labels)
     kept = {}
     events = []
     if source is not None:
