@@ -101,9 +101,9 @@ def fill(data: MarkerData | np.ndarray, method: str = DEFAULT_METHOD, *, max_gap
     if ignored:
         warnings.warn(f"method {method!r} ignores option(s): {', '.join(sorted(ignored))}", UserWarning,
                       stacklevel=2)
-    positions = check_positions(positions, name=data.path if isinstance(data, MarkerData) else None,
-                                labels=context["labels"])
-    check_frames(positions.shape[0], name=data.path if isinstance(data, MarkerData) else None)
+    name = data.path if isinstance(data, MarkerData) else None
+    positions = check_positions(positions, name=name, labels=context["labels"])
+    check_frames(positions.shape[0], name=name)
     limits = None
     if max_gap is not None or edges != "fill" or markers is not None or exclude is not None:
         from .guards.limits import check_edges, parse_max_gap

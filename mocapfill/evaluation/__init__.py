@@ -282,8 +282,6 @@ def _same_take(data: MarkerData, ref: MarkerData) -> bool:
         return True
     if ref.n_frames != data.n_frames:
         return False
-    import warnings
-
     from ..references import ReferenceError, match_reference
     from ..units import length_factor
 
@@ -293,8 +291,9 @@ def _same_take(data: MarkerData, ref: MarkerData) -> bool:
             matched = match_reference(data.labels, data.units, ref.positions, ref.labels, ref.units).positions
     except ReferenceError:
         return False
-    both = ~np.isnan(matched).any(axis=2) & ~np.isnan(data.positions).any(axis=2)
-    if both.sum() < 0.5 * (~np.isnan(data.positions).any(axis=2)).sum():
+    seen = ~data.missing
+    both = seen & ~np.isnan(matched).any(axis=2)
+    if both.sum() < 0.5 * seen.sum():
         return False
     return bool(np.max(np.abs(matched[both] - data.positions[both])) <= 0.05 * length_factor("mm", data.units))
 

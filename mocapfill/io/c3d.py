@@ -353,10 +353,10 @@ def _fresh(data: MarkerData, name: str) -> bytes:
         raise FormatError(f"{name}: frame rate {data.rate:g} Hz cannot be stored in a C3D (a 32-bit float)")
     if n_markers > 65535:
         raise FormatError(f"{name}: {n_markers} markers are more than the 65535 a C3D can hold")
-    for label in data.labels:
-        if len(label.encode("latin-1", "replace")) > 255:
+    stored = [label.encode("latin-1", "replace").decode("latin-1") for label in data.labels]  # one byte a character
+    for label, kept in zip(data.labels, stored):
+        if len(kept) > 255:
             raise FormatError(f"{name}: label {label[:20]!r}... is longer than the 255 characters C3D allows")
-    stored = [label.encode("latin-1", "replace").decode("latin-1") for label in data.labels]
     changed = [(a, b) for a, b in zip(data.labels, stored) if a != b]
     if changed:  # C3D holds one byte per character (Latin-1): say so now, not when it is read back
         clash = len(set(stored)) < len(set(data.labels))
