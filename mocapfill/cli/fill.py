@@ -174,6 +174,7 @@ def _summary(outcome, method: str, report_path, status_path, quiet: bool, stored
     samples (or, when nothing did, how the output format stores them: ``stored``, None = exactly)."""
     from ..gaps import all_missing_markers, find_gaps
     from ..guards.limits import left_records
+    from ..report.json_report import observed_words
 
     data, result = outcome.data, outcome.result
     # counts of the points that went to the fill (markers), not of the model points / unlabelled kept aside
@@ -223,14 +224,8 @@ def _summary(outcome, method: str, report_path, status_path, quiet: bool, stored
     if edges == "leave" or edge_filled:
         out.print(f"edges: {edges}; {len(edge_filled)} gaps at the first or last frame filled", markup=False,
                   highlight=False, soft_wrap=True)
-    changed = outcome.observed_changed()
-    if changed:
-        line = "observed samples changed by: " + ", ".join(changed)
-    elif stored:
-        line = f"observed samples returned as the output format stores them: {stored}"
-    else:
-        line = "observed samples returned bit-identical"
-    out.print(line, markup=False, highlight=False, soft_wrap=True)
+    out.print("observed samples " + observed_words(outcome.observed_changed(), stored), markup=False,
+              highlight=False, soft_wrap=True)
     declined = result.info.get("declined") or []
     if declined:
         shown_gaps = ", ".join(f"{rec['marker']} at frame {data.first_frame + rec['start']} ({rec['length']} frames: "

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..runtime.executor import forked_map
 from . import plots
+from .json_report import observed_words
 
 #: Points per plotted line; takes longer than LONG_TAKE frames get fewer (about one per two pixels of the page), so
 #: that their plots leave the 3-D player room under the page budget (:data:`.player.PAGE_BUDGET`).
@@ -121,9 +122,7 @@ def _summary_rows(report: dict) -> list[tuple[str, str]]:
     if s.get("fragments") is not None:
         rows.append(("Short fragments", f"{s['fragments']} dropped and filled over ({s['fragment_samples']} samples)"))
     if "observed_changed" in s:
-        rows.append(("Observed samples", "changed by " + ", ".join(s["observed_changed"]) if s["observed_changed"]
-                     else f"returned as the output format stores them: {s['observed_stored']}"
-                     if s.get("observed_stored") else "returned bit-identical"))
+        rows.append(("Observed samples", observed_words(s["observed_changed"], s.get("observed_stored"))))
     rows += [
         ("Outliers rejected" if not s.get("held") else "Rejected (outliers, held)", str(s["rejected_samples"])),
         *[(f"Reference take {k + 1}", f"{r['name']}: {r['frames']} frames{' (static trial)' if r['static'] else ''}, "

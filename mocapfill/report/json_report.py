@@ -133,6 +133,17 @@ def _bone_records(positions_in: np.ndarray, positions_out: np.ndarray, filled: n
     return {"total": int(len(pairs)), "touching_filled": touching}
 
 
+def observed_words(changed: list[str], stored: str | None) -> str:
+    """What became of the observed samples, for the summary line and the report page: "changed by: <options>" (the
+    summary's ``observed_changed``), else "returned as the output format stores them: <how>" (``observed_stored``),
+    else "returned bit-identical"."""
+    if changed:
+        return "changed by: " + ", ".join(changed)
+    if stored:
+        return f"returned as the output format stores them: {stored}"
+    return "returned bit-identical"
+
+
 def build_fill_report(data, result, *, method: str, settings: dict[str, Any] | None, seconds: float,
                       input_path: str | None, output_path: str | None, bones=None, rejected: np.ndarray | None = None,
                       smoothed: bool = False, fragments: np.ndarray | None = None, left: np.ndarray | None = None,
