@@ -15,6 +15,12 @@ of ``auto`` without references and with them; per set and protocol the median ov
 reduction and the worst ratio (with / without).  Targets (issue 26): same subject, median >= 30 % lower; other
 subjects, median ratio <= 1.05 and no trial above 1.1.  No mode here uses the clean test capture (no oracle).
 
+``--shapes`` measures only the body fit that weighs a reference (:func:`mocapfill.references.shape_difference`), no
+fill, in seconds: every ordered pair of the clips (those of ``cmu-train/`` carrying the whole layout, 85_02 and the two BoLeRO clips), the
+reference whole and as one-frame static trials (five frames of it, each repeated), same subject against another;
+the median absolute pair-length difference that weighs it and the RMS that weighed it before the twenty-seventh
+session (written with ``--results benchmarks/results/bench_references_shapes.json``).
+
 ``--force-weight`` sets every reference's weight to 1 (the body-fit weighting off), so that only each local
 model's cross-validation on the capture's own frames keeps other subjects' frames out (written with ``--results
 benchmarks/results/bench_references_forced.json``).
@@ -78,6 +84,46 @@ def run_set(name: str, table: dict[str, list[str]], labels: list[str], trials: i
     return rows
 
 
+def shapes(labels: list[str], log) -> tuple[list[list], list[list]]:
+    """Body-fit statistics of every ordered pair of clips (``--shapes``): per-pair rows and a summary per kind."""
+    from mocapfill.references import MIN_WEIGHT, SHAPE_SCALE_MM, pair_length_differences
+
+    names = sorted(p.stem for p in (harness.SHARED_DATA / "cmu-train").glob("*.c3d")) + ["85_02", "127_07", "132_32"]
+    clips = {}
+    for name in names:
+        try:
+            clips[name] = load(name, labels).positions
+        except ValueError as exc:  # a clip lacking a marker of the layout
+            log(f"{name}: left out ({exc})")
+    rows = []
+    for test, capture in clips.items():
+        for ref, frames in clips.items():
+            if ref == test:
+                continue
+            takes = [("whole", frames)] + [(f"frame {f}", frames[f:f + 1].repeat(50, axis=0))
+                                           for f in np.linspace(0, len(frames) - 1, 5).round().astype(int)]
+            for kind, take in takes:
+                diff = pair_length_differences(capture, take)
+                median = float(np.median(np.abs(diff)))
+                rows.append([test, ref, test.split("_")[0] == ref.split("_")[0], kind, len(diff), round(median, 2),
+                             round(float(np.sqrt(np.mean(diff ** 2))), 2),
+                             round(float(np.exp(-0.5 * (median / SHAPE_SCALE_MM) ** 2)), 3)])
+    summary = []
+    for same in (True, False):
+        for whole in (True, False):
+            sel = [r for r in rows if r[2] == same and (r[3] == "whole") == whole]
+            med, rms, weight = (np.array([r[k] for r in sel]) for k in (5, 6, 7))
+            summary.append(["same subject" if same else "another subject",
+                            "whole take" if whole else "one frame (static trial)", len(sel),
+                            f"{med.min():.1f} / {np.median(med):.1f} / {med.max():.1f}",
+                            f"{rms.min():.1f} / {np.median(rms):.1f} / {rms.max():.1f}",
+                            f"{weight.min():.3f} / {np.median(weight):.3f} / {weight.max():.3f}",
+                            int((weight < MIN_WEIGHT).sum()),
+                            int((np.exp(-0.5 * (rms / 8.0) ** 2) < MIN_WEIGHT).sum())])
+            log("  ".join(str(x) for x in summary[-1]))
+    return rows, summary
+
+
 def summarise(rows: list[list]) -> tuple[list[list], dict]:
     out, figures = [], {}
     for name in ("same", "other"):
@@ -110,6 +156,8 @@ def main() -> None:
     parser.add_argument("--force-weight", action="store_true",
                         help="weight every reference 1 (the body-fit weighting off): what the per-model "
                              "cross-validation alone keeps out")
+    parser.add_argument("--shapes", action="store_true", help="only the body fit that weighs a reference, every "
+                        "pair of clips, whole and as one-frame static trials (seconds, no fill)")
     harness.add_results_argument(parser)
     args = parser.parse_args()
 
@@ -117,12 +165,27 @@ def main() -> None:
         print(text, file=sys.stderr, flush=True)
 
     labels = layout()
+    if args.shapes:
+        rows, summary = shapes(labels, log)
+        results = harness.Results("bench_references.py", path=args.results, note=args.note)
+        results.table("shapes", "the body fit that weighs a reference: every ordered pair of 15 CMU clips of the "
+                      "41-marker set, the reference whole and as one-frame static trials (five frames each); "
+                      "min / median / max of the median absolute difference of near-rigid pairs' median lengths "
+                      "(the weight's measure, mm), of their RMS (the measure before, mm) and of the weight; "
+                      "references left out (weight < 0.05) by each",
+                      ["references", "taken as", "pairs of clips", "median |difference| mm", "RMS mm (before)",
+                       "weight", "left out", "left out before"], summary)
+        results.table("shape_pairs", "every pair: the capture, the reference, same subject, taken as, pairs "
+                      "compared, median |difference| (mm), RMS (mm), weight",
+                      ["capture", "reference", "same subject", "taken as", "pairs", "median", "RMS", "weight"], rows)
+        results.write()
+        return
     if args.force_weight:
         import mocapfill.references as references
 
         def weigh_all(positions, refs, units):
             for ref in refs:
-                ref.shape_rms, ref.weight = float("nan"), 1.0
+                ref.shape_difference, ref.weight = float("nan"), 1.0
 
         references.weigh = weigh_all
     rows = []

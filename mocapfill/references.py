@@ -40,10 +40,14 @@ STATIC_MM = 25.0
 #: Body-shape fit: each marker's SHAPE_PAIRS most rigid partners in the capture form the pairs whose median lengths
 #: are compared; they carry the subject's proportions and marker placement, not the pose.
 SHAPE_PAIRS = 3
-#: Weight of a reference = exp(-(shape RMS / SHAPE_SCALE_MM)^2 / 2): the RMS difference of those median lengths.
-#: Among the 15 CMU clips of the 41-marker set, takes of one subject differ by 2-12 mm there (median 3.5), takes of
-#: two subjects by 20-80 mm (median 37): weight 0.3-0.97 for the first, below 0.05 (left out) for the second.
-SHAPE_SCALE_MM = 8.0
+#: Weight of a reference = exp(-(shape difference / SHAPE_SCALE_MM)^2 / 2): the median over those pairs of the
+#: absolute difference of their median lengths.  A median, not an RMS: a few pairs rigid in the capture alone (the
+#: two feet of a subject standing through the take) can differ by 100-600 mm from a static trial and made the RMS.
+#: Over every ordered pair of 14 CMU clips of the 41-marker set (``benchmarks/bench_references.py --shapes``), a take
+#: of the same subject differs by 1.1-2.1 mm whole and 1.4-5.2 mm as a one-frame static trial, another subject's by
+#: 10.6-42.0 mm: weight 0.43-0.96 for the first, at most 0.03 (left out) for the second.  (The RMS left 8 of the 40
+#: same-subject static trials out.)
+SHAPE_SCALE_MM = 4.0
 #: A method that takes ``reference_frames`` but no weights gets only the references weighted at least this much.
 FULL_WEIGHT = 0.5
 #: References weighted below this are left out of the fill altogether (they would only cost time).
@@ -75,9 +79,9 @@ class Reference:
         A nearly motionless take (:func:`is_static`): shape for the fill, no outlier ranges.
     weight : float
         How much the fill uses it, in [0, 1] relative to one frame of the capture (:func:`weigh`); NaN until weighed.
-    shape_rms : float
-        RMS difference (capture units) of the median lengths of near marker pairs between the reference and the
-        capture; NaN until weighed.
+    shape_difference : float
+        Median absolute difference (capture units) of the median lengths of near-rigid marker pairs between the
+        reference and the capture (:func:`shape_difference`); NaN until weighed.
     stages : dict
         Which stage used it and how: ``{"fill": "...", "reject_outliers": "..."}``.
     """
@@ -88,7 +92,7 @@ class Reference:
     lacking: list[str]
     static: bool
     weight: float = float("nan")
-    shape_rms: float = float("nan")
+    shape_difference: float = float("nan")
     stages: dict[str, str] = field(default_factory=dict)
 
     @property
@@ -100,7 +104,8 @@ class Reference:
         return {"name": self.name, "frames": self.n_frames, "static": bool(self.static),
                 "shared_markers": len(self.shared), "lacking": list(self.lacking),
                 "weight": None if not np.isfinite(self.weight) else round(float(self.weight), 4),
-                "shape_rms": None if not np.isfinite(self.shape_rms) else round(float(self.shape_rms), 3),
+                "shape_difference": (None if not np.isfinite(self.shape_difference)
+                                     else round(float(self.shape_difference), 3)),
                 "units": units, "stages": dict(self.stages)}
 
 
@@ -180,13 +185,13 @@ def _median_lengths(positions: np.ndarray, pairs: np.ndarray) -> np.ndarray:
         return np.nanmedian(d, axis=0)
 
 
-def shape_difference(positions: np.ndarray, reference: np.ndarray) -> float:
-    """RMS difference of median pair lengths between a capture and a reference, both (n, n_markers, 3) alike.
+def pair_length_differences(positions: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Median length in the capture minus median length in the reference, per compared pair (n_pairs,).
 
-    The pairs: each marker with its :data:`SHAPE_PAIRS` most rigid partners in the capture (smallest spread, 10th to
-    90th percentile, of their distance over the frames where both are observed), among markers both takes carry:
-    their lengths are the subject's proportions and marker placement, not the pose.  NaN when no pair can be
-    compared.
+    positions and reference (n, n_markers, 3) alike, NaN = missing.  The pairs: each marker with its
+    :data:`SHAPE_PAIRS` most rigid partners in the capture (smallest spread, 10th to 90th percentile, of their
+    distance over the frames where both are observed), among markers both takes carry: their lengths are the
+    subject's proportions and marker placement, not the pose.  Empty when no pair can be compared.
     """
     n_markers = positions.shape[1]
     iu, ju = np.triu_indices(n_markers, 1)
@@ -207,27 +212,36 @@ def shape_difference(positions: np.ndarray, reference: np.ndarray) -> float:
             if np.isfinite(spread[m, k]):
                 chosen.add((min(m, k), max(m, k)))
     if not chosen:
-        return float("nan")
+        return np.empty(0)
     pairs = np.array(sorted(chosen))
-    a = _median_lengths(positions, pairs)
-    b = _median_lengths(reference, pairs)
-    diff = (a - b)[np.isfinite(a - b)]
-    return float(np.sqrt(np.mean(diff ** 2))) if diff.size else float("nan")
+    diff = _median_lengths(positions, pairs) - _median_lengths(reference, pairs)
+    return diff[np.isfinite(diff)]
+
+
+def shape_difference(positions: np.ndarray, reference: np.ndarray) -> float:
+    """How far a reference's body lies from the capture's: the median over :func:`pair_length_differences` of
+    their absolute value (capture units; both arrays (n, n_markers, 3)).
+
+    A median, as a few pairs can be rigid in this capture alone (feet planted through a standing take) and not in
+    the body.  NaN when no pair can be compared.
+    """
+    diff = pair_length_differences(positions, reference)
+    return float(np.median(np.abs(diff))) if diff.size else float("nan")
 
 
 def weigh(positions: np.ndarray, references: Sequence[Reference], units: str) -> None:
-    """Set each reference's ``shape_rms`` and ``weight`` from how well its body fits the capture's.
+    """Set each reference's ``shape_difference`` and ``weight`` from how well its body fits the capture's.
 
     positions (n_frames, n_markers, 3), NaN = missing (only observed samples are used).  The weight is
-    exp(-(rms / :data:`SHAPE_SCALE_MM`)^2 / 2): near 1 for another take of the same subject and marker placement,
+    exp(-(difference / :data:`SHAPE_SCALE_MM`)^2 / 2): near 1 for another take of the same subject and marker placement,
     near 0 for another body.  The fill's own cross-validation then decides, per model, whether the weighted
     references help at all (:mod:`mocapfill.engines.local_pca`).
     """
     scale = SHAPE_SCALE_MM * length_factor("mm", units)
     for ref in references:
-        rms = shape_difference(positions, ref.positions)
-        ref.shape_rms = rms
-        ref.weight = float(np.exp(-0.5 * (rms / scale) ** 2)) if np.isfinite(rms) else 0.0
+        diff = shape_difference(positions, ref.positions)
+        ref.shape_difference = diff
+        ref.weight = float(np.exp(-0.5 * (diff / scale) ** 2)) if np.isfinite(diff) else 0.0
 
 
 def training_frames(references: Sequence[Reference]) -> tuple[np.ndarray | None, np.ndarray | None]:

@@ -165,8 +165,9 @@ def _references(references, units: str, quiet: bool) -> None:
     for ref in references:
         stages = "; ".join(f"{stage}: {text}" for stage, text in ref.stages.items())
         kind = "static trial, " if ref.static else ""
-        out.print(f"reference {ref.name} ({kind}{ref.n_frames} frames, body fit {ref.shape_rms:.3g} {units} RMS, "
-                  f"weight {ref.weight:.2f}): {stages}", markup=False, highlight=False, soft_wrap=True)
+        out.print(f"reference {ref.name} ({kind}{ref.n_frames} frames, its pair lengths {ref.shape_difference:.3g} "
+                  f"{units} off the capture's (median), weight {ref.weight:.2f}): {stages}",
+                  markup=False, highlight=False, soft_wrap=True)
 
 
 def _summary(outcome, method: str, report_path, status_path, quiet: bool, stored: str | None = None) -> None:
