@@ -80,6 +80,10 @@ def fill(data: MarkerData | np.ndarray, method: str = DEFAULT_METHOD, *, max_gap
         context = {"units": options.pop("units", "mm"), "rate": options.pop("rate", None),
                    "labels": options.pop("labels", None)}
         positions = data
+        rate = context["rate"]
+        if rate is not None and not (isinstance(rate, (int, float, np.number)) and np.isfinite(rate) and rate > 0):
+            # (a method would otherwise assume its default rate, in silence)
+            raise MethodError(f"rate={rate!r} is not a positive frame rate in Hz")
     kwargs = {k: v for k, v in context.items() if k in accepted and v is not None}
     ignored = []
     for key, value in options.items():

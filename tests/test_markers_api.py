@@ -86,6 +86,16 @@ def test_api_fill_passes_context_and_warns_on_foreign_options():
     assert result.filled[5:8, 0].all() and result.info["method"] == "linear"
 
 
+@pytest.mark.parametrize("rate", [0, -120.0, float("nan"), float("inf"), "100"])
+def test_api_fill_refuses_a_rate_that_is_no_rate(rate):
+    """A bare array's ``rate=`` that is no frame rate is an error, not the model's default rate in silence."""
+    pos = np.random.default_rng(0).normal(size=(20, 2, 3))
+    pos[5:8, 0] = np.nan
+    with pytest.raises(MethodError, match=r"is not a positive frame rate in Hz"):
+        mocapfill.fill(pos, "auto", rate=rate)
+    assert mocapfill.fill(pos, "auto", rate=np.float32(60)).filled[5:8, 0].all()
+
+
 def test_import_has_no_side_effects_and_is_lazy():
     import subprocess
     import sys
