@@ -261,7 +261,8 @@ def training_frames(references: Sequence[Reference]) -> tuple[np.ndarray | None,
             rows = rows[np.linspace(0, len(rows) - 1, MAX_FILL_FRAMES).round().astype(int)]
         frames.append(ref.positions[rows])
         weights.append(np.full(len(rows), ref.weight))
-        ref.stages["fill"] = f"{len(rows)} frames train the body model, weight {ref.weight:.2f}"
+        ref.stages["fill"] = (f"{len(rows)} frame{'' if len(rows) == 1 else 's'} train{'s' if len(rows) == 1 else ''} "
+                              f"the body model, weight {ref.weight:.2f}")
     if not frames:
         return None, None
     return np.concatenate(frames), np.concatenate(weights)

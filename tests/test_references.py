@@ -158,6 +158,23 @@ def test_cli_fills_a_marker_the_take_never_shows_from_a_reference(halves, tmp_pa
     err = np.linalg.norm(filled - first.positions[:, j], axis=1)
     assert np.sqrt(np.mean(err ** 2)) < 15.0
 
+
+def test_a_reference_too_short_to_learn_a_marker_from_is_named_in_its_record(halves):
+    """A static trial of 5 frames shows the marker the take never does, but no model learns from 5 frames: the record
+    says so (it had said no reference showed it), and the reference's own line is still true of the other models."""
+    first, second = halves
+    j = first.labels.index("Male:LFRM")
+    take = first.positions.copy()
+    take[:, j] = np.nan
+    take[100:140, 3] = np.nan
+    short = MarkerData(second.positions[:5].copy(), list(first.labels), 120.0, "mm", path="static")
+    result = mocapfill.fill(MarkerData(take, list(first.labels), 120.0, "mm"), "auto", reference=short)
+    (rec,) = [r for r in result.info["gap_methods"] if r["marker_index"] == j]
+    assert rec["method"] == "none" and rec["review"]
+    assert "the reference takes show it in 5 frame(s), fewer than the 20 a model cross-validates on" in rec["reason"]
+    assert result.info["reference_takes"][0]["stages"]["fill"].startswith("5 frames train the body model")
+
+
 def test_evaluate_refuses_the_test_capture_and_labels_the_oracle(halves):
     first, second = halves
     with pytest.raises(MocapfillError, match="is the test capture itself"):

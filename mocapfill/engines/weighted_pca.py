@@ -55,6 +55,8 @@ DEFAULT_SCALE_MM = 200.0
 
 #: Fewest training frames a reconstruction needs; below this a marker's gap falls back to linear interpolation.
 MIN_TRAINING_FRAMES = 10
+#: Fewest training frames cross-validation splits into two blocks (:func:`_blocks`): a model needs them.
+MIN_CV_FRAMES = 2 * MIN_TRAINING_FRAMES
 
 
 class PCAModel(NamedTuple):

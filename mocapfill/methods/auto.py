@@ -288,10 +288,22 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     spatial = missing & np.isfinite(pred_sd)
     info["gap_methods"] = gap_records(missing, sd, spatial & ~anchored & ~globbed, outliers, config, mm, labels,
                                       boneset, off, displaced, segment_used, anchored, spread=spread, broken=broken,
-                                      reach=reach, stretched=stretched, globbed=globbed, moved=moved)
+                                      reach=reach, stretched=stretched, globbed=globbed, moved=moved,
+                                      shown_by_references=shown_by(reference_frames, reference_weights))
     info["displaced"] = displaced_records(positions, displaced, edge, mm, labels)
     info["review"] = review_indices(info["gap_methods"])
     return finish(positions, fill, std=sd, info=info)
+
+
+def shown_by(reference_frames: np.ndarray | None, reference_weights: np.ndarray | None) -> np.ndarray | None:
+    """How many reference frames (n_ref, n_markers, 3) with a weight above 0 (n_ref,) show each marker (n_markers,);
+    None without references."""
+    if reference_frames is None or not len(reference_frames):
+        return None
+    seen = ~np.isnan(reference_frames).any(axis=2)
+    if reference_weights is not None:
+        seen &= (np.asarray(reference_weights) > 0)[:, None]
+    return seen.sum(axis=0)
 
 
 #: Most frames of the rest of a long take lent to a window as reference frames (:func:`lost_marker_frames`).

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from ..engines.weighted_pca import MIN_CV_FRAMES
 from ..gaps import find_gaps, runs
 from .auto_config import ModelConfig
 
@@ -122,7 +123,8 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
                 displaced: np.ndarray | None = None, segment: np.ndarray | None = None,
                 anchored: np.ndarray | None = None, spread: np.ndarray | None = None,
                 broken: np.ndarray | None = None, reach=None, stretched: np.ndarray | None = None,
-                globbed: np.ndarray | None = None, moved: np.ndarray | None = None) -> list[dict]:
+                globbed: np.ndarray | None = None, moved: np.ndarray | None = None,
+                shown_by_references: np.ndarray | None = None) -> list[dict]:
     """Stage 6: one JSON-ready record per gap (run of missing frames of one marker).
 
     missing / sd / spatial / outliers (n_frames, n_markers): the input's mask, the posterior sd, where the spatial
@@ -136,7 +138,8 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
     left a bone of ``boneset`` out (:func:`~mocapfill.methods.auto.bone_breaks`); globbed (n_frames, n_markers) or
     None: where the global PCA predicted (:func:`~mocapfill.methods.auto.global_stage`), not counted in ``spatial``;
     moved (n_frames, n_markers) or None: how far the refit's bone stage moved each prediction
-    (:attr:`ModelConfig.bone_move_sd`).
+    (:attr:`ModelConfig.bone_move_sd`); shown_by_references (n_markers,) or None: the weighted reference frames that
+    show each marker (what a marker the take never shows could be learnt from).
     ``review`` is True when the gap's largest sd exceeds ``config.review_sd_mm`` (or nothing could be filled) or a
     run judged displaced touches it; every number in ``reason`` comes from ``config`` or from the fill.
     """
@@ -148,8 +151,12 @@ def gap_records(missing: np.ndarray, sd: np.ndarray, spatial: np.ndarray, outlie
                                "start": int(gap.start), "length": int(gap.length)}
         unseen = bool(missing[:, m].all())
         if unseen and not np.isfinite(sd[sl, m]).any():
-            rec.update(method="none", reason="marker missing in every frame: nothing to learn from (nor from a "
-                       "reference take: none given shows it, or none fits this body)", review=True, max_std=None)
+            shown = 0 if shown_by_references is None else int(shown_by_references[m])
+            why = ("nor from a reference take: none given shows it, or none fits this body" if not shown else
+                   f"the reference takes show it in {shown} frame(s), fewer than the {MIN_CV_FRAMES} a model "
+                   "cross-validates on")
+            rec.update(method="none", reason=f"marker missing in every frame: nothing to learn from ({why})",
+                       review=True, max_std=None)
             out.append(rec)
             continue
         worst = float(np.nanmax(sd[sl, m])) if np.isfinite(sd[sl, m]).any() else float("nan")
