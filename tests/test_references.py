@@ -190,6 +190,25 @@ def test_evaluate_refuses_the_test_capture_and_labels_the_oracle(halves):
     assert result.settings["oracle"] is True and result.settings["references"] == ["second"]
 
 
+def test_evaluate_says_how_much_each_method_used_each_reference(halves, sample_data):
+    from mocapfill.cli.evaluate import reference_words
+
+    first, second = halves
+    serve = mocapfill.read(sample_data / "kinematics_tennis_serve.c3d")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DataWarning)
+        result = mocapfill.evaluate(first, ["pca", "linear"], "marker", trials=2, seed=0, reference=[second, serve])
+    use = result.summary()["pca"]["references"]
+    (weights,) = [w for name, w in use["weights"].items() if name == "second"]
+    assert 0.3 < weights["min"] <= weights["max"] <= 1
+    assert max(w["max"] for name, w in use["weights"].items() if name != "second") < MIN_WEIGHT
+    assert "references" not in result.summary()["linear"]  # a method that takes none
+    assert result.to_dict()["trials"][0]["scores"]["pca"]["references"]["weights"]["second"] >= weights["min"]
+    assert "(not used: its body differs)" in reference_words(use)
+    auto = {"weights": {"a": {"min": 0.5, "max": 0.5}}, "models": 10, "used": 4}
+    assert reference_words(auto) == "a weight 0.50; kept by 4 of the 10 local models it fitted over the trials"
+
+
 def test_batch_hands_references_to_every_file(halves, tmp_path):
     first, second = halves
     folder = tmp_path / "session"

@@ -128,6 +128,9 @@ class EvaluationResult:
             row["failures"] = sum(1 for s in mine if s.error)
             row["unfilled"] = sum(s.unfilled for s in mine if not s.error)
             row["not_converged"] = sum(1 for s in mine if not s.error and not s.converged)
+            used = [s.references for s in mine if s.references]
+            if used:
+                row["references"] = _reference_summary(used)
             out[method] = row
         return out
 
@@ -238,6 +241,21 @@ class EvaluationResult:
                     row += ["" if not math.isfinite(getattr(s, m)) else f"{getattr(s, m):.6g}" for m in IK_METRICS]
                 writer.writerow(row)
         return buf.getvalue()
+
+
+def _reference_summary(uses: list[dict[str, Any]]) -> dict[str, Any]:
+    """Over trials, a method's use of the reference takes (:func:`~.runner.reference_use` per trial): each take's
+    lowest and highest weight, and its local models that kept them out of all it fitted (summed)."""
+    weights: dict[str, list[float]] = {}
+    for use in uses:
+        for name, weight in use["weights"].items():
+            weights.setdefault(name, []).append(float("nan") if weight is None else float(weight))
+    out: dict[str, Any] = {"weights": {name: {"min": _nan_stat(np.array(w), np.min),
+                                              "max": _nan_stat(np.array(w), np.max)} for name, w in weights.items()}}
+    counted = [use for use in uses if "models" in use]
+    if counted:
+        out.update(models=sum(use["models"] for use in counted), used=sum(use["used"] for use in counted))
+    return out
 
 
 def _method_parameters(methods: Sequence[str]) -> dict[str, set[str]]:

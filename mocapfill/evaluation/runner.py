@@ -51,6 +51,9 @@ class TrialScore:
     translation_worst: float = float("nan")
     ik_seconds: float = float("nan")
     ik_errors: dict[str, float | None] | None = None  # per coordinate (None where IK failed)
+    # With reference takes: each one's weight against this trial's corrupted clip ({name: weight}, None where the
+    # body fit could not be measured) and, where the method reports it, how many of its local models kept them.
+    references: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True)
@@ -171,7 +174,7 @@ def run_trial(truth: MarkerData, index: int, trial: Trial, method_seed: int, con
         m = score(result.positions, positions, scored, hidden, pairs, lengths, result.std)
         out.append(TrialScore(index, method, m["rmse"], m["max_error"], m["mse"], m["bone_error"], seconds,
                               m["n_scored"], m["unfilled"], int(result.n_iter), bool(result.converged), detected,
-                              None, messages, m["error_ratio"]))
+                              None, messages, m["error_ratio"], references=reference_use(result.info)))
         if config.ik is not None:
             score_angles(out[-1], truth.with_positions(result.positions), scored.any(axis=1), config)
     if config.ik is not None:  # the baseline: OpenSim leaves the hidden markers out where they are missing
@@ -179,6 +182,19 @@ def run_trial(truth: MarkerData, index: int, trial: Trial, method_seed: int, con
         score_angles(baseline, data, scored.any(axis=1), config)
         out.append(baseline)
     return out
+
+
+def reference_use(info: dict[str, Any]) -> dict[str, Any] | None:
+    """What a fill's ``info`` says of its reference takes: ``{"weights": {name: weight}, "models": n, "used": n}``
+    (the last two where the method counts its models), or None without references."""
+    takes = info.get("reference_takes")
+    if not takes:
+        return None
+    use: dict[str, Any] = {"weights": {take["name"]: take["weight"] for take in takes}}
+    counts = info.get("references") or {}
+    if "models" in counts:
+        use.update(models=int(counts["models"]), used=int(counts["used"]))
+    return use
 
 
 def run_trials(truth: MarkerData, trials: list[Trial], seeds: list[int], config: RunConfig, *, jobs: int = 1,
