@@ -168,8 +168,8 @@ def main() -> None:
     if args.shapes:
         rows, summary = shapes(labels, log)
         results = harness.Results("bench_references.py", path=args.results, note=args.note)
-        results.table("shapes", "the body fit that weighs a reference: every ordered pair of 15 CMU clips of the "
-                      "41-marker set, the reference whole and as one-frame static trials (five frames each); "
+        results.table("shapes", "the body fit that weighs a reference: every ordered pair of the CMU clips carrying the whole "
+                      "41-marker set (14), the reference whole and as one-frame static trials (five frames each); "
                       "min / median / max of the median absolute difference of near-rigid pairs' median lengths "
                       "(the weight's measure, mm), of their RMS (the measure before, mm) and of the weight; "
                       "references left out (weight < 0.05) by each",
