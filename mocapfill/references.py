@@ -268,6 +268,13 @@ def training_frames(references: Sequence[Reference]) -> tuple[np.ndarray | None,
     return np.concatenate(frames), np.concatenate(weights)
 
 
+def weights_text(references: Sequence[Reference]) -> str:
+    """One line for a results table: each reference's name and weight, "not used" where its body differs
+    (``"static.c3d 0.82; other.c3d 0.00 not used"``); "" without references."""
+    return "; ".join(f"{ref.name} {ref.weight:.2f}" + (" not used" if not ref.weight >= MIN_WEIGHT else "")
+                     for ref in references)
+
+
 def method_options(references: Sequence[Reference], method: str, accepted: set[str]) -> dict[str, np.ndarray]:
     """The keyword options that hand the references to a fill method: ``reference_frames`` / ``reference_weights``
     when the method takes them (its parameter names ``accepted``) and some reference is weighted in; else none, and

@@ -223,6 +223,31 @@ def test_batch_hands_references_to_every_file(halves, tmp_path):
     doc = json.loads(Path(rows[0].report).read_text())
     (record,) = doc["summary"]["settings"]["references"]
     assert record["static"] and record["frames"] == 60
+    assert rows[0].references == f"{ref} {record['weight']:.2f}"
+
+
+def test_batch_says_which_files_left_a_reference_out(halves, sample_data, tmp_path):
+    """The results table has each reference's weight per file; the CLI names a reference some files left out."""
+    import csv
+
+    first, second = halves
+    folder = tmp_path / "session"
+    folder.mkdir()
+    gappy = first.positions.copy()
+    gappy[100:140, 7] = np.nan
+    mocapfill.write(MarkerData(gappy, list(first.labels), 120.0, "mm"), folder / "take.c3d")
+    mocapfill.write(second, tmp_path / "second.c3d")
+    serve = str(sample_data / "kinematics_tennis_serve.c3d")
+    args = ["batch", str(folder), "-o", str(tmp_path / "out"), "-m", "pca", "--reference", serve,
+            "--reference", str(tmp_path / "second.c3d")]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 0, result.output
+    assert f"reference {serve}: not used for 1 of 1 files" in result.stderr
+    (row,) = csv.DictReader(open(tmp_path / "out" / "mocapfill-batch.csv", encoding="utf-8"))
+    assert row["references"].startswith(f"{serve} 0.00 not used; ") and not row["references"].endswith("not used")
+    again = CliRunner().invoke(cli, args)  # skipped: the row keeps what the fill said
+    (row,) = csv.DictReader(open(tmp_path / "out" / "mocapfill-batch.csv", encoding="utf-8"))
+    assert again.exit_code == 0 and row["status"] == "skipped" and "not used" in row["references"]
 
 
 def test_a_method_without_weights_gets_only_the_well_fitting_references(halves):

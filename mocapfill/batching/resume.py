@@ -73,7 +73,7 @@ def row_from_state(entry: dict[str, Any], task: FileTask, seconds: float) -> Bat
 
     return BatchRow(task.input, task.output, "skipped", method=task.settings.method, seconds=seconds,
                     report=task.report or "", left_samples=entry["row"].get("left_samples"),
-                    status_csv=task.status or "", **known)
+                    status_csv=task.status or "", references=entry["row"].get("references") or "", **known)
 
 
 def compact_state(path: Path, state: dict[str, dict[str, Any]]) -> None:

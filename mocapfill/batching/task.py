@@ -18,10 +18,11 @@ from .resume import file_digest
 
 #: Columns of the results table, in order.
 COLUMNS = ("input", "output", "status", "frames", "markers", "missing_samples", "filled_samples", "method",
-           "seconds", "error", "left_samples")
+           "seconds", "error", "left_samples", "references")
 @dataclass
 class BatchRow:
-    """The outcome of one input; the first ten fields and ``left_samples`` are the results table's :data:`COLUMNS`.
+    """The outcome of one input; the first ten fields, ``left_samples`` and ``references`` are the results table's
+    :data:`COLUMNS`.
 
     ``status`` is ``"filled"``, ``"skipped"`` (done before with the same content and settings) or ``"failed"``
     (``error`` says why, on one line).  ``frames`` ... ``filled_samples`` are None where the file could not be read.
@@ -31,7 +32,8 @@ class BatchRow:
     thread (None where unknown; what ``bench_batch.py`` compares across runners): ``started`` (wall clock, seconds
     since the epoch), ``cpu_seconds`` (user + kernel), ``kernel_seconds`` and ``page_faults`` (minor).
     ``left_samples``: missing samples left missing on request (``max_gap``, ``edges="leave"``, markers not chosen);
-    ``status_csv``: the per-sample status CSV's path ("" without one).
+    ``status_csv``: the per-sample status CSV's path ("" without one).  ``references``: each reference take's weight
+    against this file, "not used" where its body differs (:func:`mocapfill.references.weights_text`; "" without).
     """
 
     input: str
@@ -55,6 +57,7 @@ class BatchRow:
     page_faults: int | None = None
     left_samples: int | None = None
     status_csv: str = ""
+    references: str = ""
 
     def table_row(self) -> dict[str, Any]:
         """The row as the results table holds it (:data:`COLUMNS` only)."""
@@ -163,6 +166,10 @@ def _fill_file(task: FileTask, row: BatchRow) -> None:
                         write_status_csv(outcome, task.status)
                 row.report, row.status_csv = task.report or "", task.status or ""
                 row.left_samples = 0 if outcome.left is None else int((outcome.left != 0).sum())
+                if outcome.references:
+                    from ..references import weights_text
+
+                    row.references = weights_text(outcome.references)
                 row.status = "filled"
             finally:
                 notes += [warning_line(item) for item in caught]

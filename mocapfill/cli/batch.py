@@ -61,7 +61,8 @@ def batch_command(inputs: tuple[str, ...], out_dir: str, fill_settings: FillSett
 
     Each output keeps its input's path relative to its folder.  Results go to DIR/mocapfill-batch.csv as files
     finish (input, output, status, frames, markers, missing_samples, filled_samples, method, seconds, error,
-    left_samples: samples left missing by --max-gap, --edges leave, --markers / --exclude).  A re-run skips inputs
+    left_samples: samples left missing by --max-gap, --edges leave, --markers / --exclude; references: each
+    --reference's weight against the file, "not used" where its body differs).  A re-run skips inputs
     whose output exists and whose content and settings are unchanged (--force redoes them).
     A bad file gives a `failed` row and the others go on; the exit status is 1 if any file failed.
     """
@@ -82,9 +83,24 @@ def batch_command(inputs: tuple[str, ...], out_dir: str, fill_settings: FillSett
     failed = [row for row in rows if row.status == "failed"]
     for row in failed:
         out.print(f"[red]failed[/red] {row.error}", highlight=False, soft_wrap=True)
+    for line in unused_references(rows):
+        out.print(line, highlight=False, markup=False, soft_wrap=True)
     seconds = sum(row.seconds for row in rows)
     out.print(", ".join(f"{n} {status}" for status, n in bar.counts.items()) +
               f" ({seconds:.1f} s of work); results in {out_dir}/{RESULTS_NAME}", highlight=False, markup=False,
               soft_wrap=True)
     if failed:
         raise SystemExit(1)
+
+
+def unused_references(rows) -> list[str]:
+    """One line per reference take some filled file left out (its body differs), naming how many of them."""
+    filled = [row for row in rows if row.status == "filled" and row.references]
+    unused: dict[str, int] = {}
+    for row in filled:
+        for entry in row.references.split("; "):
+            if entry.endswith(" not used"):
+                name = entry[:-len(" not used")].rsplit(" ", 1)[0]
+                unused[name] = unused.get(name, 0) + 1
+    return [f"reference {name}: not used for {n} of {len(filled)} files (its body differs from theirs; the "
+            "references column says per file)" for name, n in unused.items()]
