@@ -188,10 +188,13 @@ def test_evaluate_refuses_the_test_capture_and_labels_the_oracle(halves):
     result = mocapfill.evaluate(first, ["pca"], "marker", trials=1, seed=0, reference=[second],
                                 reject_outliers="clean")
     assert result.settings["oracle"] is True and result.settings["references"] == ["second"]
+    from mocapfill.report.evaluation_html import render_evaluation_html
+
+    assert "ORACLE: the outlier ranges came from the clean file itself" in render_evaluation_html(result)
 
 
 def test_evaluate_says_how_much_each_method_used_each_reference(halves, sample_data):
-    from mocapfill.cli.evaluate import reference_words
+    from mocapfill.evaluation import reference_words
 
     first, second = halves
     serve = mocapfill.read(sample_data / "kinematics_tennis_serve.c3d")
@@ -205,6 +208,10 @@ def test_evaluate_says_how_much_each_method_used_each_reference(halves, sample_d
     assert "references" not in result.summary()["linear"]  # a method that takes none
     assert result.to_dict()["trials"][0]["scores"]["pca"]["references"]["weights"]["second"] >= weights["min"]
     assert "(not used: its body differs)" in reference_words(use)
+    from mocapfill.report.evaluation_html import render_evaluation_html
+
+    page = render_evaluation_html(result)
+    assert "Reference takes: second, " in page and "pca: second weight" in page and "ORACLE" not in page
     auto = {"weights": {"a": {"min": 0.5, "max": 0.5}}, "models": 10, "used": 4}
     assert reference_words(auto) == "a weight 0.50; kept by 4 of the 10 local models it fitted over the trials"
 

@@ -89,26 +89,6 @@ def _fmt(value) -> str:
     return f"{value:.3g}" if abs(value) >= 0.001 else f"{value:.1e}"
 
 
-def reference_words(use: dict) -> str:
-    """One method's use of the references over the trials (``EvaluationResult.summary()[method]["references"]``) in
-    words: each take's weight (its range over the trials; under the cut, not used) and the local models that kept
-    them."""
-    from ..references import MIN_WEIGHT
-
-    parts = []
-    for name, w in use["weights"].items():
-        lo, hi = w["min"], w["max"]
-        weight = ("weight not measured" if lo is None else f"weight {lo:.2f}" if f"{lo:.2f}" == f"{hi:.2f}"
-                  else f"weight {lo:.2f}-{hi:.2f}")
-        if hi is not None and hi < MIN_WEIGHT:
-            weight += " (not used: its body differs)"
-        parts.append(f"{name} {weight}")
-    text = "; ".join(parts)
-    if "models" in use:
-        text += f"; kept by {use['used']} of the {use['models']} local models it fitted over the trials"
-    return text
-
-
 def _show(result, quiet: bool) -> None:
     out = console(quiet)
     data = result.data
@@ -126,6 +106,8 @@ def _show(result, quiet: bool) -> None:
               f"protocol {result.protocol}, {len(result.trials)} trials{gap}, seed {result.seed}", highlight=False)
     if settings.get("references"):
         out.print(f"reference takes: {', '.join(settings['references'])}", highlight=False)
+        from ..evaluation import reference_words
+
         for method in result.methods:
             if summary[method].get("references"):
                 out.print(f"  {method}: {reference_words(summary[method]['references'])}", highlight=False)

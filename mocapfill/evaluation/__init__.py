@@ -36,7 +36,7 @@ __all__ = [
     "evaluate", "EvaluationResult", "TrialScore", "METRICS", "make_occlusions", "Trial", "Occlusion", "Shift",
     "PROTOCOLS", "DEFAULT_GAPS", "parse_length", "gap_range", "rigid_partners", "load_spec", "save_spec",
     "spec_of", "trials_from_spec", "SPEC_FORMAT", "score", "point_errors", "bone_error", "run_trial", "run_trials",
-    "IK_METRICS", "LEFT_MISSING",
+    "IK_METRICS", "LEFT_MISSING", "reference_words",
 ]
 
 #: Metrics per trial and method, all "lower is better".
@@ -256,6 +256,26 @@ def _reference_summary(uses: list[dict[str, Any]]) -> dict[str, Any]:
     if counted:
         out.update(models=sum(use["models"] for use in counted), used=sum(use["used"] for use in counted))
     return out
+
+
+def reference_words(use: dict) -> str:
+    """One method's use of the references over the trials (``EvaluationResult.summary()[method]["references"]``) in
+    words: each take's weight (its range over the trials; under the cut, not used) and the local models that kept
+    them."""
+    from ..references import MIN_WEIGHT
+
+    parts = []
+    for name, w in use["weights"].items():
+        lo, hi = w["min"], w["max"]
+        weight = ("weight not measured" if lo is None else f"weight {lo:.2f}" if f"{lo:.2f}" == f"{hi:.2f}"
+                  else f"weight {lo:.2f}-{hi:.2f}")
+        if hi is not None and hi < MIN_WEIGHT:
+            weight += " (not used: its body differs)"
+        parts.append(f"{name} {weight}")
+    text = "; ".join(parts)
+    if "models" in use:
+        text += f"; kept by {use['used']} of the {use['models']} local models it fitted over the trials"
+    return text
 
 
 def _method_parameters(methods: Sequence[str]) -> dict[str, set[str]]:

@@ -79,8 +79,17 @@ def render_evaluation_html(result) -> str:
                             f"{_cell(left['angle_median']['median'])}\u00b0 / "
                             f"{_cell(left['angle_worst']['median'])}\u00b0).")
     parts.append(f'<p class="alert ok">{" ".join(headline)}</p>')
+    if result.settings.get("oracle"):
+        parts.append('<p class="alert">ORACLE: the outlier ranges came from the clean file itself; these '
+                     "scores are not what a user without it gets.</p>")
     parts.append("<h2>Methods</h2>" + html_table(heads, rows, set(range(1, len(heads)))))
     notes = ["Millimetre errors over the hidden samples; mean and median over trials."]
+    if result.settings.get("references"):
+        from ..evaluation import reference_words
+
+        notes.append("Reference takes: " + escape(", ".join(result.settings["references"])) + "."
+                     + "".join(f" {escape(m)}: {escape(reference_words(summary[m]['references']))}."
+                               for m in result.methods if summary[m].get("references")))
     if ik:
         notes.append(f"Joint angles: OpenSim inverse kinematics with {escape(os.path.basename(result.ik['setup'] or ''))}"
                      f" on model {escape(os.path.basename(result.ik['model']))}; per coordinate the RMSE over the "
