@@ -16,10 +16,10 @@ reduction and the worst ratio (with / without).  Targets (issue 26): same subjec
 subjects, median ratio <= 1.05 and no trial above 1.1.  No mode here uses the clean test capture (no oracle).
 
 ``--shapes`` measures only the body fit that weighs a reference (:func:`mocapfill.references.shape_difference`), no
-fill, in seconds: every ordered pair of the clips (those of ``cmu-train/`` carrying the whole layout, 85_02 and the two BoLeRO clips), the
-reference whole and as one-frame static trials (five frames of it, each repeated), same subject against another;
-the median absolute pair-length difference that weighs it and the RMS that weighed it before the twenty-seventh
-session (written with ``--results benchmarks/results/bench_references_shapes.json``).
+fill, in seconds: every ordered pair of the clips (those of ``cmu-train/`` carrying the whole layout, 85_02 and the
+two BoLeRO clips), the reference whole and as one-frame static trials (five frames of it, each repeated), same
+subject against another; the median absolute pair-length difference that weighs it and the RMS that weighed it
+before the twenty-seventh session (written with ``--results benchmarks/results/bench_references_shapes.json``).
 
 ``--force-weight`` sets every reference's weight to 1 (the body-fit weighting off), so that only each local
 model's cross-validation on the capture's own frames keeps other subjects' frames out (written with ``--results
@@ -168,10 +168,10 @@ def main() -> None:
     if args.shapes:
         rows, summary = shapes(labels, log)
         results = harness.Results("bench_references.py", path=args.results, note=args.note)
-        results.table("shapes", "the body fit that weighs a reference: every ordered pair of the CMU clips carrying the whole "
-                      "41-marker set (14), the reference whole and as one-frame static trials (five frames each); "
-                      "min / median / max of the median absolute difference of near-rigid pairs' median lengths "
-                      "(the weight's measure, mm), of their RMS (the measure before, mm) and of the weight; "
+        results.table("shapes", "the body fit that weighs a reference: every ordered pair of the CMU clips "
+                      "carrying the whole 41-marker set (14), the reference whole and as one-frame static trials "
+                      "(five frames each); min / median / max of the median absolute difference of near-rigid "
+                      "pairs' median lengths (the weight's measure, mm), of their RMS (the measure before, mm) and of the weight; "
                       "references left out (weight < 0.05) by each",
                       ["references", "taken as", "pairs of clips", "median |difference| mm", "RMS mm (before)",
                        "weight", "left out", "left out before"], summary)

@@ -233,8 +233,8 @@ def weigh(positions: np.ndarray, references: Sequence[Reference], units: str) ->
     """Set each reference's ``shape_difference`` and ``weight`` from how well its body fits the capture's.
 
     positions (n_frames, n_markers, 3), NaN = missing (only observed samples are used).  The weight is
-    exp(-(difference / :data:`SHAPE_SCALE_MM`)^2 / 2): near 1 for another take of the same subject and marker placement,
-    near 0 for another body.  The fill's own cross-validation then decides, per model, whether the weighted
+    exp(-(difference / :data:`SHAPE_SCALE_MM`)^2 / 2): near 1 for another take of the same subject and marker
+    placement, near 0 for another body.  The fill's own cross-validation then decides, per model, whether the weighted
     references help at all (:mod:`mocapfill.engines.local_pca`).
     """
     scale = SHAPE_SCALE_MM * length_factor("mm", units)
@@ -261,8 +261,8 @@ def training_frames(references: Sequence[Reference]) -> tuple[np.ndarray | None,
             rows = rows[np.linspace(0, len(rows) - 1, MAX_FILL_FRAMES).round().astype(int)]
         frames.append(ref.positions[rows])
         weights.append(np.full(len(rows), ref.weight))
-        ref.stages["fill"] = (f"{len(rows)} frame{'' if len(rows) == 1 else 's'} train{'s' if len(rows) == 1 else ''} "
-                              f"the body model, weight {ref.weight:.2f}")
+        trains = "1 frame trains" if len(rows) == 1 else f"{len(rows)} frames train"
+        ref.stages["fill"] = f"{trains} the body model, weight {ref.weight:.2f}"
     if not frames:
         return None, None
     return np.concatenate(frames), np.concatenate(weights)
