@@ -216,13 +216,19 @@ def test_evaluate_says_how_much_each_method_used_each_reference(halves, sample_d
     assert reference_words(auto) == "a weight 0.50; kept by 4 of the 10 local models it fitted over the trials"
 
 
-def test_batch_hands_references_to_every_file(halves, tmp_path):
-    first, second = halves
+def session_folder(first, tmp_path) -> Path:
+    """A folder holding one take: the capture with one 40-frame gap."""
     folder = tmp_path / "session"
     folder.mkdir()
     gappy = first.positions.copy()
     gappy[100:140, 7] = np.nan
     mocapfill.write(MarkerData(gappy, list(first.labels), 120.0, "mm"), folder / "take.c3d")
+    return folder
+
+
+def test_batch_hands_references_to_every_file(halves, tmp_path):
+    first, second = halves
+    folder = session_folder(first, tmp_path)
     ref = tmp_path / "static.csv"
     mocapfill.write(MarkerData(np.repeat(second.positions[:1], 60, axis=0), list(first.labels), 120.0, "mm"), ref)
     rows = mocapfill.batch(folder, tmp_path / "out", method="pca", reference=[str(ref)], report="json")
@@ -238,11 +244,7 @@ def test_batch_says_which_files_left_a_reference_out(halves, sample_data, tmp_pa
     import csv
 
     first, second = halves
-    folder = tmp_path / "session"
-    folder.mkdir()
-    gappy = first.positions.copy()
-    gappy[100:140, 7] = np.nan
-    mocapfill.write(MarkerData(gappy, list(first.labels), 120.0, "mm"), folder / "take.c3d")
+    folder = session_folder(first, tmp_path)
     mocapfill.write(second, tmp_path / "second.c3d")
     serve = str(sample_data / "kinematics_tennis_serve.c3d")
     args = ["batch", str(folder), "-o", str(tmp_path / "out"), "-m", "pca", "--reference", serve,
