@@ -239,6 +239,21 @@ def test_batch_hands_references_to_every_file(halves, tmp_path):
     assert rows[0].references == f"{ref} {record['weight']:.2f}"
 
 
+def test_batch_refuses_a_shared_file_it_cannot_read_before_it_starts(halves, tmp_path):
+    """A --reference, --bones or --model that is not there is the batch's one error, not a failed row per input."""
+    first, _ = halves
+    folder = session_folder(first, tmp_path)
+    junk = tmp_path / "junk.c3d"
+    junk.write_bytes(b"junk")
+    for option, path, said in (("--reference", tmp_path / "typo.c3d", "no such file"),
+                               ("--reference", junk, "not a C3D file"),
+                               ("--bones", tmp_path / "typo.json", "no such file")):
+        result = CliRunner().invoke(cli, ["batch", str(folder), "-o", str(tmp_path / "out"), option, str(path)])
+        assert result.exit_code == 1 and f"{path}: {said}" in result.stderr, result.output
+        assert f"({option}, given to every input)" in result.stderr and "Traceback" not in result.output
+        assert not (tmp_path / "out").exists()
+
+
 def test_batch_says_which_files_left_a_reference_out(halves, sample_data, tmp_path):
     """The results table has each reference's weight per file; the CLI names a reference some files left out."""
     import csv

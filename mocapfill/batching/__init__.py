@@ -22,6 +22,7 @@ import dataclasses
 import json
 import os
 import time
+import warnings
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
@@ -107,6 +108,8 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
         raise MocapfillError(f"batch: report must be one of {', '.join(REPORT_KINDS)}, not {report!r}")
     if scheduler is not None and jobs != 1:
         raise MocapfillError("batch: jobs applies to local processes; a Dask scheduler runs as many as it has")
+    if scheduler is None:  # (a cluster's workers may see other paths than this process: they say so per file)
+        check_shared_files(settings, rate)
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]
     out = Path(out_dir)
@@ -209,3 +212,23 @@ def executor_for(jobs: int, scheduler: Any, n_tasks: int):
 
 
 from .runners import run_tasks  # noqa: E402  (runners imports task, which imports this package's siblings only)
+
+
+def check_shared_files(settings: FillSettings, rate: float | None) -> None:
+    """The files every input's fill reads (``--bones``, ``--model``, ``--ik-model``, each ``--reference``): one that
+    is missing or unreadable is the batch's error, said once before anything runs, not a failed row per input.  A
+    reference is read as a fill reads it (at ``rate``, or any rate where neither it nor the batch gives one: only its
+    readability is checked here)."""
+    from ..io import read
+
+    for option, value in (("--bones", settings.bones), ("--model", settings.model),
+                          ("--ik-model", settings.ik_model)):
+        if isinstance(value, (str, os.PathLike)) and not os.path.isfile(value):
+            raise InputError(f"{value}: no such file ({option}, given to every input)")
+    for path in settings.reference:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                read(path, rate=rate or 100.0, override_rate=True)  # as each task reads it
+        except MocapfillError as exc:
+            raise InputError(f"{exc} (--reference, given to every input)") from None
