@@ -408,6 +408,9 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
     if getattr(getattr(extra, "file", None), "is_float", True) is False:
         quantum = abs(float(extra.file.scale))
     found = find_held(view.positions, units=data.units, quantum=quantum)
+    if not chosen_view.all():  # markers not chosen (--markers / --exclude) are not touched, nor reported
+        found = dataclasses.replace(found, held=found.held & chosen_view, edge=found.edge & chosen_view,
+                                    runs=[r for r in found.runs if chosen_view[r["marker"]]])
     summary = held_summary(found, view.labels, data.first_frame)
     held = None
     work = view
@@ -434,7 +437,7 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
         from .guards.denoise import find_displaced
 
         repaired_sub = find_displaced(work.positions, model, labels=list(view.labels), units=data.units,
-                                      rate=data.rate)
+                                      rate=data.rate) & chosen_view[None, :]
         work = work.with_positions(np.where(repaired_sub[:, :, None], np.nan, work.positions))
         repaired = np.zeros((data.n_frames, data.n_markers), dtype=bool)
         repaired[:, columns] = repaired_sub
@@ -454,10 +457,11 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
 
             ranges = outlier_frames(refs)  # moving references only: a static trial's ranges would reject motion
             if ranges is not None:
-                options["reference"] = ranges
+                # other takes widen the capture's own ranges: none posed every pose of this one
+                options.update(reference=ranges, widen_with_self=True)
         outcome = reject_outliers(work.positions, **options)
-        rejected_sub = np.asarray(outcome.rejected, dtype=bool)
-        work = work.with_positions(outcome.positions)
+        rejected_sub = np.asarray(outcome.rejected, dtype=bool) & chosen_view[None, :]  # others are not touched
+        work = work.with_positions(np.where(rejected_sub[:, :, None], np.nan, work.positions))
         rejected = np.zeros((data.n_frames, data.n_markers), dtype=bool)
         rejected[:, columns] = rejected_sub
         record["reject_outliers"] = {"delta": 0.1 if settings.delta is None else settings.delta,
