@@ -533,12 +533,14 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
     if refs:
         used = result.info.get("references")
         if isinstance(used, dict) and used.get("models"):
-            for ref in refs:
-                if ref.stages.get("fill", "").endswith(f"weight {ref.weight:.2f}"):
-                    others = used["models"] - used["used"]
-                    ref.stages["fill"] += (f"; kept by {used['used']} of {used['models']} local models"
-                                           + (f" (the other {others} fitted the capture better without references)"
-                                              if others else ""))
+            training = [ref for ref in refs if ref.stages.get("fill", "").endswith(f"weight {ref.weight:.2f}")]
+            # the models keep or leave the references' frames together: one count for all of them
+            kept = "kept" if len(training) == 1 else f"kept, with the {len(training) - 1} other reference(s),"
+            for ref in training:
+                others = used["models"] - used["used"]
+                ref.stages["fill"] += (f"; {kept} by {used['used']} of {used['models']} local models"
+                                       + (f" (the other {others} fitted the capture better without references)"
+                                          if others else ""))
         record["references"] = [ref.record(data.units) for ref in refs]
     left = np.zeros((data.n_frames, data.n_markers), dtype=np.int8)
     left[:, columns] = left_view

@@ -14,7 +14,8 @@ every stage that can use them, each where it fits:
 Matching (:func:`match_reference`): by label, exactly or with a ``Subject:`` prefix aside, in any order; the markers
 the two share are used, a capture marker the reference lacks is NaN in its frames; the reference's units are
 converted to the capture's (:func:`mocapfill.units.length_factor`).  Fewer than :data:`MIN_SHARED` shared markers is
-an error naming the reference; a partial match is a warning naming the markers it lacks.
+an error naming the reference; a partial match is a warning naming the markers it lacks (a label it carries but
+never shows counts as lacking).
 
 Everything here is pure NumPy on arrays of shape (n_frames, n_markers, 3) in the capture's units and marker order.
 """
@@ -139,14 +140,14 @@ def match_reference(labels: Sequence[str], units: str, ref_positions: np.ndarray
         if k is None:
             hits = bare.get(bare_label(label), [])
             k = hits[0] if len(hits) == 1 else None
-        if k is None:
+        if k is None or np.isnan(ref_positions[:, k]).any(axis=1).all():  # a label it never shows, it lacks
             lacking.append(str(label))
             continue
         out[:, m] = ref_positions[:, k] * factor
         shared.append(str(label))
     if len(shared) < MIN_SHARED:
         sample = ", ".join(bare_label(x) for x in list(labels)[:5])
-        raise ReferenceError(f"{name}: shares {len(shared)} marker label(s) with the capture (which has {sample}, "
+        raise ReferenceError(f"{name}: shares {len(shared)} observed marker(s) with the capture (which has {sample}, "
                              f"...); a reference needs at least {MIN_SHARED} of the same marker set")
     if lacking:
         shown = ", ".join(lacking[:12]) + (f" and {len(lacking) - 12} more" if len(lacking) > 12 else "")
@@ -253,6 +254,9 @@ def training_frames(references: Sequence[Reference]) -> tuple[np.ndarray | None,
     """
     frames, weights = [], []
     for ref in references:
+        if not np.isfinite(ref.shape_difference):
+            ref.stages["fill"] = "not used: no marker pair to compare its body with the capture's by"
+            continue
         if not np.isfinite(ref.weight) or ref.weight < MIN_WEIGHT:
             ref.stages["fill"] = "not used: its body differs from the capture's"
             continue
@@ -268,11 +272,20 @@ def training_frames(references: Sequence[Reference]) -> tuple[np.ndarray | None,
     return np.concatenate(frames), np.concatenate(weights)
 
 
+#: :func:`weights_text`'s words after a reference's weight where its body differs / the method takes no references.
+NOT_USED, NOT_USED_BY_METHOD = " not used", " not used by the method"
+
+
 def weights_text(references: Sequence[Reference]) -> str:
-    """One line for a results table: each reference's name and weight, "not used" where its body differs
+    """One line for a results table: each reference's name and weight, :data:`NOT_USED` after it where its body
+    differs and :data:`NOT_USED_BY_METHOD` where the fill method takes no reference frames
     (``"static.c3d 0.82; other.c3d 0.00 not used"``); "" without references."""
-    return "; ".join(f"{ref.name} {ref.weight:.2f}" + (" not used" if not ref.weight >= MIN_WEIGHT else "")
-                     for ref in references)
+    def words(ref: Reference) -> str:
+        if not ref.weight >= MIN_WEIGHT:
+            return NOT_USED
+        return NOT_USED_BY_METHOD if ref.stages.get("fill", "").startswith("not used") else ""
+
+    return "; ".join(f"{ref.name} {ref.weight:.2f}{words(ref)}" for ref in references)
 
 
 def method_options(references: Sequence[Reference], method: str, accepted: set[str]) -> dict[str, np.ndarray]:

@@ -43,8 +43,19 @@ def test_unmatched_markers_are_named(cmu):
     with pytest.warns(DataWarning, match=r"r\.c3d: lacks 2 of the capture's markers \(Male:LFWT, Male:RFWT\)"):
         ref = match_reference(cmu.labels, "mm", cmu.positions[:20, 2:], cmu.labels[2:], "mm", name="r.c3d")
     assert np.isnan(ref.positions[:, :2]).all()
-    with pytest.raises(ReferenceError, match=r"^other\.c3d: shares 2 marker label\(s\) with the capture"):
+    with pytest.raises(ReferenceError, match=r"^other\.c3d: shares 2 observed marker\(s\) with the capture"):
         match_reference(cmu.labels, "mm", cmu.positions[:20, :2], ["LFWT", "RFWT"], "mm", name="other.c3d")
+
+
+def test_a_marker_the_reference_never_shows_is_one_it_lacks(cmu):
+    ref_positions = cmu.positions[:20].copy()
+    ref_positions[:, :2] = np.nan  # labelled, never observed
+    with pytest.warns(DataWarning, match=r"r\.c3d: lacks 2 of the capture's markers \(Male:LFWT, Male:RFWT\)"):
+        ref = match_reference(cmu.labels, "mm", ref_positions, cmu.labels, "mm", name="r.c3d")
+    assert ref.lacking == ["Male:LFWT", "Male:RFWT"] and len(ref.shared) == cmu.n_markers - 2
+    with pytest.raises(ReferenceError, match=r"^empty\.c3d: shares 0 observed marker\(s\)"):
+        match_reference(cmu.labels, "mm", np.full((20, cmu.n_markers, 3), np.nan), cmu.labels, "mm",
+                        name="empty.c3d")
 
 
 def test_a_static_trial_is_recognised(cmu):
@@ -258,6 +269,23 @@ def test_batch_hands_references_to_every_file(halves, tmp_path):
     assert rows[0].references == f"{ref} {record['weight']:.2f}"
 
 
+def test_a_reference_that_does_not_match_one_input_fails_that_input_by_name(halves, tmp_path):
+    first, second = halves
+    folder = session_folder(first, tmp_path)
+    mocapfill.write(MarkerData(first.positions, [f"X{k}" for k in range(first.n_markers)], 120.0, "mm"),
+                    folder / "other.c3d")
+    mocapfill.write(second, tmp_path / "second.c3d")
+    rows = mocapfill.batch(folder, tmp_path / "out", method="linear", reference=[str(tmp_path / "second.c3d")])
+    (bad,) = [row for row in rows if row.status == "failed"]
+    assert bad.error.startswith(f"{folder / 'other.c3d'}: reference {tmp_path / 'second.c3d'}: shares 0 observed")
+    assert [row.status for row in rows].count("filled") == 1
+
+
+def test_fill_refuses_stdin_as_both_capture_and_reference(halves, tmp_path):
+    result = CliRunner().invoke(cli, ["fill", "-", str(tmp_path / "o.csv"), "--reference", "-"], input="x")
+    assert result.exit_code != 0 and "standard input carries the capture" in result.output
+
+
 def test_batch_refuses_a_shared_file_it_cannot_read_before_it_starts(halves, tmp_path):
     """A --reference, --bones or --model that is not there is the batch's one error, not a failed row per input."""
     first, _ = halves
@@ -288,6 +316,8 @@ def test_batch_says_which_files_left_a_reference_out(halves, sample_data, tmp_pa
     assert f"reference {serve}: not used for 1 of 1 files" in result.stderr
     (row,) = csv.DictReader(open(tmp_path / "out" / "mocapfill-batch.csv", encoding="utf-8"))
     assert row["references"].startswith(f"{serve} 0.00 not used; ") and not row["references"].endswith("not used")
+    linear = CliRunner().invoke(cli, ["batch", str(folder), "-o", str(tmp_path / "lin"), "-m", "linear"] + args[6:])
+    assert linear.exit_code == 0 and "not used for 1 of 1 files (the method takes no reference frames" in linear.stderr
     again = CliRunner().invoke(cli, args)  # skipped: the row keeps what the fill said
     (row,) = csv.DictReader(open(tmp_path / "out" / "mocapfill-batch.csv", encoding="utf-8"))
     assert again.exit_code == 0 and row["status"] == "skipped" and "not used" in row["references"]

@@ -14,6 +14,7 @@ from typing import Any
 
 from ..errors import one_line, warning_line
 from ..pipeline import FillSettings
+from ..references import ReferenceError as UnmatchedReference
 from .resume import file_digest
 
 #: Columns of the results table, in order.
@@ -143,7 +144,10 @@ def _fill_file(task: FileTask, row: BatchRow) -> None:
                 row.frames, row.markers = data.n_frames, data.n_markers
                 reference = [read(path, rate=task.rate if task.rate else data.rate, override_rate=True)
                              for path in task.settings.reference]
-                outcome = fill_capture(data, task.settings, reference=reference)
+                try:
+                    outcome = fill_capture(data, task.settings, reference=reference)
+                except UnmatchedReference as exc:  # it names the reference; the row's reader needs the input too
+                    raise UnmatchedReference(f"{task.input}: reference {exc}") from None
                 columns = outcome.columns  # the markers filled: model points and unlabelled ones are not counted
                 row.markers = int(columns.size)
                 row.missing_samples = int(outcome.work.missing[:, columns].sum())  # rejected samples count as gaps

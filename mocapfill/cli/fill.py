@@ -82,6 +82,9 @@ def fill_command(input_path: str, output_path: str, fill_settings: FillSettings,
         check_output_path(status_path, input_path, output_path, report_path)
         if status_path == "-" and output_path == "-":
             raise click.BadParameter("stdout carries the output; write the status to a file", param_hint="--status")
+    if input_path == "-" and "-" in fill_settings.reference:
+        raise click.BadParameter("standard input carries the capture (IN is '-'); give the reference as a file",
+                                 param_hint="--reference")
     for path in (output_path, report_path, status_path):  # a bad path found now, not after the fill
         check_writable(path)
     mismatch = _format_mismatch(output_path, output_format)
@@ -165,8 +168,10 @@ def _references(references, units: str, quiet: bool) -> None:
     for ref in references:
         stages = "; ".join(f"{stage}: {text}" for stage, text in ref.stages.items())
         kind = "static trial, " if ref.static else ""
-        out.print(f"reference {ref.name} ({kind}{ref.n_frames} frames, its pair lengths {ref.shape_difference:.3g} "
-                  f"{units} off the capture's (median), weight {ref.weight:.2f}): {stages}",
+        frames = "1 frame" if ref.n_frames == 1 else f"{ref.n_frames} frames"
+        fit = (f"its pair lengths {ref.shape_difference:.3g} {units} off the capture's (median)"
+               if np.isfinite(ref.shape_difference) else "no pair lengths to compare")
+        out.print(f"reference {ref.name} ({kind}{frames}, {fit}, weight {ref.weight:.2f}): {stages}",
                   markup=False, highlight=False, soft_wrap=True)
 
 

@@ -125,7 +125,8 @@ def _summary_rows(report: dict) -> list[tuple[str, str]]:
         rows.append(("Observed samples", observed_words(s["observed_changed"], s.get("observed_stored"))))
     rows += [
         ("Outliers rejected" if not s.get("held") else "Rejected (outliers, held)", str(s["rejected_samples"])),
-        *[(f"Reference take {k + 1}", f"{r['name']}: {r['frames']} frames{' (static trial)' if r['static'] else ''}, "
+        *[(f"Reference take {k + 1}", f"{r['name']}: {r['frames']} frame{'' if r['frames'] == 1 else 's'}"
+                                      f"{' (static trial)' if r['static'] else ''}, "
                                       f"weight {r['weight']}; " + "; ".join(f"{stage}: {text}" for stage, text
                                                                            in r["stages"].items()))
           for k, r in enumerate(s["settings"].get("references", []))],
