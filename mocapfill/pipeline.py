@@ -532,6 +532,11 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
         record["model_prior"] = result.info["prior"]
     if refs:
         used = result.info.get("references")
+        if isinstance(used, dict) and "models" in used and not used["models"]:
+            for ref in refs:
+                if ref.stages.get("fill", "").endswith(f"weight {ref.weight:.2f}"):
+                    # (a marker the references lack is a predictor of every model: their frames lack it too)
+                    ref.stages["fill"] += "; but no local model could train on the references' frames"
         if isinstance(used, dict) and used.get("models"):
             training = [ref for ref in refs if ref.stages.get("fill", "").endswith(f"weight {ref.weight:.2f}")]
             # the models keep or leave the references' frames together: one count for all of them
