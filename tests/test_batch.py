@@ -111,7 +111,9 @@ def test_rerun_skips_changed_input_or_settings_redo_and_force_redoes(session, tm
     assert other == {"filled"}
     result = CliRunner().invoke(cli, ["batch", str(session), "-o", str(out), "-m", "linear", "--seed", "3",
                                       "--force", "-q"])
-    assert result.exit_code == 1 and result.stderr == ""
+    # -q: nothing on stderr but the errors, the one failed file
+    assert result.exit_code == 1 and result.stderr.splitlines() == [next(
+        line for line in result.stderr.splitlines() if line.startswith(f"failed {session / 'sub' / 'broken.c3d'}: "))]
     assert {row["status"] for rel, row in _table(out).items() if rel != "sub/broken.c3d"} == {"filled"}
     assert len((out / STATE_NAME).read_text().splitlines()) == 4  # compacted: one line per output
 
@@ -148,6 +150,20 @@ def test_an_unreachable_scheduler_is_a_one_line_error(session, tmp_path, monkeyp
     result = CliRunner().invoke(cli, ["batch", str(session), "-o", str(tmp_path / "o"), "--scheduler",
                                       "tcp://127.0.0.1:9", "-m", "linear"])
     assert result.exit_code == 1 and "Dask scheduler" in result.stderr and "Traceback" not in result.output
+
+
+def test_quiet_batch_still_names_a_failed_file_and_warnings_reach_stderr(tmp_path, test_data):
+    """-q prints nothing but errors: a failed file is one; a truncated TRC's read warning is printed (it said
+    only "1 filled" while the file held 2 of its 89 frames)."""
+    folder = tmp_path / "takes"
+    folder.mkdir()
+    (folder / "take.trc").write_bytes((test_data / "T.trc").read_bytes()[:3000])
+    (folder / "empty.c3d").write_bytes(b"")
+    quiet = CliRunner().invoke(cli, ["batch", str(folder), "-o", str(tmp_path / "q"), "-m", "linear", "-q"])
+    assert quiet.exit_code == 1 and f"failed {folder / 'empty.c3d'}: not a C3D file" in quiet.stderr
+    assert "warning" not in quiet.stderr
+    loud = CliRunner().invoke(cli, ["batch", str(folder), "-o", str(tmp_path / "l"), "-m", "linear"])
+    assert f"warning DataWarning: {folder / 'take.trc'}: header says 89 frames, the file holds 2" in loud.stderr
 
 
 def test_a_killed_worker_fails_only_its_file(session, tmp_path):

@@ -65,6 +65,16 @@ def test_no_best_when_every_hidden_sample_is_left_unfilled(test_data):
     assert all(doc["summary"][m]["rmse"]["mean"] is None for m in ("linear", "pca"))
 
 
+def test_every_method_failing_every_trial_is_an_error(clip):
+    """A table of failures exits 1 (it said 0); one method that scores is a result; --jobs is checked."""
+    res = run(clip, "-m", "msvd", "-n", "2", "-s", "1", "-o", "max_iter=-5")
+    assert res.exit_code == 1 and "every method failed on every trial; nothing was scored" in res.stderr
+    assert "max_iter must be >= 0" in res.stderr and "Traceback" not in res.output
+    assert run(clip, "-m", "msvd,linear", "-n", "1", "-s", "1", "-o", "max_iter=-5", "-q").exit_code == 0
+    jobs = run(clip, "-m", "linear", "-n", "1", "--jobs", "-3")
+    assert jobs.exit_code == 2 and "-3 is not in the range x>=0" in jobs.output
+
+
 def test_unknown_method(clip):
     res = run(clip, "--methods", "linear,nope", "-n", "1")
     assert res.exit_code == 1

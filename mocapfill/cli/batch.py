@@ -80,9 +80,14 @@ def batch_command(inputs: tuple[str, ...], out_dir: str, fill_settings: FillSett
                      report=report, status=status, force=force, progress=bar, **options)
 
     out = console(quiet)
+    for row in rows:  # the readers' and fills' warnings (each names its file), as `fill` prints them
+        for text in row.warnings:
+            if not text.startswith("note: "):  # (the notes restate them for the per-file report)
+                out.print(f"[yellow]warning[/yellow] {text}", markup=True, highlight=False, soft_wrap=True)
     failed = [row for row in rows if row.status == "failed"]
+    errors = console(False)  # a failed file is an error: said under --quiet too
     for row in failed:
-        out.print(f"[red]failed[/red] {row.error}", highlight=False, soft_wrap=True)
+        errors.print(f"[red]failed[/red] {row.error}", highlight=False, soft_wrap=True)
     for line in unused_references(rows):
         out.print(line, highlight=False, markup=False, soft_wrap=True)
     seconds = sum(row.seconds for row in rows)

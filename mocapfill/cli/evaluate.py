@@ -258,7 +258,7 @@ def _renamed(ctx: click.Context, param: click.Parameter, value) -> None:
                    "the --json output of an earlier run works too.")
 @click.option("--save-occlusions", type=str, default=None, metavar="SPEC.json",
               help="Write the trials of this run as a spec file for --occlusions.")
-@click.option("-j", "--jobs", type=int, default=1, show_default=True,
+@click.option("-j", "--jobs", type=click.IntRange(min=0), default=1, show_default=True,
               help="Trials run in parallel in this many processes (0 = every CPU); the numbers do not change.")
 @click.option("-o", "--option", "option_pairs", multiple=True, metavar="KEY=VALUE",
               help="A fill option for every method that takes it (repeatable), e.g. -o max_iter=50 -o hidden=12.")
@@ -371,3 +371,7 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
     elif as_csv:
         sys.stdout.write(result.to_csv())
     sys.stdout.flush()
+    summary = result.summary()
+    if all(summary[m]["failures"] == len(result.trials) for m in result.methods):
+        # every method failed every trial (the failures are listed above): nothing was evaluated
+        raise click.ClickException(f"{clean_file}: every method failed on every trial; nothing was scored")
