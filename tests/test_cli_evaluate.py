@@ -75,6 +75,12 @@ def test_every_method_failing_every_trial_is_an_error(clip):
     assert jobs.exit_code == 2 and "-3 is not in the range x>=0" in jobs.output
 
 
+def test_methods_given_twice_are_both_run(clip):
+    res = run(clip, "-m", "linear", "-m", "spline,linear", "-n", "1", "-s", "1", "--csv", "-q")
+    assert res.exit_code == 0, res.output
+    assert [r["method"] for r in csv.DictReader(io.StringIO(res.stdout))] == ["linear", "spline"]
+
+
 def test_unknown_method(clip):
     res = run(clip, "--methods", "linear,nope", "-n", "1")
     assert res.exit_code == 1

@@ -215,6 +215,11 @@ def test_evaluate_refuses_the_test_capture_and_labels_the_oracle(halves):
                           for k in order], 120.0, "m", path="exported.trc")
     with pytest.raises(MocapfillError, match="exported.trc is the test capture itself"):
         mocapfill.evaluate(first, ["linear"], "marker", trials=1, seed=0, reference=[exported])
+    # the take the test capture was cut from, in metres: it holds the truth too
+    whole = MarkerData(np.concatenate([second.positions[::-1], first.positions]) / 1000.0, list(first.labels), 120.0,
+                       "m", path="whole.c3d")
+    with pytest.raises(MocapfillError, match="whole.c3d holds the test capture's frames"):
+        mocapfill.evaluate(first, ["linear"], "marker", trials=1, seed=0, reference=[whole])
     result = mocapfill.evaluate(first, ["pca"], "marker", trials=1, seed=0, reference=[second],
                                 reject_outliers="clean")
     assert result.settings["oracle"] is True and result.settings["references"] == ["second"]

@@ -220,8 +220,8 @@ def _renamed(ctx: click.Context, param: click.Parameter, value) -> None:
 
 @cli.command("evaluate")
 @click.argument("clean_file", type=str)
-@click.option("-m", "--methods", default=None, metavar="A,B,...",
-              help="Methods to compare, comma-separated (default: every available method).")
+@click.option("-m", "--methods", multiple=True, metavar="A,B,...",
+              help="Methods to compare, comma-separated or the option repeated (default: every available method).")
 @click.option("-p", "--protocol", type=click.Choice(PROTOCOL_CHOICES), default="marker", show_default=True,
               help="marker: one marker, one gap; limb: neighbouring markers share a gap; blackout: every marker, "
                    "a short span; random: random gaps and shifted markers (Holden's corruption); dense: random "
@@ -282,7 +282,7 @@ def _renamed(ctx: click.Context, param: click.Parameter, value) -> None:
 @click.option("--csv", "as_csv", is_flag=True, help="Print every trial as CSV on stdout.")
 @input_options
 @quiet_option
-def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, seed: int | None,
+def evaluate(clean_file: str, methods: tuple[str, ...], protocol: str, trials: int, seed: int | None,
              occlusion_min: str | None, occlusion_max: str | None, max_gap: str | None, edges: str,
              limb_size: int, missing: float, radius: str | None,
              events: int, occlusions: str | None,
@@ -308,12 +308,12 @@ def evaluate(clean_file: str, methods: str | None, protocol: str, trials: int, s
     if report_path is not None and not report_path.lower().endswith((".html", ".htm", ".json")):
         raise click.BadParameter("the report's name must end in .html or .json", param_hint="'--report'")
     given = ({"ik_model"} if (ik_model or ik_setup) else set()) | set(options)  # -o model=F: the learned method
-    if methods is None:
+    if not methods:
         names, unavailable = _default_methods(given)
         if unavailable:
             out.print(f"not available in this build, skipped: {', '.join(unavailable)}", highlight=False)
     else:
-        names = [m.strip() for m in methods.split(",") if m.strip()]
+        names = list(dict.fromkeys(m.strip() for given_text in methods for m in given_text.split(",") if m.strip()))
         if not names:
             raise click.BadParameter("give at least one method", param_hint="'--methods'")
         for name in names:
