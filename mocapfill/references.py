@@ -134,20 +134,24 @@ def match_reference(labels: Sequence[str], units: str, ref_positions: np.ndarray
         bare.setdefault(bare_label(label), []).append(k)
     factor = length_factor(ref_units, units)
     out = np.full((ref_positions.shape[0], len(labels), 3), np.nan)
-    shared, lacking = [], []
+    shared, lacking, labelled = [], [], 0
     for m, label in enumerate(labels):
         k = exact.get(str(label))
         if k is None:
             hits = bare.get(bare_label(label), [])
             k = hits[0] if len(hits) == 1 else None
-        if k is None or np.isnan(ref_positions[:, k]).any(axis=1).all():  # a label it never shows, it lacks
+        if k is None:
+            lacking.append(str(label))
+            continue
+        labelled += 1
+        if np.isnan(ref_positions[:, k]).any(axis=1).all():  # a label it never shows: it lacks the marker
             lacking.append(str(label))
             continue
         out[:, m] = ref_positions[:, k] * factor
         shared.append(str(label))
-    if len(shared) < MIN_SHARED:
+    if labelled < MIN_SHARED:
         sample = ", ".join(bare_label(x) for x in list(labels)[:5])
-        raise ReferenceError(f"{name}: shares {len(shared)} observed marker(s) with the capture (which has {sample}, "
+        raise ReferenceError(f"{name}: shares {labelled} marker label(s) with the capture (which has {sample}, "
                              f"...); a reference needs at least {MIN_SHARED} of the same marker set")
     if lacking:
         shown = ", ".join(lacking[:12]) + (f" and {len(lacking) - 12} more" if len(lacking) > 12 else "")

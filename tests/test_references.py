@@ -43,7 +43,7 @@ def test_unmatched_markers_are_named(cmu):
     with pytest.warns(DataWarning, match=r"r\.c3d: lacks 2 of the capture's markers \(Male:LFWT, Male:RFWT\)"):
         ref = match_reference(cmu.labels, "mm", cmu.positions[:20, 2:], cmu.labels[2:], "mm", name="r.c3d")
     assert np.isnan(ref.positions[:, :2]).all()
-    with pytest.raises(ReferenceError, match=r"^other\.c3d: shares 2 observed marker\(s\) with the capture"):
+    with pytest.raises(ReferenceError, match=r"^other\.c3d: shares 2 marker label\(s\) with the capture"):
         match_reference(cmu.labels, "mm", cmu.positions[:20, :2], ["LFWT", "RFWT"], "mm", name="other.c3d")
 
 
@@ -53,9 +53,12 @@ def test_a_marker_the_reference_never_shows_is_one_it_lacks(cmu):
     with pytest.warns(DataWarning, match=r"r\.c3d: lacks 2 of the capture's markers \(Male:LFWT, Male:RFWT\)"):
         ref = match_reference(cmu.labels, "mm", ref_positions, cmu.labels, "mm", name="r.c3d")
     assert ref.lacking == ["Male:LFWT", "Male:RFWT"] and len(ref.shared) == cmu.n_markers - 2
-    with pytest.raises(ReferenceError, match=r"^empty\.c3d: shares 0 observed marker\(s\)"):
-        match_reference(cmu.labels, "mm", np.full((20, cmu.n_markers, 3), np.nan), cmu.labels, "mm",
-                        name="empty.c3d")
+    with pytest.warns(DataWarning, match=r"empty\.c3d: lacks 41 of the capture's markers"):
+        (empty,) = prepare(cmu, [MarkerData(np.full((20, cmu.n_markers, 3), np.nan), list(cmu.labels), 120.0, "mm",
+                                             path="empty.c3d")])
+    training_frames([empty])
+    assert empty.weight == 0
+    assert empty.stages["fill"] == "not used: no marker pair to compare its body with the capture's by"
 
 
 def test_a_static_trial_is_recognised(cmu):
@@ -282,7 +285,7 @@ def test_a_reference_that_does_not_match_one_input_fails_that_input_by_name(halv
     mocapfill.write(second, tmp_path / "second.c3d")
     rows = mocapfill.batch(folder, tmp_path / "out", method="linear", reference=[str(tmp_path / "second.c3d")])
     (bad,) = [row for row in rows if row.status == "failed"]
-    assert bad.error.startswith(f"{folder / 'other.c3d'}: reference {tmp_path / 'second.c3d'}: shares 0 observed")
+    assert bad.error.startswith(f"{folder / 'other.c3d'}: reference {tmp_path / 'second.c3d'}: shares 0 marker label")
     assert [row.status for row in rows].count("filled") == 1
 
 

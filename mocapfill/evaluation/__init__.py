@@ -318,19 +318,28 @@ def _check_references(data: MarkerData, reference) -> list[MarkerData]:
 SAMPLED_FRAMES, FOUND_SHARE = 20, 0.5
 
 
+def _matched(data: MarkerData, ref: MarkerData) -> np.ndarray | None:
+    """``ref``'s positions (n_ref_frames, n_markers, 3) matched to the capture's labels and converted to its units
+    (:func:`~mocapfill.references.match_reference`, its warnings aside); None when it shares too few labels."""
+    from ..references import ReferenceError, match_reference
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return match_reference(data.labels, data.units, ref.positions, ref.labels, ref.units).positions
+    except ReferenceError:
+        return None
+
+
 def _holds_frames_of(data: MarkerData, ref: MarkerData) -> bool:
     """Whether ``ref`` holds frames of the test capture: of up to :data:`SAMPLED_FRAMES` evenly spaced test frames
     with 3 or more markers seen, at least :data:`FOUND_SHARE` are in ``ref`` (matched by label and converted as in
     :func:`_same_take`), every marker both see within 0.05 mm (the capture cut from a longer take that is given as
     its reference; a take of the same session never repeats a frame to that precision)."""
-    from ..references import ReferenceError, match_reference
     from ..units import length_factor
 
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            matched = match_reference(data.labels, data.units, ref.positions, ref.labels, ref.units).positions
-    except ReferenceError:
+    matched = _matched(data, ref)
+    if matched is None:
         return False
     tol = 0.05 * length_factor("mm", data.units)
     seen = ~data.missing
@@ -360,14 +369,10 @@ def _same_take(data: MarkerData, ref: MarkerData) -> bool:
         return True
     if ref.n_frames != data.n_frames:
         return False
-    from ..references import ReferenceError, match_reference
     from ..units import length_factor
 
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            matched = match_reference(data.labels, data.units, ref.positions, ref.labels, ref.units).positions
-    except ReferenceError:
+    matched = _matched(data, ref)
+    if matched is None:
         return False
     seen = ~data.missing
     both = seen & ~np.isnan(matched).any(axis=2)
