@@ -155,8 +155,9 @@ def match_reference(labels: Sequence[str], units: str, ref_positions: np.ndarray
                              f"...); a reference needs at least {MIN_SHARED} of the same marker set")
     if lacking:
         shown = ", ".join(lacking[:12]) + (f" and {len(lacking) - 12} more" if len(lacking) > 12 else "")
-        warnings.warn(f"{name}: lacks {len(lacking)} of the capture's markers ({shown}); it is used for the "
-                      f"{len(shared)} it shares", DataWarning, stacklevel=2)
+        use = f"it is used for the {len(shared)} it shares" if shared else "it shows none of them"
+        warnings.warn(f"{name}: lacks {len(lacking)} of the capture's markers ({shown}); {use}", DataWarning,
+                      stacklevel=2)
     out[np.isnan(out).any(axis=2)] = np.nan
     return Reference(name, out, shared, lacking, is_static(out, units))
 

@@ -53,7 +53,7 @@ def test_a_marker_the_reference_never_shows_is_one_it_lacks(cmu):
     with pytest.warns(DataWarning, match=r"r\.c3d: lacks 2 of the capture's markers \(Male:LFWT, Male:RFWT\)"):
         ref = match_reference(cmu.labels, "mm", ref_positions, cmu.labels, "mm", name="r.c3d")
     assert ref.lacking == ["Male:LFWT", "Male:RFWT"] and len(ref.shared) == cmu.n_markers - 2
-    with pytest.warns(DataWarning, match=r"empty\.c3d: lacks 41 of the capture's markers"):
+    with pytest.warns(DataWarning, match=r"empty\.c3d: lacks 41 of the capture's markers .*; it shows none of them"):
         (empty,) = prepare(cmu, [MarkerData(np.full((20, cmu.n_markers, 3), np.nan), list(cmu.labels), 120.0, "mm",
                                              path="empty.c3d")])
     training_frames([empty])
@@ -309,10 +309,16 @@ def test_batch_refuses_a_shared_file_it_cannot_read_before_it_starts(halves, tmp
         assert not (tmp_path / "out").exists()
 
 
-def test_batch_says_which_files_left_a_reference_out(halves, sample_data, tmp_path):
-    """The results table has each reference's weight per file; the CLI names a reference some files left out."""
+def read_rows(path: Path) -> list[dict]:
+    """The rows of a batch's results table."""
     import csv
 
+    with open(path, encoding="utf-8", newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def test_batch_says_which_files_left_a_reference_out(halves, sample_data, tmp_path):
+    """The results table has each reference's weight per file; the CLI names a reference some files left out."""
     first, second = halves
     folder = session_folder(first, tmp_path)
     mocapfill.write(second, tmp_path / "second.c3d")
@@ -322,12 +328,12 @@ def test_batch_says_which_files_left_a_reference_out(halves, sample_data, tmp_pa
     result = CliRunner().invoke(cli, args)
     assert result.exit_code == 0, result.output
     assert f"reference {serve}: not used for 1 of 1 files" in result.stderr
-    (row,) = csv.DictReader(open(tmp_path / "out" / "mocapfill-batch.csv", encoding="utf-8"))
+    (row,) = read_rows(tmp_path / "out" / "mocapfill-batch.csv")
     assert row["references"].startswith(f"{serve} 0.00 not used; ") and not row["references"].endswith("not used")
     linear = CliRunner().invoke(cli, ["batch", str(folder), "-o", str(tmp_path / "lin"), "-m", "linear"] + args[6:])
     assert linear.exit_code == 0 and "not used for 1 of 1 files (the method takes no reference frames" in linear.stderr
     again = CliRunner().invoke(cli, args)  # skipped: the row keeps what the fill said
-    (row,) = csv.DictReader(open(tmp_path / "out" / "mocapfill-batch.csv", encoding="utf-8"))
+    (row,) = read_rows(tmp_path / "out" / "mocapfill-batch.csv")
     assert again.exit_code == 0 and row["status"] == "skipped" and "not used" in row["references"]
 
 

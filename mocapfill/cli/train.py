@@ -7,12 +7,15 @@ layout) and converted to its units; their complete frames train the network.  Pr
 
 from __future__ import annotations
 
+import warnings
+
 import click
 import numpy as np
 
 from ..errors import MocapfillError
 from . import cli
-from .common import ReadOptions, StderrProgress, console, input_options, quiet_option, read_input
+from .common import (ReadOptions, StderrProgress, console, input_options, quiet_option, read_input,
+                     show_warnings)
 
 
 class _TrainBar(StderrProgress):
@@ -59,12 +62,21 @@ def train_command(takes: tuple[str, ...], output_path: str, steps, hidden, block
     first = datas[0]
     keep = [k for k, kind in enumerate(first.kinds or ["marker"] * first.n_markers) if kind == "marker"]
     labels = [bare_label(first.labels[k]) for k in keep]
-    matched = [match_reference(labels, first.units, d.positions, list(d.labels), d.units, name=path)
-               for d, path in zip(datas, takes)]
+    def nothing_observed(path: str) -> MocapfillError:
+        return MocapfillError(f"{path}: nothing observed to train on (every sample of the layout's markers is "
+                              "missing)")
+
+    for d, path in zip(datas, takes):
+        if np.isnan(d.positions).all():  # said before the markers it lacks, which would be all of them
+            raise nothing_observed(path)
+    with warnings.catch_warnings(record=True) as caught:  # (each a one-line warning, as the other commands give)
+        warnings.simplefilter("always")
+        matched = [match_reference(labels, first.units, d.positions, list(d.labels), d.units, name=path)
+                   for d, path in zip(datas, takes)]
+    show_warnings(caught, quiet)
     for m, path in zip(matched, takes):
         if np.isnan(m.positions).all():  # one line naming the take, not a reduction over no markers downstream
-            raise MocapfillError(f"{path}: nothing observed to train on (every sample of the layout's markers is "
-                                 "missing)")
+            raise nothing_observed(path)
     shared = np.all([~np.isnan(m.positions).any(axis=2).all(axis=0) for m in matched], axis=0)
     if not shared.any():
         raise MocapfillError(f"{', '.join(takes)}: no marker is observed in every take; nothing to train on")
