@@ -166,6 +166,20 @@ def test_quiet_batch_still_names_a_failed_file_and_warnings_reach_stderr(tmp_pat
     assert f"warning DataWarning: {folder / 'take.trc'}: header says 89 frames, the file holds 2" in loud.stderr
 
 
+def test_an_input_that_now_fails_takes_its_earlier_output_with_it(tmp_path, test_data):
+    """An output of content that no longer holds is not left beside a failed row (a collector would take it)."""
+    folder, out = tmp_path / "takes", tmp_path / "out"
+    folder.mkdir()
+    good = (test_data / "MACsample.c3d").read_bytes()
+    (folder / "a.c3d").write_bytes(good)
+    assert [r.status for r in mocapfill.batch(folder, out, method="linear", report="json")] == ["filled"]
+    (folder / "a.c3d").write_bytes(good[:5000])  # truncated since
+    (row,) = mocapfill.batch(folder, out, method="linear", report="json")
+    assert row.status == "failed" and not (out / "a.c3d").exists() and not (out / "a.c3d.report.json").exists()
+    assert any("the earlier run's a.c3d, a.c3d.report.json removed" in w for w in row.warnings)
+    assert (out / STATE_NAME).read_text() == ""
+
+
 def test_a_killed_worker_fails_only_its_file(session, tmp_path):
     # A FIFO nobody writes to: the worker that opens it blocks until we kill it (as the OOM killer would).
     stuck = tmp_path / "stuck.c3d"

@@ -161,8 +161,21 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
                 state[entry["output"]] = entry
                 record.write(json.dumps(entry) + "\n")
                 record.flush()
+            elif row.status == "failed" and stale(state.get(key_of(by_input[row.input])), row):
+                # an earlier run filled this input from content or settings that no longer hold
+                del state[key_of(by_input[row.input])]
+                gone = remove_earlier_outputs(Path(by_input[row.input].output))
+                if gone:
+                    row.warnings += (f"{row.input}: the earlier run's {', '.join(gone)} removed (of content or "
+                                     "settings that no longer hold: this run failed on it)",)
             if progress is not None:
                 progress(len(rows), total, row)
+
+        def stale(entry: dict | None, row: BatchRow) -> bool:
+            """Whether an earlier run's entry is of other settings or other content than this failed row's (a
+            failure on the same content and settings, a lost worker under --force, keeps its still valid output)."""
+            return entry is not None and (entry.get("settings_sha256") != digest
+                                          or entry.get("input_sha256") != row.input_sha256)
 
         by_input = {task.input: task for task in tasks}
         if progress is not None:
@@ -232,3 +245,15 @@ def check_shared_files(settings: FillSettings, rate: float | None) -> None:
                 read(path, rate=rate or 100.0, override_rate=True)  # as each task reads it
         except MocapfillError as exc:
             raise InputError(f"{exc} (--reference, given to every input)") from None
+
+
+def remove_earlier_outputs(output: Path) -> list[str]:
+    """Remove what an earlier run wrote for one input (its output, per-file reports and status CSV, by the names
+    :func:`~.inputs.output_paths` gives them) where this run failed on it; returns the names removed."""
+    gone = []
+    for path in [output] + [output.with_name(output.name + f".report.{kind}") for kind in REPORT_KINDS] \
+            + [output.with_name(output.name + STATUS_SUFFIX)]:
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+            gone.append(path.name)
+    return gone
