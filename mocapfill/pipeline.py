@@ -532,20 +532,17 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
         record["model_prior"] = result.info["prior"]
     if refs:
         used = result.info.get("references")
-        if isinstance(used, dict) and "models" in used and not used["models"]:
-            for ref in refs:
-                if ref.stages.get("fill", "").endswith(f"weight {ref.weight:.2f}"):
-                    # (a marker the references lack is a predictor of every model: their frames lack it too)
-                    ref.stages["fill"] += "; but no local model could train on the references' frames"
-        if isinstance(used, dict) and used.get("models"):
-            training = [ref for ref in refs if ref.stages.get("fill", "").endswith(f"weight {ref.weight:.2f}")]
-            # the models keep or leave the references' frames together: one count for all of them
-            kept = "kept" if len(training) == 1 else f"kept, with the {len(training) - 1} other reference(s),"
-            for ref in training:
+        training = [ref for ref in refs if ref.stages.get("fill", "").endswith(f"weight {ref.weight:.2f}")]
+        if isinstance(used, dict) and "models" in used and training:
+            if not used["models"]:  # (a marker the references lack is a predictor of every model: their frames too)
+                said = "; but no local model could train on the references' frames"
+            else:  # the models keep or leave the references' frames together: one count for all of them
+                kept = "kept" if len(training) == 1 else f"kept, with the {len(training) - 1} other reference(s),"
                 others = used["models"] - used["used"]
-                ref.stages["fill"] += (f"; {kept} by {used['used']} of {used['models']} local models"
-                                       + (f" (the other {others} fitted the capture better without references)"
-                                          if others else ""))
+                said = (f"; {kept} by {used['used']} of {used['models']} local models"
+                        + (f" (the other {others} fitted the capture better without references)" if others else ""))
+            for ref in training:
+                ref.stages["fill"] += said
         record["references"] = [ref.record(data.units) for ref in refs]
     left = np.zeros((data.n_frames, data.n_markers), dtype=np.int8)
     left[:, columns] = left_view

@@ -149,33 +149,34 @@ def batch(inputs: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str 
         writer.writeheader()
         table.flush()
 
-        def on_row(row: BatchRow) -> None:
-            rows[row.input] = row
-            writer.writerow({k: ("" if v is None else round(v, 4) if isinstance(v, float) else v)
-                             for k, v in row.table_row().items()})
-            table.flush()
-            if row.status == "filled":
-                task = by_input[row.input]
-                entry = {"output": key_of(task), "input": task.input, "settings_sha256": digest,
-                         "input_sha256": row.input_sha256, "row": row.table_row()}
-                state[entry["output"]] = entry
-                record.write(json.dumps(entry) + "\n")
-                record.flush()
-            elif row.status == "failed" and stale(state.get(key_of(by_input[row.input])), row):
-                # an earlier run filled this input from content or settings that no longer hold
-                del state[key_of(by_input[row.input])]
-                gone = remove_earlier_outputs(Path(by_input[row.input].output))
-                if gone:
-                    row.warnings += (f"{row.input}: the earlier run's {', '.join(gone)} removed (of content or "
-                                     "settings that no longer hold: this run failed on it)",)
-            if progress is not None:
-                progress(len(rows), total, row)
-
         def stale(entry: dict | None, row: BatchRow) -> bool:
             """Whether an earlier run's entry is of other settings or other content than this failed row's (a
             failure on the same content and settings, a lost worker under --force, keeps its still valid output)."""
             return entry is not None and (entry.get("settings_sha256") != digest
                                           or entry.get("input_sha256") != row.input_sha256)
+
+        def on_row(row: BatchRow) -> None:
+            rows[row.input] = row
+            writer.writerow({k: ("" if v is None else round(v, 4) if isinstance(v, float) else v)
+                             for k, v in row.table_row().items()})
+            table.flush()
+            task = by_input[row.input]
+            key = key_of(task)
+            if row.status == "filled":
+                entry = {"output": key, "input": task.input, "settings_sha256": digest,
+                         "input_sha256": row.input_sha256, "row": row.table_row()}
+                state[key] = entry
+                record.write(json.dumps(entry) + "\n")
+                record.flush()
+            elif row.status == "failed" and stale(state.get(key), row):
+                # an earlier run filled this input from content or settings that no longer hold
+                del state[key]
+                gone = remove_earlier_outputs(Path(task.output))
+                if gone:
+                    row.warnings += (f"{row.input}: the earlier run's {', '.join(gone)} removed (of content or "
+                                     "settings that no longer hold: this run failed on it)",)
+            if progress is not None:
+                progress(len(rows), total, row)
 
         by_input = {task.input: task for task in tasks}
         if progress is not None:

@@ -305,10 +305,11 @@ def _check_references(data: MarkerData, reference) -> list[MarkerData]:
         if not isinstance(ref, MarkerData):
             raise MocapfillError("evaluate: reference takes must be MarkerData (use mocapfill.read)")
         same_path = data.path and ref.path and os.path.abspath(str(ref.path)) == os.path.abspath(str(data.path))
-        if same_path or _same_take(data, ref):
+        matched = _matched(data, ref)  # its positions in the capture's labels and units, or None
+        if same_path or _same_take(data, ref, matched):
             raise MocapfillError(f"evaluate: {ref.path or 'a reference'} is the test capture itself; a fill that "
                                  "has seen the truth is an oracle, not an evaluation")
-        if _holds_frames_of(data, ref):
+        if matched is not None and _holds_frames_of(data, matched):
             raise MocapfillError(f"evaluate: {ref.path or 'a reference'} holds the test capture's frames (the take "
                                  "it was cut from?); a fill that has seen the truth is an oracle, not an evaluation")
     return refs
@@ -331,16 +332,13 @@ def _matched(data: MarkerData, ref: MarkerData) -> np.ndarray | None:
         return None
 
 
-def _holds_frames_of(data: MarkerData, ref: MarkerData) -> bool:
-    """Whether ``ref`` holds frames of the test capture: of up to :data:`SAMPLED_FRAMES` evenly spaced test frames
-    with 3 or more markers seen, at least :data:`FOUND_SHARE` are in ``ref`` (matched by label and converted as in
-    :func:`_same_take`), every marker both see within 0.05 mm (the capture cut from a longer take that is given as
-    its reference; a take of the same session never repeats a frame to that precision)."""
+def _holds_frames_of(data: MarkerData, matched: np.ndarray) -> bool:
+    """Whether a reference, ``matched`` (n_ref_frames, n_markers, 3) to the capture (:func:`_matched`), holds frames
+    of the test capture: of up to :data:`SAMPLED_FRAMES` evenly spaced test frames with 3 or more markers seen, at
+    least :data:`FOUND_SHARE` are in it, every marker both see within 0.05 mm (the capture cut from a longer take that
+    is given as its reference; a take of the same session never repeats a frame to that precision)."""
     from ..units import length_factor
 
-    matched = _matched(data, ref)
-    if matched is None:
-        return False
     tol = 0.05 * length_factor("mm", data.units)
     seen = ~data.missing
     frames = np.flatnonzero(seen.sum(axis=1) >= 3)
@@ -360,20 +358,17 @@ def _holds_frames_of(data: MarkerData, ref: MarkerData) -> bool:
     return bool(len(frames)) and found >= FOUND_SHARE * len(frames)
 
 
-def _same_take(data: MarkerData, ref: MarkerData) -> bool:
-    """Whether ``ref`` holds the test capture's samples: as many frames, and its markers, matched by label and
-    converted to the capture's units (:func:`~mocapfill.references.match_reference`), within 0.05 mm of the
+def _same_take(data: MarkerData, ref: MarkerData, matched: np.ndarray | None) -> bool:
+    """Whether ``ref`` holds the test capture's samples: as many frames, and its markers, ``matched`` by label and
+    converted to the capture's units (:func:`_matched`; None: too few labels shared), within 0.05 mm of the
     capture's wherever both are seen (a copy of the file, the take exported to another format or unit and rounded
     as formats round)."""
     if ref.positions.shape == data.positions.shape and np.array_equal(ref.positions, data.positions, equal_nan=True):
         return True
-    if ref.n_frames != data.n_frames:
+    if ref.n_frames != data.n_frames or matched is None:
         return False
     from ..units import length_factor
 
-    matched = _matched(data, ref)
-    if matched is None:
-        return False
     seen = ~data.missing
     both = seen & ~np.isnan(matched).any(axis=2)
     if both.sum() < 0.5 * seen.sum():
