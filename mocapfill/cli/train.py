@@ -62,6 +62,7 @@ def train_command(takes: tuple[str, ...], output_path: str, steps, hidden, block
     first = datas[0]
     keep = [k for k, kind in enumerate(first.kinds or ["marker"] * first.n_markers) if kind == "marker"]
     labels = [bare_label(first.labels[k]) for k in keep]
+
     def nothing_observed(path: str) -> MocapfillError:
         return MocapfillError(f"{path}: nothing observed to train on (every sample of the layout's markers is "
                               "missing)")
