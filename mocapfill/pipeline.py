@@ -534,7 +534,7 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
         used = result.info.get("references")
         training = [ref for ref in refs if ref.stages.get("fill", "").endswith(f"weight {ref.weight:.2f}")]
         if isinstance(used, dict) and "models" in used and training:
-            if not used["models"]:  # (a marker the references lack is a predictor of every model: their frames too)
+            if not used["models"]:  # (no local model had a reference frame to train on)
                 said = "; but no local model could train on the references' frames"
             else:  # the models keep or leave the references' frames together: one count for all of them
                 kept = "kept" if len(training) == 1 else f"kept, with the {len(training) - 1} other reference(s),"

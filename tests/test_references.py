@@ -349,3 +349,27 @@ def test_a_method_without_weights_gets_only_the_well_fitting_references(halves):
     assert method_options([ref], "x", {"reference_frames"}) == {}
     assert "takes no weights" in ref.stages["fill"]
     assert method_options([ref], "linear", set()) == {} and ref.stages["fill"].startswith("not used: method")
+
+
+def test_a_reference_with_gaps_and_a_marker_it_lacks_still_trains_the_default(halves):
+    """A session's take has gaps: no frame of this one shows every marker, and it lacks RFIN altogether.  The refit
+    completes its frames as it completes the take's (``ModelConfig.reference_pca_mm``), so they still train it."""
+    from mocapfill.evaluation.occlusions import make_occlusions
+
+    first, second = halves
+    corrupted, hidden, _ = make_occlusions(first, "dense", trials=1, seed=3, missing=0.2)[0].apply(first.positions)
+    holed, _, _ = make_occlusions(second, "dense", trials=1, seed=7, missing=0.1)[0].apply(second.positions)
+    holed[:, first.labels.index("Male:RFIN")] = np.nan
+    assert np.isnan(holed).any(axis=(1, 2)).all()
+    gappy = first.with_positions(corrupted)
+
+    def rmse(result):
+        return np.sqrt(np.mean(((result.positions - first.positions)[hidden]) ** 2) * 3)
+
+    plain = mocapfill.fill(gappy)
+    with pytest.warns(DataWarning, match=r"lacks 1 of the capture's markers \(Male:RFIN\)"):
+        with_ref = mocapfill.fill(gappy, reference=second.with_positions(holed))
+    assert with_ref.info["references"]["used"] > 0
+    assert rmse(with_ref) < 0.9 * rmse(plain)  # (17.05 -> 14.12 mm; 17.28 before the refit completed references)
+    observed = ~np.isnan(corrupted).any(axis=2)
+    assert np.array_equal(with_ref.positions[observed], corrupted[observed])

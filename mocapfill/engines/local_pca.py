@@ -809,6 +809,7 @@ def reconstruct_completed(
     run_knn: int = 0,
     run_max_rms: float = np.inf,
     rigid_align: float | None = None,
+    complete_references: float | None = None,
     jobs: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The local model refitted on a completed take (one EM-style imputation step).
@@ -819,7 +820,10 @@ def reconstruct_completed(
     times the largest width), trained on every frame where the marker is observed (the neighbours' missing samples
     taken from ``completed``), predicts all its missing samples; the predictors' uncertainty is propagated into the
     prediction's (``sensitivity`` of :func:`group_model`; ``max_predictors`` as in :func:`reconstruct_local`).  reference (n, n_markers, 3) or None: frames of other takes
-    added to the training frames where the marker and its predictors are finite.  Returns estimate (n_frames,
+    added to the training frames where the marker and its predictors are finite; with ``complete_references`` (a
+    width in data units), their missing samples first estimated by the weighted PCA
+    (:func:`~.weighted_pca.reconstruct`) of the completed take and the references, as predictors only (a marker is a
+    target where a reference observes it).  Returns estimate (n_frames,
     n_markers, 3) and std (n_frames, n_markers) at the missing samples (NaN elsewhere and where no model could be
     fitted), and the reconstruction / std at up to ``edge_frames`` observed frames either side of each gap.
     ``leverage_weight`` scales how much a frame's leverage grows its std (1: as :func:`reconstruct_local`).
@@ -862,6 +866,13 @@ def reconstruct_completed(
     if reference is not None and reference_weights is not None:
         reference, row_weight = reference_rows(reference, reference_weights, n_frames)
     data = completed if reference is None else np.concatenate([completed, reference])
+    if complete_references is not None and reference is not None and np.isnan(reference).any():
+        # the reference frames completed as the take is, so a frame lacking a marker still trains (every model has
+        # every near marker as a predictor); ``known`` keeps their own samples the only targets
+        from .weighted_pca import reconstruct
+
+        estimated = reconstruct(data, scale=complete_references, uncertainty=False)[0]
+        data = np.concatenate([completed, estimated[n_frames:]])  # (the take's own rows as completed)
     var = np.nan_to_num(completed_std, nan=np.inf) ** 2
     if reference is not None:
         var = np.concatenate([var, np.zeros(reference.shape[:2])])
@@ -874,7 +885,7 @@ def reconstruct_completed(
     blackout = missing.all(axis=1)  # frames where nothing is observed
     if untrusted is not None:
         u_data = np.array(untrusted[0], dtype=np.float64) if reference is None else np.concatenate(
-            [untrusted[0], reference])
+            [untrusted[0], data[n_frames:]])
         u_var = np.nan_to_num(untrusted[1], nan=np.inf) ** 2
         if reference is not None:
             u_var = np.concatenate([u_var, var[n_frames:]])

@@ -516,7 +516,7 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
         parts=config.refit_parts, untrusted=untrusted, untrusted_used=untrusted_used, disagreement=disagreement,
         run_scales=tuple(np.asarray(config.seed_scales_mm) * mm) if config.refit_by_run else None,
         run_knn=config.seed_knn, run_max_rms=config.review_sd_mm * mm, rigid_align=rigid_noise(config, mm),
-        jobs=jobs)
+        complete_references=config.reference_pca_mm * mm if config.reference_pca_mm else None, jobs=jobs)
     return pred, pred_sd, edge, edge_sd
 
 

@@ -82,6 +82,8 @@ class ModelConfig:
     refit_untrusted: bool = False
     #: Where no model covers all its gaps, one per group of gaps with the same trusted ones, kept within review_sd_mm.
     refit_by_run: bool = True
+    #: Width of the weighted PCA that completes reference frames for the refit, as the take is completed (0: off).
+    reference_pca_mm: float = 200.0
     #: Refits of the spatial model on the completed take (EM-style imputation).
     impute_passes: int = 1
     #: Radius of a marker's segment model in the refit, its markers seen throughout its gaps (0: off).
