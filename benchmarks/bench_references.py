@@ -21,6 +21,10 @@ two BoLeRO clips), the reference whole and as one-frame static trials (five fram
 subject against another; the median absolute pair-length difference that weighs it and the RMS that weighed it
 before the twenty-seventh session (written with ``--results benchmarks/results/bench_references_shapes.json``).
 
+``--gapped FRACTION`` hides that fraction of every reference's samples first (``dense`` gaps, seeded per reference)
+and ``--lacking LABEL`` removes that marker from every reference: a session's other takes, as a lab has them (written
+with ``--results benchmarks/results/bench_references_gapped.json``).
+
 ``--force-weight`` sets every reference's weight to 1 (the body-fit weighting off), so that only each local
 model's cross-validation on the capture's own frames keeps other subjects' frames out (written with ``--results
 benchmarks/results/bench_references_forced.json``).
@@ -59,12 +63,29 @@ PROTOCOLS = [("dense 20 %", "dense", {"missing": 0.2}), ("dense 30 %", "dense", 
              ("segment", "segment", {})]
 
 
+def with_gaps(take, missing: float, lacking: list[str], seed: int):
+    """``take`` with ``missing`` of its samples hidden in ``dense`` gaps (``seed``) and the ``lacking`` markers removed:
+    a reference take as a session holds it."""
+    from mocapfill.evaluation import make_occlusions
+    from mocapfill.references import bare_label
+
+    positions = take.positions.copy()
+    if missing:
+        positions = make_occlusions(take, "dense", trials=1, seed=seed, missing=missing)[0].apply(positions)[0]
+    bare = [bare_label(x) for x in take.labels]
+    for label in lacking:
+        positions[:, bare.index(label)] = np.nan
+    return take.with_positions(positions)
+
+
 def run_set(name: str, table: dict[str, list[str]], labels: list[str], trials: int, seed: int, log,
-            method: str = "auto") -> list[list]:
+            method: str = "auto", gapped: float = 0.0, lacking: tuple[str, ...] = ()) -> list[list]:
     rows = []
     for test, ref_names in table.items():
         truth = load(test, labels)
         refs = [load(r, labels) for r in ref_names]
+        if gapped or lacking:
+            refs = [with_gaps(r, gapped, list(lacking), seed=100 + i) for i, r in enumerate(refs)]
         for pname, protocol, opts in PROTOCOLS:
             t0 = time.process_time()
             with warnings.catch_warnings():
@@ -156,6 +177,9 @@ def main() -> None:
     parser.add_argument("--force-weight", action="store_true",
                         help="weight every reference 1 (the body-fit weighting off): what the per-model "
                              "cross-validation alone keeps out")
+    parser.add_argument("--gapped", type=float, default=0.0, help="hide this fraction of every reference's "
+                        "samples first (dense gaps): a session's takes as a lab has them")
+    parser.add_argument("--lacking", default="", help="comma-separated markers every reference lacks")
     parser.add_argument("--shapes", action="store_true", help="only the body fit that weighs a reference, every "
                         "pair of clips, whole and as one-frame static trials (seconds, no fill)")
     harness.add_results_argument(parser)
@@ -191,13 +215,17 @@ def main() -> None:
     rows = []
     started = time.perf_counter()
     for name in args.sets.split(","):
-        rows += run_set(name, SAME if name == "same" else OTHER, labels, args.trials, args.seed, log, args.method)
+        rows += run_set(name, SAME if name == "same" else OTHER, labels, args.trials, args.seed, log, args.method,
+                        args.gapped, tuple(x for x in args.lacking.split(",") if x))
     summary, figures = summarise(rows)
     log("\nset    protocol    trials  without  with (median RMSE, mm)  reduction %  median ratio  max ratio")
     for r in summary:
         log(f"{r[0]:6} {r[1]:11} {r[2]:6} {r[3]:8} {r[4]:8} {r[5]:22} {r[6]:12} {r[7]:10}")
     results = harness.Results("bench_references.py", path=args.results, note=args.note)
-    results.table("summary", f"{args.method} with and without reference takes: median over trials of the per-trial RMSE (mm); "
+    held = (f"; every reference with {100 * args.gapped:g} % of its samples hidden in dense gaps"
+            if args.gapped else "")
+    held += f"; every reference lacking {args.lacking}" if args.lacking else ""
+    results.table("summary", f"{args.method} with and without reference takes{held}: median over trials of the per-trial RMSE (mm); "
                   "reduction of the median; ratio with / without per trial (median, max). No oracle: the test clip "
                   "is never a reference.", ["set", "protocol", "trials", "median RMSE without", "median RMSE with",
                                             "reduction %", "median ratio", "max ratio"], summary)

@@ -819,13 +819,13 @@ def reconstruct_completed(
     observed).  For each marker with gaps, ONE model whose predictors are all its near markers (within ``reach``
     times the largest width), trained on every frame where the marker is observed (the neighbours' missing samples
     taken from ``completed``), predicts all its missing samples; the predictors' uncertainty is propagated into the
-    prediction's (``sensitivity`` of :func:`group_model`; ``max_predictors`` as in :func:`reconstruct_local`).  reference (n, n_markers, 3) or None: frames of other takes
-    added to the training frames where the marker and its predictors are finite; with ``complete_references`` (a
-    width in data units), their missing samples first estimated by the weighted PCA
-    (:func:`~.weighted_pca.reconstruct`) of the completed take and the references, as predictors only (a marker is a
-    target where a reference observes it).  Returns estimate (n_frames,
-    n_markers, 3) and std (n_frames, n_markers) at the missing samples (NaN elsewhere and where no model could be
-    fitted), and the reconstruction / std at up to ``edge_frames`` observed frames either side of each gap.
+    prediction's (``sensitivity`` of :func:`group_model`; ``max_predictors`` as in :func:`reconstruct_local`).
+    reference (n, n_markers, 3) or None: frames of other takes added to the training frames where the marker and its
+    predictors are finite; with ``complete_references`` (a width in data units), their missing samples first
+    estimated by the weighted PCA (:func:`~.weighted_pca.reconstruct`) of the completed take and the references, as
+    predictors only (a marker is a target where a reference observes it).  Returns estimate (n_frames, n_markers, 3)
+    and std (n_frames, n_markers) at the missing samples (NaN elsewhere and where no model could be fitted), and the
+    reconstruction / std at up to ``edge_frames`` observed frames either side of each gap.
     ``leverage_weight`` scales how much a frame's leverage grows its std (1: as :func:`reconstruct_local`).
     ``trust`` (data units) or None: when given, only neighbours whose RMS completed std over the marker's gap frames
     is at most ``trust`` are predictors: a neighbour that vanished with the marker (filled, uncertain) does not steer
