@@ -273,7 +273,9 @@ def test_no_best_method_when_nothing_was_scored(clip, stub, capsys):
     assert result.best() is None and result.ranking() == ["stub"]
     _show(result, quiet=False)
     assert "best by mean RMSE: none (no method scored any hidden sample)" in capsys.readouterr().err
-    assert "Best by mean RMSE: none (no method scored any hidden sample)." in render_evaluation_html(result)
+    page = render_evaluation_html(result)
+    assert "Best by mean RMSE: none (no method scored any hidden sample)." in page
+    assert "<th>problems</th>" in page and "2 failed" in page  # the page names them, as the table does
     doc = result.to_dict()
     assert doc["summary"]["stub"]["rmse"] == {"mean": None, "median": None} and "best" not in json.dumps(doc)
 
@@ -372,3 +374,7 @@ def test_methods_with_a_std_get_their_honesty_scored(clip, stub):
     assert summary["linear"]["error_ratio"]["median"] is None
     rows = result.to_csv().splitlines()
     assert rows[0].endswith(",error,error_ratio") and rows[1].split(",")[-1] != "" and rows[2].endswith(",")
+    from mocapfill.report.evaluation_html import render_evaluation_html
+
+    page = render_evaluation_html(result)  # the page scores it too, beside the terminal table
+    assert '<th class="num">err/std</th>' in page and "err/std: the RMS error per coordinate" in page

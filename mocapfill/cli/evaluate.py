@@ -123,8 +123,9 @@ def _show(result, quiet: bool) -> None:
     if ik:  # joint angles beside the millimetres: medians over trials of the median and worst coordinate
         for head in ("angle med \u00b0", "angle worst \u00b0", f"transl. med {units}", f"transl. worst {units}"):
             table.add_column(head, justify="right")
-    any_problem = any(summary[m]["failures"] or summary[m]["unfilled"] or summary[m]["not_converged"]
-                      for m in result.methods)
+    from ..evaluation import problem_words
+
+    any_problem = any(problem_words(summary[m]) for m in result.methods)
     if any_problem:
         table.add_column("problems")
     ranking = result.ranking("rmse", "mean")
@@ -138,16 +139,9 @@ def _show(result, quiet: bool) -> None:
         if ik:
             cells += [_fmt(row[m]["median"]) for m in ("angle_median", "angle_worst", "translation_median",
                                                          "translation_worst")]
-        problems = []
-        if row["failures"]:
-            problems.append(f"{row['failures']} failed")
-        if row["unfilled"]:
-            problems.append(f"{row['unfilled']} samples unfilled")
-        if row["not_converged"]:
-            problems.append(f"{row['not_converged']} not converged")
         style = "bold green" if method == best and len(ranking) > 1 else None
         if any_problem:
-            cells.append(", ".join(problems))
+            cells.append(problem_words(row))
         table.add_row(method, *cells, style=style)
     if ik:
         left = result.left_missing_summary()

@@ -36,7 +36,7 @@ __all__ = [
     "evaluate", "EvaluationResult", "TrialScore", "METRICS", "make_occlusions", "Trial", "Occlusion", "Shift",
     "PROTOCOLS", "DEFAULT_GAPS", "parse_length", "gap_range", "rigid_partners", "load_spec", "save_spec",
     "spec_of", "trials_from_spec", "SPEC_FORMAT", "score", "point_errors", "bone_error", "run_trial", "run_trials",
-    "IK_METRICS", "LEFT_MISSING", "reference_words",
+    "IK_METRICS", "LEFT_MISSING", "reference_words", "problem_words",
 ]
 
 #: Metrics per trial and method, all "lower is better".
@@ -276,6 +276,17 @@ def reference_words(use: dict) -> str:
     if "models" in use:
         text += f"; kept by {use['used']} of the {use['models']} local models it fitted over the trials"
     return text
+
+
+def problem_words(row: dict) -> str:
+    """One method's problems over the trials (an ``EvaluationResult.summary()`` row) in words, "" where none: trials
+    it failed, samples it left unfilled, trials it did not converge on."""
+    parts = [f"{row['failures']} failed"] if row["failures"] else []
+    if row["unfilled"]:
+        parts.append(f"{row['unfilled']} samples unfilled")
+    if row["not_converged"]:
+        parts.append(f"{row['not_converged']} not converged")
+    return ", ".join(parts)
 
 
 def _method_parameters(methods: Sequence[str]) -> dict[str, set[str]]:

@@ -58,10 +58,23 @@ def render_evaluation_html(result) -> str:
                   f"transl. worst ({units})", "IK seconds"]
         keys += [("angle_median", "median"), ("angle_worst", "median"), ("translation_median", "median"),
                  ("translation_worst", "median"), ("ik_seconds", "median")]
+    honesty = any(summary[m]["error_ratio"]["median"] is not None for m in result.methods)
+    if honesty:  # (as the terminal table: the median over trials)
+        heads.insert(6, "err/std")
+        keys.insert(5, ("error_ratio", "median"))
     rows = [[escape(m)] + [_cell(summary[m][k][stat]) for k, stat in keys] for m in ranking]
     if ik:
         left = result.left_missing_summary()
-        rows.append(["<em>(left missing)</em>"] + ["&ndash;"] * 5 + [_cell(left[k][stat]) for k, stat in keys[5:]])
+        mm = 5 + honesty  # the millimetre columns, which leaving markers out has none of
+        rows.append(["<em>(left missing)</em>"] + ["&ndash;"] * mm + [_cell(left[k][stat]) for k, stat in keys[mm:]])
+    from ..evaluation import problem_words
+
+    if any(problem_words(summary[m]) for m in result.methods):
+        heads.append("problems")
+        for row, m in zip(rows, ranking):
+            row.append(escape(problem_words(summary[m])))
+        if ik:
+            rows[-1].append("")
     parts = [f"<h1>Evaluation of fill methods<small>{escape(data.path)}: {data.n_markers} markers, {data.n_frames} "
              f"frames at {data.rate:g} Hz; protocol {escape(result.protocol)}, {len(result.trials)} trials, seed "
              f"{result.seed}</small></h1>"]
@@ -82,8 +95,11 @@ def render_evaluation_html(result) -> str:
     if result.settings.get("oracle"):
         parts.append('<p class="alert">ORACLE: the outlier ranges came from the clean file itself; these '
                      "scores are not what a user without it gets.</p>")
-    parts.append("<h2>Methods</h2>" + html_table(heads, rows, set(range(1, len(heads)))))
+    parts.append("<h2>Methods</h2>" + html_table(heads, rows, set(range(1, len(heads) - ("problems" in heads)))))
     notes = ["Millimetre errors over the hidden samples; mean and median over trials."]
+    if honesty:
+        notes.append("err/std: the RMS error per coordinate over the hidden samples over the RMS of the std the method "
+                     "predicted there, median over trials (1: honest; 2: twice as wrong as it said).")
     if result.settings.get("references"):
         from ..evaluation import reference_words
 
