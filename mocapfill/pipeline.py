@@ -627,7 +627,8 @@ def sample_status(outcome: FillOutcome) -> np.ndarray:
     ndarray of int8, shape (n_frames, n_markers)
         ``OBSERVED`` (returned bit-identical), ``FILLED``, ``MISSING_TOO_LONG`` / ``MISSING_EDGE`` /
         ``MISSING_NOT_CHOSEN`` (left on request), ``MISSING_DECLINED`` (the method declined the gap),
-        ``MISSING`` (left for another reason), ``REJECTED_OUTLIER`` / ``REJECTED_HELD`` / ``REJECTED_FRAGMENT``
+        ``MISSING_NEVER_OBSERVED`` (a marker the input never shows, left missing), ``MISSING`` (left for another
+        reason), ``REJECTED_OUTLIER`` / ``REJECTED_HELD`` / ``REJECTED_FRAGMENT``
         (observed, dropped by a guard, filled again; a dropped sample left missing gets the reason it was left),
         ``REPAIRED`` (moved by the denoiser), ``SMOOTHED`` (observed, changed by ``--smooth`` / ``--lowpass``),
         ``SUSPECT`` (observed, returned as it was, in a run the default's model judged displaced),
@@ -641,6 +642,7 @@ def sample_status(outcome: FillOutcome) -> np.ndarray:
     status = np.full(was_missing.shape, int(Status.OBSERVED), dtype=np.int8)
     status[was_missing & ~now_missing] = Status.FILLED
     status[now_missing] = Status.MISSING
+    status[now_missing & was_missing.all(axis=0)] = Status.MISSING_NEVER_OBSERVED
     with np.errstate(invalid="ignore"):
         changed = ~was_missing & ~now_missing & (after != before).any(axis=2)
     status[changed] = Status.SMOOTHED

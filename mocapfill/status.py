@@ -19,7 +19,7 @@ class Status(IntEnum):
     MISSING_EDGE = 3  #: left missing: its gap touches the first or last frame and ``--edges leave``
     MISSING_DECLINED = 4  #: left missing: the method declined the gap (too few frames or donors)
     MISSING_NOT_CHOSEN = 5  #: left missing: the marker was not chosen by ``--markers`` / ``--exclude``
-    MISSING = 6  #: left missing for another reason (never observed, no method could fill it)
+    MISSING = 6  #: left missing for another reason (no method could fill it)
     REJECTED_OUTLIER = 7  #: observed, rejected as an outlier (``--reject-outliers``), then filled
     REJECTED_HELD = 8  #: observed, a held or frozen sample (the held-sample guard), then filled
     REJECTED_FRAGMENT = 9  #: observed, a fragment shorter than ``--min-fragment``, then filled
@@ -28,6 +28,7 @@ class Status(IntEnum):
     UNLABELLED = 12  #: an unlabelled trajectory, kept untouched
     SMOOTHED = 13  #: observed, changed by ``--smooth`` or ``--lowpass``
     SUSPECT = 14  #: observed and returned as it was, but ``auto`` judged its run between two gaps displaced: review
+    MISSING_NEVER_OBSERVED = 15  #: left missing: the input never shows the marker (a reference that does can fill it)
 
 
 #: The text each code is written as in a status CSV.
@@ -47,4 +48,5 @@ NAMES = {
     Status.UNLABELLED: "unlabelled",
     Status.SMOOTHED: "smoothed",
     Status.SUSPECT: "observed (judged displaced)",
+    Status.MISSING_NEVER_OBSERVED: "left missing (never observed)",
 }

@@ -348,6 +348,20 @@ def test_status_array_and_csv(gappy_data, tmp_path):
     assert texts <= set(NAMES.values())
 
 
+def test_status_of_a_marker_never_observed():
+    rng = np.random.default_rng(1)
+    positions = np.cumsum(rng.normal(size=(40, 3, 3)), axis=0)
+    positions[:, 2] = np.nan  # never observed: nothing fills it without a reference
+    positions[10:15, 0] = np.nan
+    data = MarkerData(positions, ["A", "B", "C"], 100.0)
+    outcome = fill_capture(data, FillSettings(method="linear"))
+    assert (outcome.status[:, 2] == Status.MISSING_NEVER_OBSERVED).all()
+    assert NAMES[Status.MISSING_NEVER_OBSERVED] == "left missing (never observed)"
+    assert (outcome.status[10:15, 0] == Status.FILLED).all()
+    chosen = fill_capture(data, FillSettings(method="linear", markers="A,B"))  # a reason given on request wins
+    assert (chosen.status[:, 2] == Status.MISSING_NOT_CHOSEN).all()
+
+
 def test_status_of_model_points_and_unlabelled():
     rng = np.random.default_rng(0)
     positions = np.cumsum(rng.normal(size=(50, 4, 3)), axis=0)
