@@ -250,6 +250,23 @@ def weigh(positions: np.ndarray, references: Sequence[Reference], units: str) ->
         ref.weight = float(np.exp(-0.5 * (diff / scale) ** 2)) if np.isfinite(diff) else 0.0
 
 
+def completed_frames(positions: np.ndarray, frames: np.ndarray, scale: float) -> np.ndarray:
+    """Reference ``frames`` (n, n_markers, 3) with their missing samples estimated (NaN where none can be).
+
+    The estimate is the weighted PCA (:func:`mocapfill.engines.weighted_pca.reconstruct`, Gaussian width ``scale`` in
+    data units) of the capture (``positions`` (n_frames, n_markers, 3), NaN = missing) and the frames together: a
+    session's takes have gaps, and a model whose predictors are every near marker learns nothing from a frame that
+    lacks one, nor from a reference that lacks a marker altogether, unless it is completed as the capture is.
+    Observed samples come back unchanged; which are observed is the caller's to keep (a completed sample is a
+    predictor, never a target).
+    """
+    from .engines.weighted_pca import reconstruct
+
+    both = np.concatenate([positions, frames])
+    estimate = reconstruct(both, scale=scale, uncertainty=False)[0][len(positions):]
+    return np.where(np.isnan(frames), estimate, frames)  # (the reconstruction moves the rest by round-off)
+
+
 def training_frames(references: Sequence[Reference]) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The fill's reference frames and their weights: ``(frames (n, n_markers, 3), weights (n,))``.
 

@@ -352,8 +352,9 @@ def test_a_method_without_weights_gets_only_the_well_fitting_references(halves):
 
 
 def test_a_reference_with_gaps_and_a_marker_it_lacks_still_trains_the_default(halves):
-    """A session's take has gaps: no frame of this one shows every marker, and it lacks RFIN altogether.  The refit
-    completes its frames as it completes the take's (``ModelConfig.reference_pca_mm``), so they still train it."""
+    """A session's take has gaps: no frame of this one shows every marker, and it lacks RFIN altogether.  Its gaps
+    are completed as predictors (``references.completed_frames``, ``ModelConfig.reference_pca_mm``): it still trains
+    the models."""
     from mocapfill.evaluation.occlusions import make_occlusions
 
     first, second = halves
@@ -370,6 +371,20 @@ def test_a_reference_with_gaps_and_a_marker_it_lacks_still_trains_the_default(ha
     with pytest.warns(DataWarning, match=r"lacks 1 of the capture's markers \(Male:RFIN\)"):
         with_ref = mocapfill.fill(gappy, reference=second.with_positions(holed))
     assert with_ref.info["references"]["used"] > 0
-    assert rmse(with_ref) < 0.9 * rmse(plain)  # (17.05 -> 14.12 mm; 17.28 before the refit completed references)
+    assert rmse(with_ref) < 0.9 * rmse(plain)  # (17.05 -> 13.83 mm; 17.28 before the references were completed)
     observed = ~np.isnan(corrupted).any(axis=2)
     assert np.array_equal(with_ref.positions[observed], corrupted[observed])
+
+
+def test_completed_frames_keep_observed_samples_and_fill_a_marker_the_reference_lacks(halves):
+    from mocapfill.references import completed_frames
+
+    first, second = halves
+    holed = second.positions.copy()
+    holed[::3, 5] = np.nan
+    holed[:, 7] = np.nan  # lacked by the reference, shown by the capture
+    done = completed_frames(first.positions, holed, scale=200.0)
+    observed = ~np.isnan(holed)
+    assert np.array_equal(done[observed], holed[observed]) and np.isfinite(done).all()
+    err = np.linalg.norm(done[:, 7] - second.positions[:, 7], axis=1)
+    assert np.median(err) < 30.0  # (mm: a marker it never saw, from the capture's body model)

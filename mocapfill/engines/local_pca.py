@@ -349,18 +349,24 @@ def rigidity_weights(spread: np.ndarray, m: int, noise: float = 0.0) -> np.ndarr
     return np.where(np.isfinite(s), s0 ** 2 / (np.nan_to_num(s) ** 2 + s0 ** 2), 0.0)
 
 
-def reference_rows(reference: np.ndarray, weights: np.ndarray, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
-    """The reference frames (n, n_markers, 3) that weigh anything and every training row's weight.
+def reference_rows(reference: np.ndarray, weights: np.ndarray, n_frames: int, known: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The reference frames (n, n_markers, 3) that weigh anything, every training row's weight, and where they
+    observe each marker.
 
-    weights (n,) are clipped to [0, 1]; frames of weight 0 are dropped.  Returns the kept frames (k, n_markers, 3)
-    and the row weights (n_frames + k,): 1 for the capture's own n_frames rows, below 1 for every reference row (so
-    the capture's own rows are those of weight 1, as :func:`_choose_rows` tells them apart).
+    weights (n,) are clipped to [0, 1]; frames of weight 0 are dropped.  Returns the kept frames (k, n_markers, 3),
+    the row weights (n_frames + k,): 1 for the capture's own n_frames rows, below 1 for every reference row (so
+    the capture's own rows are those of weight 1, as :func:`_choose_rows` tells them apart), and ``known`` (n,
+    n_markers) bool of the kept frames (default: where they are finite): a marker is a target only there, its other
+    samples (completed references, :func:`mocapfill.references.completed_frames`) predictors only.
     """
     ref_w = np.clip(np.asarray(weights, dtype=np.float64), 0.0, 1.0)
     if ref_w.shape != (len(reference),):
         raise MethodError(f"reference_weights must have shape ({len(reference)},), got {ref_w.shape}")
     keep = ref_w > 0
-    return reference[keep], np.concatenate([np.ones(n_frames), np.minimum(ref_w[keep], 1.0 - 1e-9)])
+    known = np.isfinite(reference).all(axis=2) if known is None else np.asarray(known, dtype=bool)
+    return (reference[keep], np.concatenate([np.ones(n_frames), np.minimum(ref_w[keep], 1.0 - 1e-9)]),
+            known[keep] & np.isfinite(reference[keep]).all(axis=2))
 
 
 def _cols(markers: np.ndarray) -> list[int]:
@@ -544,6 +550,7 @@ def reconstruct_local(
     context: np.ndarray | None = None,
     reference_frames: np.ndarray | None = None,
     reference_weights: np.ndarray | None = None,
+    reference_known: np.ndarray | None = None,
     extrapolation: bool = False,
     rigid_align: float | None = None,
     jobs: int | None = None,
@@ -582,6 +589,10 @@ def reconstruct_local(
         least two blocks of them are observed, the model with the references is kept only if its leave-one-block-
         out error on the capture's frames (the references always in training) is below that of the model without
         them; so a reference of another body or motion is dropped where it does not help.
+    reference_known : ndarray (n_ref_frames, n_markers) bool, optional
+        Where the reference frames observe each marker, when their gaps were completed
+        (:func:`mocapfill.references.completed_frames`): a marker is a target only there, a predictor everywhere.
+        Default: where they are finite.
     rigid_align : None, or the spread (data units) the cameras' noise alone gives a distance: the alignment weights
         also weigh each neighbour by how rigidly it moves with the marker (:func:`rigidity_weights` of the spread of
         its distance to it over the frames where both are seen, with this ``noise``).
@@ -614,8 +625,8 @@ def reconstruct_local(
         ref = np.asarray(reference_frames, dtype=np.float64)
         if ref.ndim != 3 or ref.shape[1:] != positions.shape[1:]:
             raise MethodError(f"reference_frames must have shape (n, {n_markers}, 3), got {ref.shape}")
-        ref, row_weight = reference_rows(ref, np.ones(len(ref)) if reference_weights is None else reference_weights,
-                                         n_frames)
+        ref, row_weight, ref_known = reference_rows(
+            ref, np.ones(len(ref)) if reference_weights is None else reference_weights, n_frames, reference_known)
         info["references"] = {"frames": len(ref), "models": 0, "used": 0}
     own_distances = distances_to(positions) if context is None else None
     own_spreads = distance_spreads_to(positions) if context is None and rigid_align is not None else None
@@ -623,7 +634,7 @@ def reconstruct_local(
         with_refs_src = np.concatenate([positions, ref])
         with_refs_miss = np.concatenate([missing, np.isnan(ref).any(axis=2)])
         # a marker the take never shows but a reference does: modelled from the references alone, its distances too
-        shown = ~with_refs_miss.all(axis=0)
+        shown = ~missing.all(axis=0) | ref_known.any(axis=0)
         if (missing.all(axis=0) & shown).any():
             gap_markers = np.flatnonzero(missing.any(axis=0) & shown)
             ref_distances = distances_to(with_refs_src)
@@ -648,6 +659,9 @@ def reconstruct_local(
             else:
                 src = np.concatenate([src, ref])
                 miss = np.concatenate([miss, np.isnan(ref).any(axis=2)])
+            if not ref_known[:, m].all():  # a reference's completed samples of the target are no targets
+                miss = miss.copy()
+                miss[n_frames:, m] = ~ref_known[:, m]
         weights, align_weight = marker_weights(dist, m, scales, align_scale, missing_weight, spread,
                                                rigid_align or 0.0)
         others = np.ones(n_markers, dtype=bool)
@@ -809,7 +823,7 @@ def reconstruct_completed(
     run_knn: int = 0,
     run_max_rms: float = np.inf,
     rigid_align: float | None = None,
-    complete_references: float | None = None,
+    reference_known: np.ndarray | None = None,
     jobs: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The local model refitted on a completed take (one EM-style imputation step).
@@ -821,11 +835,11 @@ def reconstruct_completed(
     taken from ``completed``), predicts all its missing samples; the predictors' uncertainty is propagated into the
     prediction's (``sensitivity`` of :func:`group_model`; ``max_predictors`` as in :func:`reconstruct_local`).
     reference (n, n_markers, 3) or None: frames of other takes added to the training frames where the marker and its
-    predictors are finite; with ``complete_references`` (a width in data units), their missing samples first
-    estimated by the weighted PCA (:func:`~.weighted_pca.reconstruct`) of the completed take and the references, as
-    predictors only (a marker is a target where a reference observes it).  Returns estimate (n_frames, n_markers, 3)
-    and std (n_frames, n_markers) at the missing samples (NaN elsewhere and where no model could be fitted), and the
-    reconstruction / std at up to ``edge_frames`` observed frames either side of each gap.
+    predictors are finite, the marker a target only where ``reference_known`` (n, n_markers) bool says a reference
+    observes it (default: where finite; a completed reference's other samples are predictors only).  Returns
+    estimate (n_frames, n_markers, 3) and std (n_frames, n_markers) at the missing samples (NaN elsewhere and where
+    no model could be fitted), and the reconstruction / std at up to ``edge_frames`` observed frames either side of
+    each gap.
     ``leverage_weight`` scales how much a frame's leverage grows its std (1: as :func:`reconstruct_local`).
     ``trust`` (data units) or None: when given, only neighbours whose RMS completed std over the marker's gap frames
     is at most ``trust`` are predictors: a neighbour that vanished with the marker (filled, uncertain) does not steer
@@ -864,19 +878,15 @@ def reconstruct_completed(
     missing = np.isnan(positions).any(axis=2)
     row_weight = None
     if reference is not None and reference_weights is not None:
-        reference, row_weight = reference_rows(reference, reference_weights, n_frames)
+        reference, row_weight, reference_known = reference_rows(reference, reference_weights, n_frames,
+                                                                reference_known)
     data = completed if reference is None else np.concatenate([completed, reference])
-    if complete_references is not None and reference is not None and np.isnan(reference).any():
-        # the reference frames completed as the take is, so a frame lacking a marker still trains (every model has
-        # every near marker as a predictor); ``known`` keeps their own samples the only targets
-        from .weighted_pca import reconstruct
-
-        estimated = reconstruct(data, scale=complete_references, uncertainty=False)[0]
-        data = np.concatenate([completed, estimated[n_frames:]])  # (the take's own rows as completed)
     var = np.nan_to_num(completed_std, nan=np.inf) ** 2
     if reference is not None:
         var = np.concatenate([var, np.zeros(reference.shape[:2])])
-    known = np.concatenate([~missing, np.isfinite(reference).all(axis=2)]) if reference is not None else ~missing
+    if reference is not None and reference_known is None:
+        reference_known = np.isfinite(reference).all(axis=2)
+    known = np.concatenate([~missing, reference_known]) if reference is not None else ~missing
     finite = np.isfinite(data).all(axis=2)
     estimate, std, info = empty_estimates(n_frames, n_markers)
     known_data = np.where(known[..., None], data, np.nan)
@@ -885,7 +895,7 @@ def reconstruct_completed(
     blackout = missing.all(axis=1)  # frames where nothing is observed
     if untrusted is not None:
         u_data = np.array(untrusted[0], dtype=np.float64) if reference is None else np.concatenate(
-            [untrusted[0], data[n_frames:]])
+            [untrusted[0], reference])
         u_var = np.nan_to_num(untrusted[1], nan=np.inf) ** 2
         if reference is not None:
             u_var = np.concatenate([u_var, var[n_frames:]])

@@ -8,7 +8,9 @@ The model (equations in ``ARCHITECTURE.md``, "The default's model"), each stage 
    reconstruction at the observed frames next to each gap is kept: the smoother learns the prediction's error there.
    Frames of other takes of the same marker set (``reference_frames``) join the training frames, each weighted by
    how well its take fits the capture (``reference_weights``, :mod:`mocapfill.references`); each local model keeps
-   them only where they lower its cross-validated error on the capture's own frames.  With a learned denoiser
+   them only where they lower its cross-validated error on the capture's own frames; their gaps are completed first
+   (:func:`mocapfill.references.completed_frames`, :attr:`ModelConfig.reference_pca_mm`), as predictors only, so a
+   frame lacking a marker still trains the models that predict from it.  With a learned denoiser
    (``model``), :func:`prior_stage` fuses its estimate with the spatial prediction as a second measurement.
    :func:`body_stage`: a missing sample the local PCA could not predict (its neighbourhood vanished with it)
    rides rigidly on its nearest markers seen at that frame, its scatter relative to them as the standard deviation
@@ -70,6 +72,7 @@ from ..errors import MethodError
 from ..gaps import fragments, runs
 from ..guards.copies import bones_on_distinct, distinct_markers, lent_by_copies, widened, with_lent
 from ..guards.windows import DEFAULT_WINDOW, fill_in_windows
+from ..references import completed_frames
 from ..runtime.blas import single_blas_thread
 from ..runtime.executor import resolve_jobs
 from ..units import length_factor
@@ -105,7 +108,7 @@ def fill_auto(
     bones : BoneSet, None (estimate from the observed frames) or False (no bone stage).
     refine : run the bone stage (same as ``bones=False`` when False).
     reference_frames : ndarray (n, n_markers, 3) or None: frames of other takes of the same marker set, added to
-        the spatial model's training frames (NaN allowed).
+        the spatial model's training frames (NaN allowed: with weights, completed as predictors, never targets).
     reference_weights : ndarray (n,) in [0, 1] or None: each reference frame's weight as a training row (how well
         its take fits the capture, :func:`mocapfill.references.weigh`); each local model then keeps the references
         only where they lower its cross-validated error on the capture's own frames (``info["references"]``:
@@ -182,8 +185,14 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     mm = length_factor("mm", units)
     rate = float(rate) if rate and np.isfinite(rate) and rate > 0 else config.default_rate
     missing = np.isnan(positions).any(axis=2)
+    observed_refs = reference_frames  # (the records count the frames that show each marker)
+    reference_known = None  # where the reference frames observe each marker, once they are completed
+    if reference_weights is not None and config.reference_pca_mm and np.isnan(reference_frames).any():
+        reference_known = ~np.isnan(reference_frames).any(axis=2)
+        reference_frames = completed_frames(positions, reference_frames, config.reference_pca_mm * mm)
     pred, pred_sd, edge, edge_sd, sinfo = spatial_stage(positions, config, mm, reference_frames=reference_frames,
-                                                        reference_weights=reference_weights, jobs=jobs)
+                                                        reference_weights=reference_weights,
+                                                        reference_known=reference_known, jobs=jobs)
     off = sinfo.get("extrapolation")  # how far each prediction's pose lies off its model's training poses
     seed = (pred, pred_sd, edge, edge_sd)  # stage 1's own: where a refit has no model, they stand
     info: dict[str, Any] = {"pipeline": "local weighted PCA + white-jerk smoother", "fallback": sinfo["fallback"]}
@@ -251,7 +260,8 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         segment_used = np.zeros(missing.shape, dtype=bool)
         untrusted_used = np.zeros(missing.shape[1], dtype=bool)
         refit = impute_stage(positions, fill, sd, config, mm, reference_frames=reference_frames,
-                             reference_weights=reference_weights, used_references=used_refs,
+                             reference_weights=reference_weights, reference_known=reference_known,
+                             used_references=used_refs,
                              extrapolation=off, segment_used=segment_used, untrusted=believed,
                              untrusted_used=untrusted_used, disagreement=spread, jobs=jobs)
         if config.seed_where_no_refit:
@@ -289,7 +299,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     info["gap_methods"] = gap_records(missing, sd, spatial & ~anchored & ~globbed, outliers, config, mm, labels,
                                       boneset, off, displaced, segment_used, anchored, spread=spread, broken=broken,
                                       reach=reach, stretched=stretched, globbed=globbed, moved=moved,
-                                      shown_by_references=shown_by(reference_frames, reference_weights))
+                                      shown_by_references=shown_by(observed_refs, reference_weights))
     info["displaced"] = displaced_records(positions, displaced, edge, mm, labels)
     info["review"] = review_indices(info["gap_methods"])
     return finish(positions, fill, std=sd, info=info)
@@ -384,10 +394,11 @@ def rigid_noise(config: ModelConfig, mm: float) -> float | None:
 
 def spatial_stage(positions: np.ndarray, config: ModelConfig, mm: float, *,
                   reference_frames: np.ndarray | None = None, reference_weights: np.ndarray | None = None,
-                  jobs: int = 1):
+                  reference_known: np.ndarray | None = None, jobs: int = 1):
     """Stage 1: the local weighted PCA's prediction of every missing sample.
 
-    positions (n_frames, n_markers, 3); mm data units per millimetre; reference_frames (n, n_markers, 3) or None.
+    positions (n_frames, n_markers, 3); mm data units per millimetre; reference_frames (n, n_markers, 3) or None,
+    reference_known (n, n_markers) bool or None: where they observe each marker, if their gaps were completed.
     Returns pred (n_frames, n_markers, 3) (NaN where no model), sd (n_frames, n_markers) per coordinate (NaN where
     no model), the reconstruction at observed frames next to gaps (n_frames, n_markers, 3) and its sd, and info
     (with ``config.extrapolation_sd`` and no refit to follow (``impute_passes`` 0), ``info["extrapolation"]``
@@ -406,6 +417,7 @@ def spatial_stage(positions: np.ndarray, config: ModelConfig, mm: float, *,
                                        edge_frames=config.edge_frames,
                                        reference_frames=reference_frames if weighed else None,
                                        reference_weights=reference_weights if weighed else None,
+                                       reference_known=reference_known if weighed else None,
                                        extrapolation=config.extrapolation_sd and not config.impute_passes,
                                        rigid_align=rigid_noise(config, mm), jobs=jobs)
     if "extrapolation" in info:
@@ -483,6 +495,7 @@ def global_stage(positions: np.ndarray, pred: np.ndarray, sd: np.ndarray, glob: 
 
 def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, config: ModelConfig, mm: float, *,
                  reference_frames: np.ndarray | None = None, reference_weights: np.ndarray | None = None,
+                 reference_known: np.ndarray | None = None,
                  used_references: list | None = None, extrapolation: np.ndarray | None = None,
                  segment_used: np.ndarray | None = None, untrusted: tuple | None = None,
                  untrusted_used: np.ndarray | None = None, disagreement: np.ndarray | None = None,
@@ -516,7 +529,7 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
         parts=config.refit_parts, untrusted=untrusted, untrusted_used=untrusted_used, disagreement=disagreement,
         run_scales=tuple(np.asarray(config.seed_scales_mm) * mm) if config.refit_by_run else None,
         run_knn=config.seed_knn, run_max_rms=config.review_sd_mm * mm, rigid_align=rigid_noise(config, mm),
-        complete_references=config.reference_pca_mm * mm if config.reference_pca_mm else None, jobs=jobs)
+        reference_known=reference_known, jobs=jobs)
     return pred, pred_sd, edge, edge_sd
 
 

@@ -82,7 +82,7 @@ class ModelConfig:
     refit_untrusted: bool = False
     #: Where no model covers all its gaps, one per group of gaps with the same trusted ones, kept within review_sd_mm.
     refit_by_run: bool = True
-    #: Width of the weighted PCA that completes reference frames for the refit, as the take is completed (0: off).
+    #: Width of the weighted PCA that completes reference frames' gaps, as predictors (0: off: a gap drops a frame).
     reference_pca_mm: float = 200.0
     #: Refits of the spatial model on the completed take (EM-style imputation).
     impute_passes: int = 1
