@@ -388,3 +388,16 @@ def test_completed_frames_keep_observed_samples_and_fill_a_marker_the_reference_
     assert np.array_equal(done[observed], holed[observed]) and np.isfinite(done).all()
     err = np.linalg.norm(done[:, 7] - second.positions[:, 7], axis=1)
     assert np.median(err) < 30.0  # (mm: a marker it never saw, from the capture's body model)
+
+
+def test_a_long_takes_reference_use_is_summed_over_its_windows():
+    from mocapfill.methods.auto import windows_references
+
+    info = {"windows": [{"start": 0, "stop": 5000, "references": {"frames": 410, "models": 30, "used": 20}},
+                        {"start": 4600, "stop": 9000, "references": {"frames": 400, "models": 25, "used": 5}}]}
+    windows_references(info, 400)
+    assert info["references"] == {"frames": 400, "models": 55, "used": 25}
+    assert all("references" not in row for row in info["windows"])
+    agreed = {"references": {"frames": 400, "models": 3, "used": 1}, "windows": [{}, {}, {}]}
+    windows_references(agreed, 400)  # (the windows agreed: the merge kept one copy)
+    assert agreed["references"] == {"frames": 400, "models": 9, "used": 3}

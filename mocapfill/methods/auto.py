@@ -172,8 +172,23 @@ def fill_auto(
                                      keywords=partial(lost_marker_frames, positions, np.isnan(positions).any(axis=2),
                                                       reference_frames, reference_weights))
             result.info["review"] = review_indices(result.info.get("gap_methods"))
+            if reference_weights is not None:
+                windows_references(result.info, int((np.asarray(reference_weights) > 0).sum()))
             return result
         return core(positions, jobs=jobs)
+
+
+def windows_references(info: dict, frames: int) -> None:
+    """A long take's ``info["references"]`` (its windows', :func:`~mocapfill.guards.windows.fill_in_windows`, each
+    under ``info["windows"]`` where they differ, once where they agree): ``frames`` (the caller's reference frames
+    with a weight), and the local models and those that kept the references summed over the windows.  In place."""
+    rows = info.get("windows") or []
+    per = [row.pop("references") for row in rows if isinstance(row.get("references"), dict)]
+    if not per and isinstance(info.get("references"), dict):
+        per = [info["references"]] * len(rows)  # every window said the same
+    if per:
+        info["references"] = {"frames": frames, "models": sum(int(p.get("models", 0)) for p in per),
+                              "used": sum(int(p.get("used", 0)) for p in per)}
 
 
 def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine: bool,
