@@ -250,6 +250,36 @@ def weigh(positions: np.ndarray, references: Sequence[Reference], units: str) ->
         ref.weight = float(np.exp(-0.5 * (diff / scale) ** 2)) if np.isfinite(diff) else 0.0
 
 
+#: Capture frames :func:`holds_frames_of` looks for in a reference (evenly spaced), and the share that must be found.
+SAMPLED_FRAMES, FOUND_SHARE = 20, 0.5
+
+
+def holds_frames_of(positions: np.ndarray, frames: np.ndarray, units: str) -> bool:
+    """Whether reference ``frames`` (n_ref, n_markers, 3), matched to the capture (its units and marker order), hold
+    frames of the capture ``positions`` (n_frames, n_markers, 3), NaN = missing: of up to :data:`SAMPLED_FRAMES`
+    evenly spaced capture frames with 3 or more markers seen, at least :data:`FOUND_SHARE` are in it, every marker
+    both see within 0.05 mm (the capture itself, or the take it was cut from; a take of the same session never
+    repeats a frame to that precision)."""
+    tol = 0.05 * length_factor("mm", units)
+    seen = ~np.isnan(positions).any(axis=2)
+    sampled = np.flatnonzero(seen.sum(axis=1) >= 3)
+    sampled = sampled[np.unique(np.linspace(0, len(sampled) - 1, min(SAMPLED_FRAMES, len(sampled))).round()
+                                .astype(int))]
+    found = 0
+    for t in sampled:
+        markers = np.flatnonzero(seen[t] & ~np.isnan(frames).any(axis=2).all(axis=0))
+        if len(markers) < 3:
+            continue
+        first = markers[0]  # the few reference frames where one marker agrees, then every marker
+        near = np.flatnonzero((np.abs(frames[:, first] - positions[t, first]) <= tol).all(axis=1))
+        for r in near:
+            both = markers[~np.isnan(frames[r, markers]).any(axis=1)]
+            if len(both) >= 3 and np.max(np.abs(frames[r, both] - positions[t, both])) <= tol:
+                found += 1
+                break
+    return bool(len(sampled)) and found >= FOUND_SHARE * len(sampled)
+
+
 def completed_frames(positions: np.ndarray, frames: np.ndarray, scale: float) -> np.ndarray:
     """Reference ``frames`` (n, n_markers, 3) with their missing samples estimated (NaN where none can be).
 

@@ -309,6 +309,8 @@ def _method_parameters(methods: Sequence[str]) -> dict[str, set[str]]:
 
 def _check_references(data: MarkerData, reference) -> list[MarkerData]:
     """The reference takes as a list; the test capture itself (same positions) is an error: it would be an oracle."""
+    from ..references import holds_frames_of
+
     if reference is None:
         return []
     refs = list(reference) if isinstance(reference, (list, tuple)) else [reference]
@@ -320,14 +322,10 @@ def _check_references(data: MarkerData, reference) -> list[MarkerData]:
         if same_path or _same_take(data, ref, matched):
             raise MocapfillError(f"evaluate: {ref.path or 'a reference'} is the test capture itself; a fill that "
                                  "has seen the truth is an oracle, not an evaluation")
-        if matched is not None and _holds_frames_of(data, matched):
+        if matched is not None and holds_frames_of(data.positions, matched, data.units):
             raise MocapfillError(f"evaluate: {ref.path or 'a reference'} holds the test capture's frames (the take "
                                  "it was cut from?); a fill that has seen the truth is an oracle, not an evaluation")
     return refs
-
-
-#: Test frames :func:`_holds_frames_of` looks for in a reference (evenly spaced), and the share that must be found.
-SAMPLED_FRAMES, FOUND_SHARE = 20, 0.5
 
 
 def _matched(data: MarkerData, ref: MarkerData) -> np.ndarray | None:
@@ -341,32 +339,6 @@ def _matched(data: MarkerData, ref: MarkerData) -> np.ndarray | None:
             return match_reference(data.labels, data.units, ref.positions, ref.labels, ref.units).positions
     except ReferenceError:
         return None
-
-
-def _holds_frames_of(data: MarkerData, matched: np.ndarray) -> bool:
-    """Whether a reference, ``matched`` (n_ref_frames, n_markers, 3) to the capture (:func:`_matched`), holds frames
-    of the test capture: of up to :data:`SAMPLED_FRAMES` evenly spaced test frames with 3 or more markers seen, at
-    least :data:`FOUND_SHARE` are in it, every marker both see within 0.05 mm (the capture cut from a longer take that
-    is given as its reference; a take of the same session never repeats a frame to that precision)."""
-    from ..units import length_factor
-
-    tol = 0.05 * length_factor("mm", data.units)
-    seen = ~data.missing
-    frames = np.flatnonzero(seen.sum(axis=1) >= 3)
-    frames = frames[np.unique(np.linspace(0, len(frames) - 1, min(SAMPLED_FRAMES, len(frames))).round().astype(int))]
-    found = 0
-    for t in frames:
-        markers = np.flatnonzero(seen[t] & ~np.isnan(matched).any(axis=2).all(axis=0))
-        if len(markers) < 3:
-            continue
-        first = markers[0]  # the few reference frames where one marker agrees, then every marker
-        near = np.flatnonzero((np.abs(matched[:, first] - data.positions[t, first]) <= tol).all(axis=1))
-        for r in near:
-            both = markers[~np.isnan(matched[r, markers]).any(axis=1)]
-            if len(both) >= 3 and np.max(np.abs(matched[r, both] - data.positions[t, both])) <= tol:
-                found += 1
-                break
-    return bool(len(frames)) and found >= FOUND_SHARE * len(frames)
 
 
 def _same_take(data: MarkerData, ref: MarkerData, matched: np.ndarray | None) -> bool:
