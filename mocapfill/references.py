@@ -85,6 +85,10 @@ class Reference:
         reference and the capture (:func:`shape_difference`); NaN until weighed.
     stages : dict
         Which stage used it and how: ``{"fill": "...", "reject_outliers": "..."}``.
+    own_frames : bool
+        It holds the capture's own frames (:func:`holds_frames_of`: the capture itself, or the take it was cut from,
+        as a session's glob hands every take to itself): weight 0, left out (in the fill's cross-validation the
+        capture's held-out frames would be in training, and its sd would shrink).
     """
 
     name: str
@@ -95,6 +99,7 @@ class Reference:
     weight: float = float("nan")
     shape_difference: float = float("nan")
     stages: dict[str, str] = field(default_factory=dict)
+    own_frames: bool = False
 
     @property
     def n_frames(self) -> int:
@@ -240,14 +245,17 @@ def weigh(positions: np.ndarray, references: Sequence[Reference], units: str) ->
 
     positions (n_frames, n_markers, 3), NaN = missing (only observed samples are used).  The weight is
     exp(-(difference / :data:`SHAPE_SCALE_MM`)^2 / 2): near 1 for another take of the same subject and marker
-    placement, near 0 for another body.  The fill's own cross-validation then decides, per model, whether the weighted
-    references help at all (:mod:`mocapfill.engines.local_pca`).
+    placement, near 0 for another body; one that holds the capture's own frames weighs 0 (``own_frames``).  The
+    fill's own cross-validation then decides, per model, whether the weighted references help at all
+    (:mod:`mocapfill.engines.local_pca`).
     """
     scale = SHAPE_SCALE_MM * length_factor("mm", units)
     for ref in references:
         diff = shape_difference(positions, ref.positions)
         ref.shape_difference = diff
         ref.weight = float(np.exp(-0.5 * (diff / scale) ** 2)) if np.isfinite(diff) else 0.0
+        if holds_frames_of(positions, ref.positions, units):  # (the capture itself: weight 0, see Reference)
+            ref.own_frames, ref.weight = True, 0.0
 
 
 #: Capture frames :func:`holds_frames_of` looks for in a reference (evenly spaced), and the share that must be found.
@@ -306,6 +314,9 @@ def training_frames(references: Sequence[Reference]) -> tuple[np.ndarray | None,
     """
     frames, weights = [], []
     for ref in references:
+        if ref.own_frames:
+            ref.stages["fill"] = OWN_FRAMES_TEXT
+            continue
         if not np.isfinite(ref.shape_difference):
             ref.stages["fill"] = "not used: no marker pair to compare its body with the capture's by"
             continue
@@ -326,6 +337,9 @@ def training_frames(references: Sequence[Reference]) -> tuple[np.ndarray | None,
 
 #: :func:`weights_text`'s words after a reference's weight where its body differs / the method takes no references.
 NOT_USED, NOT_USED_BY_METHOD = " not used", " not used by the method"
+#: A results table's suffix, and a stage's words, for a reference that holds the capture's own frames.
+NOT_USED_OWN = " not used: the file itself"
+OWN_FRAMES_TEXT = "not used: it holds the capture's own frames (the capture itself, or the take it was cut from)"
 
 
 def weights_text(references: Sequence[Reference]) -> str:
@@ -333,6 +347,8 @@ def weights_text(references: Sequence[Reference]) -> str:
     differs and :data:`NOT_USED_BY_METHOD` where the fill method takes no reference frames
     (``"static.c3d 0.82; other.c3d 0.00 not used"``); "" without references."""
     def words(ref: Reference) -> str:
+        if ref.own_frames:
+            return NOT_USED_OWN
         if not ref.weight >= MIN_WEIGHT:
             return NOT_USED
         return NOT_USED_BY_METHOD if ref.stages.get("fill", "").startswith("not used") else ""
@@ -369,6 +385,9 @@ def outlier_frames(references: Sequence[Reference]) -> np.ndarray | None:
     """
     frames = []
     for ref in references:
+        if ref.own_frames:
+            ref.stages["reject_outliers"] = OWN_FRAMES_TEXT
+            continue
         if ref.static:
             ref.stages["reject_outliers"] = "not used: a static trial's distance ranges would reject joint motion"
             continue

@@ -401,3 +401,27 @@ def test_a_long_takes_reference_use_is_summed_over_its_windows():
     agreed = {"references": {"frames": 400, "models": 3, "used": 1}, "windows": [{}, {}, {}]}
     windows_references(agreed, 400)  # (the windows agreed: the merge kept one copy)
     assert agreed["references"] == {"frames": 400, "models": 9, "used": 3}
+
+
+def test_a_reference_holding_the_captures_own_frames_is_left_out(halves, tmp_path):
+    """A session's glob as references hands each take to itself: its held-out frames would be in training (an
+    oracle's cross-validation, a shrunken sd).  fill leaves it out and says so; batch says per file."""
+    first, second = halves
+    gappy = first.positions.copy()
+    gappy[100:140, 7] = np.nan
+    capture = first.with_positions(gappy)
+    plain = mocapfill.fill(capture)
+    itself = mocapfill.fill(capture, reference=[first])  # the complete take it was cut from
+    (record,) = itself.info["reference_takes"]
+    assert record["weight"] == 0.0 and record["stages"]["fill"].startswith("not used: it holds the capture's own")
+    assert np.array_equal(itself.positions, plain.positions, equal_nan=True)
+    folder = session_folder(first, tmp_path)
+    mocapfill.write(second, folder / "other.c3d")
+    args = ["batch", str(folder), "-o", str(tmp_path / "out"), "--reference", str(folder / "take.c3d"),
+            "--reference", str(folder / "other.c3d")]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 0, result.output
+    rows = {Path(row["input"]).name: row for row in read_rows(tmp_path / "out" / "mocapfill-batch.csv")}
+    assert rows["take.c3d"]["references"].startswith(f"{folder / 'take.c3d'} 0.00 not used: the file itself; ")
+    assert rows["other.c3d"]["references"].endswith(f"{folder / 'other.c3d'} 0.00 not used: the file itself")
+    assert "not used for 1 of 2 files (it is the file itself, or holds its frames" in result.stderr

@@ -101,17 +101,18 @@ def batch_command(inputs: tuple[str, ...], out_dir: str, fill_settings: FillSett
 def unused_references(rows) -> list[str]:
     """One line per reference take some filled file left out (its body differs) or the method left out (it takes
     none), naming how many files (``BatchRow.references``, :func:`mocapfill.references.weights_text`)."""
-    from ..references import NOT_USED, NOT_USED_BY_METHOD
+    from ..references import NOT_USED, NOT_USED_BY_METHOD, NOT_USED_OWN
 
     filled = [row for row in rows if row.status == "filled" and row.references]
     unused: dict[tuple[str, str], int] = {}
     for row in filled:
         for entry in row.references.split("; "):
-            for suffix in (NOT_USED_BY_METHOD, NOT_USED):
+            for suffix in (NOT_USED_OWN, NOT_USED_BY_METHOD, NOT_USED):
                 if entry.endswith(suffix):
                     name = entry[:-len(suffix)].rsplit(" ", 1)[0]
                     unused[name, suffix] = unused.get((name, suffix), 0) + 1
                     break
-    why = {NOT_USED: "its body differs from theirs", NOT_USED_BY_METHOD: "the method takes no reference frames"}
+    why = {NOT_USED: "its body differs from theirs", NOT_USED_BY_METHOD: "the method takes no reference frames",
+           NOT_USED_OWN: "it is the file itself, or holds its frames"}
     return [f"reference {name}: not used for {n} of {len(filled)} files ({why[suffix]}; the references column says "
             "per file)" for (name, suffix), n in unused.items()]
