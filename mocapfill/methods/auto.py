@@ -202,7 +202,8 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     missing = np.isnan(positions).any(axis=2)
     observed_refs = reference_frames  # (the records count the frames that show each marker)
     reference_known = None  # where the reference frames observe each marker, once they are completed
-    if reference_weights is not None and config.reference_pca_mm and np.isnan(reference_frames).any():
+    if (reference_frames is not None and reference_weights is not None and config.reference_pca_mm
+            and np.isnan(reference_frames).any()):
         reference_known = ~np.isnan(reference_frames).any(axis=2)
         reference_frames = completed_frames(positions, reference_frames, config.reference_pca_mm * mm)
     pred, pred_sd, edge, edge_sd, sinfo = spatial_stage(positions, config, mm, reference_frames=reference_frames,
