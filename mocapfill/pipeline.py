@@ -541,6 +541,9 @@ def fill_capture(data: MarkerData, settings: FillSettings, *, reference: Any = N
                 others = used["models"] - used["used"]
                 said = (f"; {kept} by {used['used']} of {used['models']} local models"
                         + (f" (the other {others} fitted the capture better without references)" if others else ""))
+            if used.get("completed"):  # (the default completes a reference's gaps first: predictors, never targets)
+                n = used["completed"]
+                said += f"; the references' {n} missing sample{'s' if n != 1 else ''} completed as predictors"
             for ref in training:
                 ref.stages["fill"] += said
         record["references"] = [ref.record(data.units) for ref in refs]

@@ -367,10 +367,15 @@ def test_a_reference_with_gaps_and_a_marker_it_lacks_still_trains_the_default(ha
     def rmse(result):
         return np.sqrt(np.mean(((result.positions - first.positions)[hidden]) ** 2) * 3)
 
+    from mocapfill.pipeline import FillSettings, fill_capture
+
     plain = mocapfill.fill(gappy)
     with pytest.warns(DataWarning, match=r"lacks 1 of the capture's markers \(Male:RFIN\)"):
-        with_ref = mocapfill.fill(gappy, reference=second.with_positions(holed))
-    assert with_ref.info["references"]["used"] > 0
+        outcome = fill_capture(gappy, FillSettings(), reference=[second.with_positions(holed)])
+    with_ref, n = outcome.result, int(np.isnan(holed).any(axis=2).sum())
+    assert with_ref.info["references"]["used"] > 0 and with_ref.info["references"]["completed"] == n
+    assert outcome.references[0].stages["fill"].endswith(f"; the references' {n} missing samples completed as "
+                                                         "predictors")
     assert rmse(with_ref) < 0.9 * rmse(plain)  # (17.05 -> 13.83 mm; 17.28 before the references were completed)
     observed = ~np.isnan(corrupted).any(axis=2)
     assert np.array_equal(with_ref.positions[observed], corrupted[observed])

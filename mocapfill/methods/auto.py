@@ -189,6 +189,9 @@ def windows_references(info: dict, frames: int) -> None:
     if per:
         info["references"] = {"frames": frames, "models": sum(int(p.get("models", 0)) for p in per),
                               "used": sum(int(p.get("used", 0)) for p in per)}
+        completed = max(int(p.get("completed", 0)) for p in per)  # (each window completes the same references)
+        if completed:
+            info["references"]["completed"] = completed
 
 
 def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine: bool,
@@ -311,6 +314,8 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         info["references"] = ({"frames": int((reference_weights > 0).sum()), "models": len(used_refs),
                                "used": int(sum(used_refs))} if config.impute_passes
                               else sinfo.get("references", {"frames": 0, "models": 0, "used": 0}))
+        if reference_known is not None:  # the samples the weighted PCA completed (frames that weigh anything)
+            info["references"]["completed"] = int((~reference_known[np.asarray(reference_weights) > 0]).sum())
     spatial = missing & np.isfinite(pred_sd)
     info["gap_methods"] = gap_records(missing, sd, spatial & ~anchored & ~globbed, outliers, config, mm, labels,
                                       boneset, off, displaced, segment_used, anchored, spread=spread, broken=broken,
