@@ -50,31 +50,30 @@ def render_evaluation_html(result) -> str:
     units = data.units
     ik = result.ik is not None
     ranking = result.ranking("rmse", "mean")
+    from ..evaluation import problem_words
+
     heads = ["method", f"RMSE mean ({units})", f"RMSE median ({units})", f"max error ({units})",
              f"bone error ({units})", "seconds"]
     keys = [("rmse", "mean"), ("rmse", "median"), ("max_error", "mean"), ("bone_error", "mean"), ("seconds", "mean")]
+    honesty = any(summary[m]["error_ratio"]["median"] is not None for m in result.methods)
+    if honesty:  # (as the terminal table: the median over trials)
+        heads.append("err/std")
+        keys.append(("error_ratio", "median"))
+    fill_columns = len(keys)  # the fills' own columns, which leaving the markers out has none of
     if ik:
         heads += ["angle median (\u00b0)", "angle worst (\u00b0)", f"transl. median ({units})",
                   f"transl. worst ({units})", "IK seconds"]
         keys += [("angle_median", "median"), ("angle_worst", "median"), ("translation_median", "median"),
                  ("translation_worst", "median"), ("ik_seconds", "median")]
-    honesty = any(summary[m]["error_ratio"]["median"] is not None for m in result.methods)
-    if honesty:  # (as the terminal table: the median over trials)
-        heads.insert(6, "err/std")
-        keys.insert(5, ("error_ratio", "median"))
-    rows = [[escape(m)] + [_cell(summary[m][k][stat]) for k, stat in keys] for m in ranking]
+    problems = any(problem_words(summary[m]) for m in result.methods)
+    rows = [[escape(m)] + [_cell(summary[m][k][stat]) for k, stat in keys]
+            + [escape(problem_words(summary[m]))] * problems for m in ranking]
     if ik:
         left = result.left_missing_summary()
-        mm = 5 + honesty  # the millimetre columns, which leaving markers out has none of
-        rows.append(["<em>(left missing)</em>"] + ["&ndash;"] * mm + [_cell(left[k][stat]) for k, stat in keys[mm:]])
-    from ..evaluation import problem_words
-
-    if any(problem_words(summary[m]) for m in result.methods):
+        rows.append(["<em>(left missing)</em>"] + ["&ndash;"] * fill_columns
+                    + [_cell(left[k][stat]) for k, stat in keys[fill_columns:]] + [""] * problems)
+    if problems:
         heads.append("problems")
-        for row, m in zip(rows, ranking):
-            row.append(escape(problem_words(summary[m])))
-        if ik:
-            rows[-1].append("")
     parts = [f"<h1>Evaluation of fill methods<small>{escape(data.path)}: {data.n_markers} markers, {data.n_frames} "
              f"frames at {data.rate:g} Hz; protocol {escape(result.protocol)}, {len(result.trials)} trials, seed "
              f"{result.seed}</small></h1>"]
@@ -95,7 +94,7 @@ def render_evaluation_html(result) -> str:
     if result.settings.get("oracle"):
         parts.append('<p class="alert">ORACLE: the outlier ranges came from the clean file itself; these '
                      "scores are not what a user without it gets.</p>")
-    parts.append("<h2>Methods</h2>" + html_table(heads, rows, set(range(1, len(heads) - ("problems" in heads)))))
+    parts.append("<h2>Methods</h2>" + html_table(heads, rows, set(range(1, len(heads) - problems))))
     notes = ["Millimetre errors over the hidden samples; mean and median over trials."]
     if honesty:
         notes.append("err/std: the RMS error per coordinate over the hidden samples over the RMS of the std the method "
