@@ -28,7 +28,8 @@ from typing import Any, Callable, Iterable
 
 from ..errors import InputError, MocapfillError
 from ..pipeline import FillSettings
-from .inputs import INDEX_NAME, REPORT_KINDS, RESULTS_NAME, STATUS_SUFFIX, find_inputs, output_paths
+from .inputs import (INDEX_NAME, REPORT_KINDS, RESULTS_NAME, STATUS_SUFFIX, beside_suffixes, find_inputs,
+                     output_paths)
 from .order import longest_first
 from .resume import STATE_NAME, compact_state, file_digest, load_state, row_from_state, settings_digest
 from .task import COLUMNS, BatchRow, FileTask, run_task
@@ -252,8 +253,7 @@ def remove_earlier_outputs(output: Path) -> list[str]:
     """Remove what an earlier run wrote for one input (its output, per-file reports and status CSV, by the names
     :func:`~.inputs.output_paths` gives them) where this run failed on it; returns the names removed."""
     gone = []
-    for path in [output] + [output.with_name(output.name + f".report.{kind}") for kind in REPORT_KINDS] \
-            + [output.with_name(output.name + STATUS_SUFFIX)]:
+    for path in [output] + [output.with_name(output.name + suffix) for suffix in beside_suffixes()]:
         with contextlib.suppress(FileNotFoundError):
             path.unlink()
             gone.append(path.name)

@@ -27,12 +27,17 @@ def _bookkeeping(path: Path) -> bool:
     if name in (RESULTS_NAME, STATE_NAME, INDEX_NAME):
         return True
     return any(name.endswith(suffix) and path.with_name(name[:-len(suffix)]).is_file()
-               for suffix in (STATUS_SUFFIX, *(_report_suffix(kind) for kind in REPORT_KINDS)))
+               for suffix in beside_suffixes())
 
 
-def _report_suffix(kind: str) -> str:
+def report_suffix(kind: str) -> str:
     """What a batch appends to an output's name for its report of ``kind`` (one of :data:`REPORT_KINDS`)."""
     return f".report.{kind}"
+
+
+def beside_suffixes() -> tuple[str, ...]:
+    """What a batch appends to an output's name for the files it writes beside it: its reports and status CSV."""
+    return (*(report_suffix(kind) for kind in REPORT_KINDS), STATUS_SUFFIX)
 
 
 def _batch_output(folder: Path) -> bool:
@@ -160,4 +165,4 @@ def output_paths(rel: Path, out_dir: Path, output_format: str | None, report: st
     out = out_dir / rel
     if output_format is not None:
         out = out.with_suffix("." + output_format)
-    return out, (out.with_name(out.name + _report_suffix(report)) if report else None)
+    return out, (out.with_name(out.name + report_suffix(report)) if report else None)
