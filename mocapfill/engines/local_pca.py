@@ -364,9 +364,9 @@ def reference_rows(reference: np.ndarray, weights: np.ndarray, n_frames: int, kn
     if ref_w.shape != (len(reference),):
         raise MethodError(f"reference_weights must have shape ({len(reference)},), got {ref_w.shape}")
     keep = ref_w > 0
-    known = np.isfinite(reference).all(axis=2) if known is None else np.asarray(known, dtype=bool)
+    shown = np.isfinite(reference[keep]).all(axis=2)
     return (reference[keep], np.concatenate([np.ones(n_frames), np.minimum(ref_w[keep], 1.0 - 1e-9)]),
-            known[keep] & np.isfinite(reference[keep]).all(axis=2))
+            shown if known is None else np.asarray(known, dtype=bool)[keep] & shown)
 
 
 def _cols(markers: np.ndarray) -> list[int]:
