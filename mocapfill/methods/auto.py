@@ -315,7 +315,8 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
                                "used": int(sum(used_refs))} if config.impute_passes
                               else sinfo.get("references", {"frames": 0, "models": 0, "used": 0}))
         if reference_known is not None:  # the samples the weighted PCA completed (frames that weigh anything)
-            info["references"]["completed"] = int((~reference_known[np.asarray(reference_weights) > 0]).sum())
+            completed = ~reference_known & np.isfinite(reference_frames).all(axis=2)  # (not one it could not)
+            info["references"]["completed"] = int(completed[np.asarray(reference_weights) > 0].sum())
     spatial = missing & np.isfinite(pred_sd)
     info["gap_methods"] = gap_records(missing, sd, spatial & ~anchored & ~globbed, outliers, config, mm, labels,
                                       boneset, off, displaced, segment_used, anchored, spread=spread, broken=broken,
