@@ -352,25 +352,26 @@ def weighted_sums(block: np.ndarray, row_weight: np.ndarray | None) -> tuple[np.
     return wb.sum(axis=0), block.T @ wb, float(row_weight.sum())
 
 
-def _fold_curves(mean: np.ndarray, scale: np.ndarray, weight: np.ndarray, basis: np.ndarray, nt: int,
+def _fold_curves(mean: np.ndarray, scale: np.ndarray, weight: np.ndarray, bases: list[np.ndarray], nt: int,
                  h1: np.ndarray, h2: np.ndarray, hn: np.ndarray, residuals: bool
-                 ) -> tuple[list[np.ndarray], np.ndarray | None]:
+                 ) -> tuple[list[np.ndarray], Callable[[int], float] | None]:
     """Per held-out block: the summed squared error (q, nt) of its targets with k = 1..q components, and (with
-    ``residuals``) its summed squared predictor residual (F, q) with k = 1..q components.
+    ``residuals``) a function k -> the blocks' summed squared predictor residual with k components.
 
-    The F folds' models: mean, scale (F, q), weight (q,), basis (F, q, q), every component, largest first; nt target
-    columns.  h1 (F, q), h2 (F, q, q), hn (F,): each held-out block's raw sums (sum x, sum x x^T, rows) in the models'
-    column order.  With a block centred on its fold's mean, c = x - mean (C = sum c c^T), the scores are s = B_p^T D_p
-    c_p (D = weight / scale, B_p the basis' predictor rows) and the error of target coordinate t with k components is
-    e_t(k) = -c_t + sum_{j<=k} s_j u_tj, u_tj = B_tj scale_t / weight_t.  Summed over the rows, sum e_t(k)^2 = C_tt -
-    2 sum_{j<=k} u_tj A_jt + sum_{i,j<=k} u_ti S_ij u_tj with A = B_p^T D_p C_pt and S = B_p^T D_p C_pp D_p B_p.  The
-    predictor residual off the first k components, r = z_p - B_pk s_k with z_p = D_p c_p (as
-    :func:`predictor_residual` forms it), sums to |r|^2 = tr(D_p C_pp D_p) - 2 tr(S_k) + sum(G_k * S_k) with
-    G = B_p^T B_p (the basis' predictor rows alone are not orthonormal) and _k the leading k x k block.  Every
-    truncation from q x q sums, every fold in stacked products: no pass over the rows, no call per fold.
+    The F folds' models: mean, scale (F, q), weight (q,), ``bases`` F arrays (q, q), every component, largest first;
+    nt target columns.  h1 (F, q), h2 (F, q, q), hn (F,): each held-out block's raw sums (sum x, sum x x^T, rows) in
+    the models' column order.  With a block centred on its fold's mean, c = x - mean (C = sum c c^T), the scores are
+    s = B_p^T D_p c_p (D = weight / scale, B_p the basis' predictor rows) and the error of target coordinate t with k
+    components is e_t(k) = -c_t + sum_{j<=k} s_j u_tj, u_tj = B_tj scale_t / weight_t.  Summed over the rows,
+    sum e_t(k)^2 = C_tt - 2 sum_{j<=k} u_tj A_jt + sum_{i,j<=k} u_ti S_ij u_tj with A = B_p^T D_p C_pt and
+    S = B_p^T D_p C_pp D_p B_p.  The predictor residual off the first k components, r = z_p - B_pk s_k with
+    z_p = D_p c_p (as :func:`predictor_residual` forms it), sums to |r|^2 = tr(D_p C_pp D_p) - 2 tr(S_k) +
+    sum(G_k * S_k) with G = B_p^T B_p (the basis' predictor rows alone are not orthonormal) and _k the leading k x k
+    block.  Every truncation from q x q sums, the errors of every fold in stacked products: no pass over the rows.
     """
     cent = h2 - h1[:, :, None] * mean[:, None, :] - mean[:, :, None] * h1[:, None, :] \
         + hn[:, None, None] * (mean[:, :, None] * mean[:, None, :])  # sum c c^T (F, q, q)
+    basis = np.stack(bases)
     d = (weight / scale)[:, nt:]  # (F, q_p)
     bp = basis[:, nt:] * d[:, :, None]  # (F, q_p, K): scores s = bp^T c_p
     bpt = np.swapaxes(bp, 1, 2)
@@ -386,12 +387,21 @@ def _fold_curves(mean: np.ndarray, scale: np.ndarray, weight: np.ndarray, basis:
     errors = np.maximum(cent_diag[:, None, :nt] + np.cumsum(step, axis=1), 0.0)
     if not residuals:
         return list(errors), None
-    bpb = basis[:, nt:]
-    both = (np.swapaxes(bpb, 1, 2) @ bpb) * gram_s  # (F, K, K): G * S
-    lead = np.cumsum(np.cumsum(both, axis=1), axis=2)  # [k-1, k-1]: the sum over the leading k x k block
-    total = (np.einsum("fp,fp->f", d * d, cent_diag[:, nt:])[:, None] - 2.0 * np.cumsum(diag_s, axis=1)
-             + np.diagonal(lead, axis1=1, axis2=2))
-    return list(errors), np.maximum(total, 0.0)
+
+    def residual(k: int) -> float:
+        """The blocks' summed squared predictor residual with the first k components, fold by fold, O(q^2 k) each (its
+        last bits can decide between a segment model and a neighbourhood one: computed as it always was)."""
+        total = 0.0
+        for f in range(len(mean)):
+            bk = bases[f][nt:, :k]
+            bpk = bk * d[f][:, None]
+            cent_p = np.ascontiguousarray(cent[f, nt:, nt:])
+            s_mat = bpk.T @ cent_p @ bpk  # (k, k)
+            total += max(float(np.dot(d[f] * d[f], np.diag(cent_p))) - 2.0 * float(np.trace(s_mat))
+                         + float(np.sum((bk.T @ bk) * s_mat)), 0.0)
+        return total
+
+    return list(errors), residual
 
 
 def predictor_residual(model: PCAModel, rows: np.ndarray) -> np.ndarray:
@@ -472,9 +482,9 @@ def cv_curve(
         fitted.append(PCAModel(columns, nt, mean[-1], scale[-1], weight, evecs[-1][:, o],
                                np.sqrt(np.clip(evals[-1][o], 0, None))))
     folds_n = len(blocks)
-    order = np.argsort(evals[:folds_n], axis=1)[:, ::-1]
-    basis = np.take_along_axis(evecs[:folds_n], order[:, None, :], axis=2)  # every component, largest first
-    errors, resid = _fold_curves(mean[:folds_n], scale[:folds_n], weight, basis, nt,
+    # every component, largest first (column-major, as :func:`_fit_stacked` gives them)
+    bases = [evecs[f][:, o] for f, o in enumerate(np.argsort(evals[:folds_n], axis=1)[:, ::-1])]
+    errors, resid = _fold_curves(mean[:folds_n], scale[:folds_n], weight, bases, nt,
                                  np.stack([h[1][0] for h in held_sums]), np.stack([h[1][1] for h in held_sums]),
                                  np.array([h[1][2] for h in held_sums], dtype=np.float64), residuals)
     sq = np.zeros((len(columns), nt))
@@ -485,8 +495,7 @@ def cv_curve(
     curve = per.reshape(len(columns), len(targets), 3).mean(axis=2).T
     if not residuals:
         return curve
-    held_resid = resid.sum(axis=0) / count  # (q,): entry k-1 with k components
-    return curve, lambda k: float(held_resid[k - 1])
+    return curve, lambda k: resid(k) / count
 
 
 def ranked_groups(keys: np.ndarray, sizes: np.ndarray | None, max_groups: int) -> list[tuple[np.ndarray, np.ndarray]]:
