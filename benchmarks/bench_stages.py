@@ -18,6 +18,13 @@ Run from the repository root, nothing else running (it measures time)::
     python benchmarks/bench_stages.py [--only sample_26] [--repeat 2]
 
 Writes ``benchmarks/results/bench_stages.json`` (table ``stages``).
+
+``--against DIR`` (another checkout of the repository, e.g. a ``git worktree`` of the commit before a change) times
+instead the default's fill of each capture with this checkout's ``mocapfill`` and with that one's, in turn (A B A B
+...), each fill in a process of its own (``--repeat`` pairs, after a warm-up fill in each process), and tables each
+capture's median fill seconds with both and the median of the pairs' ratios: a speed change measured within one
+run, on a machine whose speed drifts between runs (``benchmarks/results/bench_stages_against.json``, table
+``against``).
 """
 
 from __future__ import annotations
@@ -28,6 +35,8 @@ harness.pin_blas()
 
 import argparse  # noqa: E402
 import contextlib  # noqa: E402
+import statistics  # noqa: E402
+import subprocess  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
@@ -108,22 +117,74 @@ def measure(path: Path, repeat: int, fill_jobs: int) -> dict:
             "duration": duration, "bound": harness.speed_bound(duration), **best}
 
 
+#: A fill's wall time in a new process whose ``mocapfill`` is the checkout given first (before any import of it:
+#: ``harness`` would put this checkout first on ``sys.path``); BLAS is pinned by the environment inherited.
+_TIMED = """
+import sys, warnings
+sys.path.insert(0, sys.argv[1])
+from mocapfill.io import read
+from mocapfill.pipeline import FillSettings, fill_capture
+from mocapfill.runtime.blas import single_blas_thread
+warnings.simplefilter("ignore")
+data = read(sys.argv[2])
+settings = FillSettings(method="auto").check()
+with single_blas_thread():
+    fill_capture(data, settings, jobs=int(sys.argv[3]))  # (a warm-up)
+    print(fill_capture(data, settings, jobs=int(sys.argv[3])).seconds)
+"""
+
+
+def timed_in(checkout: Path, path: Path, fill_jobs: int) -> float:
+    """The default's fill of ``path`` (seconds, after a warm-up) in a new process on ``checkout``'s ``mocapfill``."""
+    out = subprocess.run([sys.executable, "-c", _TIMED, str(checkout), str(path), str(fill_jobs)], check=True,
+                         capture_output=True, text=True)
+    return float(out.stdout.split()[-1])
+
+
+def against(captures: list, other: Path, repeat: int, fill_jobs: int, results) -> None:
+    """The table ``against``: each capture's fill with this checkout's package and with ``other``'s, in turn."""
+    if not (other / "mocapfill" / "__init__.py").is_file():
+        raise SystemExit(f"--against: {other} holds no mocapfill package")
+    rows = []
+    print(f"{'capture':44s} {'this s':>8s} {'other s':>8s} {'ratio':>6s}", file=sys.stderr)
+    for path, _ in captures:
+        pairs = [(timed_in(harness.REPO, path, fill_jobs), timed_in(other, path, fill_jobs)) for _ in range(repeat)]
+        this, theirs = (statistics.median(p[i] for p in pairs) for i in (0, 1))
+        ratio = statistics.median(a / b for a, b in pairs)
+        rows.append([harness.capture_name(path), round(this, 3), round(theirs, 3), round(ratio, 3)])
+        print(f"{rows[-1][0][-44:]:44s} {this:8.3f} {theirs:8.3f} {ratio:6.3f}", file=sys.stderr, flush=True)
+    rows.sort(key=lambda r: r[3])
+    results.table("against", f"The default's fill seconds with this checkout and with another (median of {repeat} "
+                  f"fill(s) each, in turn, each in its own process after a warm-up, on {resolve_jobs(fill_jobs)} "
+                  "process(es)) and the median of the pairs' ratios",
+                  ["capture", "this s", "other s", "this / other"], rows)
+    results.figure("against_median_ratio", statistics.median(r[3] for r in rows), "ratio")
+    print(f"median ratio {statistics.median(r[3] for r in rows):.3f} over {len(rows)} captures", file=sys.stderr)
+    results.write()
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--only", default="", help="only files whose path contains this text")
     parser.add_argument("--repeat", type=int, default=1, help="timed fills per capture after a warm-up (best kept)")
     parser.add_argument("--fill-jobs", type=int, default=None,
                         help="processes of each fill (default: mocapfill fill's default, 0 = every core)")
+    parser.add_argument("--against", default="", help="another checkout: time this one's fills against its own")
     harness.add_results_argument(parser)
     args = parser.parse_args(argv)
     if args.repeat < 1:
         raise SystemExit("--repeat must be at least 1")
     fill_jobs = harness.cli_jobs() if args.fill_jobs is None else args.fill_jobs
-    results = harness.Results(__file__, argv, args.results, note=args.note)
+    # (the comparison has a results file of its own: the stage table's stays as it was)
+    path = args.results or (harness.RESULTS / "bench_stages_against.json" if args.against else None)
+    results = harness.Results(__file__, argv, path, note=args.note)
     print(f"# {Path(__file__).name} ({harness.machine()})", file=sys.stderr)
     captures, _ = harness.gapped_captures()
     if args.only:
         captures = [(p, d) for p, d in captures if args.only in str(p)]
+    if args.against:
+        against(captures, Path(args.against).resolve(), args.repeat, fill_jobs, results)
+        return
     rows = []
     columns = ["fill", *STAGES, "rest"]
     print(f"{'capture':44s} {'x bound':>7s} " + " ".join(f"{c:>8s}" for c in columns), file=sys.stderr)
