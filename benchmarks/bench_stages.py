@@ -117,27 +117,26 @@ def measure(path: Path, repeat: int, fill_jobs: int) -> dict:
             "duration": duration, "bound": harness.speed_bound(duration), **best}
 
 
-#: A fill's wall time in a new process whose ``mocapfill`` is the checkout given first (before any import of it:
-#: ``harness`` would put this checkout first on ``sys.path``); BLAS is pinned by the environment inherited.
+#: A fill's wall time in a new process started in the checkout's root, whose ``mocapfill`` it imports (``python -c``
+#: puts the working directory first on ``sys.path``); BLAS is pinned by the environment inherited.
 _TIMED = """
 import sys, warnings
-sys.path.insert(0, sys.argv[1])
 from mocapfill.io import read
 from mocapfill.pipeline import FillSettings, fill_capture
 from mocapfill.runtime.blas import single_blas_thread
 warnings.simplefilter("ignore")
-data = read(sys.argv[2])
+data = read(sys.argv[1])
 settings = FillSettings(method="auto").check()
 with single_blas_thread():
-    fill_capture(data, settings, jobs=int(sys.argv[3]))  # (a warm-up)
-    print(fill_capture(data, settings, jobs=int(sys.argv[3])).seconds)
+    fill_capture(data, settings, jobs=int(sys.argv[2]))  # (a warm-up)
+    print(fill_capture(data, settings, jobs=int(sys.argv[2])).seconds)
 """
 
 
 def timed_in(checkout: Path, path: Path, fill_jobs: int) -> float:
     """The default's fill of ``path`` (seconds, after a warm-up) in a new process on ``checkout``'s ``mocapfill``."""
-    out = subprocess.run([sys.executable, "-c", _TIMED, str(checkout), str(path), str(fill_jobs)], check=True,
-                         capture_output=True, text=True)
+    out = subprocess.run([sys.executable, "-c", _TIMED, str(Path(path).resolve()), str(fill_jobs)], cwd=checkout,
+                         check=True, capture_output=True, text=True)
     return float(out.stdout.split()[-1])
 
 
