@@ -144,6 +144,8 @@ def against(captures: list, other: Path, repeat: int, fill_jobs: int, results) -
     """The table ``against``: each capture's fill with this checkout's package and with ``other``'s, in turn."""
     if not (other / "mocapfill" / "__init__.py").is_file():
         raise SystemExit(f"--against: {other} holds no mocapfill package")
+    if not captures:
+        raise SystemExit("--against: no capture to time (see --only)")
     rows = []
     print(f"{'capture':44s} {'this s':>8s} {'other s':>8s} {'ratio':>6s}", file=sys.stderr)
     for path, _ in captures:
