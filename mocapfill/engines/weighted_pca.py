@@ -367,16 +367,16 @@ def _fold_curves(mean: np.ndarray, scale: np.ndarray, weight: np.ndarray, bases:
     S = B_p^T D_p C_pp D_p B_p.  The predictor residual off the first k components, r = z_p - B_pk s_k with
     z_p = D_p c_p (as :func:`predictor_residual` forms it), sums to |r|^2 = tr(D_p C_pp D_p) - 2 tr(S_k) +
     sum(G_k * S_k) with G = B_p^T B_p (the basis' predictor rows alone are not orthonormal) and _k the leading k x k
-    block.  Every truncation from q x q sums, the errors of every fold in stacked products: no pass over the rows.
+    block.  Every truncation from q x q sums, the folds' elementwise steps stacked: no pass over the rows.
     """
-    cent = h2 - h1[:, :, None] * mean[:, None, :] - mean[:, :, None] * h1[:, None, :] \
-        + hn[:, None, None] * (mean[:, :, None] * mean[:, None, :])  # sum c c^T (F, q, q)
+    # sum c c^T (F, q, q), fold by fold (temporaries of F x q x q cost more than F of q x q)
+    cent = np.stack([h - np.outer(s, m) - np.outer(m, s) + c * np.outer(m, m) for s, h, c, m in zip(h1, h2, hn, mean)])
     basis = np.stack(bases)
     d = (weight / scale)[:, nt:]  # (F, q_p)
-    bp = basis[:, nt:] * d[:, :, None]  # (F, q_p, K): scores s = bp^T c_p
-    bpt = np.swapaxes(bp, 1, 2)
-    a = bpt @ cent[:, nt:, :nt]  # (F, K, nt): sum over rows of s c_t
-    gram_s = bpt @ cent[:, nt:, nt:] @ bp  # (F, K, K): sum over rows of s s^T
+    # the q x q products fold by fold (numpy's stacked ones are slower from q ~ 90), the rest stacked
+    bps = [b[nt:] * df[:, None] for b, df in zip(bases, d)]  # (q_p, K) each: scores s = bp^T c_p
+    a = np.stack([bp.T @ c[nt:, :nt] for bp, c in zip(bps, cent)])  # (F, K, nt): sum over rows of s c_t
+    gram_s = np.stack([bp.T @ c[nt:, nt:] @ bp for bp, c in zip(bps, cent)])  # (F, K, K): sum over rows of s s^T
     u = np.swapaxes(basis[:, :nt], 1, 2) * (scale[:, :nt] / weight[:nt])[:, None, :]  # (F, K, nt)
     # sum_{i,j<=k} u_i S_ij u_j grows by 2 u_k sum_{i<k} S_ik u_i + S_kk u_k^2 at step k
     below = np.swapaxes(np.triu(gram_s, 1), 1, 2) @ u  # (F, K, nt): row k = sum_{i<k} S_ik u_i
