@@ -216,12 +216,13 @@ def fit_model(
     return model
 
 
-def _decompose(s1: np.ndarray, s2: np.ndarray, n: np.ndarray, weight: np.ndarray, *, normalise: bool
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The weighted PCA of F training sets from their raw sums: s1 (F, q), s2 (F, q, q), n (F,) rows; weight (q,).
+def _fit_stacked(columns: np.ndarray, n_target: int, s1: np.ndarray, s2: np.ndarray, n: np.ndarray,
+                 weight: np.ndarray, *, normalise: bool, variance: float = 0.99, components: int | None = None
+                 ) -> list[PCAModel]:
+    """:func:`fit_model` from the raw sums of F training sets at once: s1 (F, q), s2 (F, q, q), n (F,) rows.
 
-    Returns mean (F, q), scale (F, q), the eigenvalues (F, q) and eigenvectors (F, q, q) of each set's Gram of its
-    centred, normalised, weighted rows, in numpy's ascending order: one stacked eigendecomposition.
+    One stacked eigendecomposition for the F sets (cross-validation's folds): the same numbers per set as F calls,
+    every operation elementwise or per matrix, without F times the per-call overhead of small arrays.
     """
     mean = s1 / n[:, None]
     dof = np.maximum(n - 1, 1)[:, None, None]
@@ -236,17 +237,6 @@ def _decompose(s1: np.ndarray, s2: np.ndarray, n: np.ndarray, weight: np.ndarray
     d = weight / scale
     wcov = cov * (d[:, :, None] * d[:, None, :]) * dof  # Gram of the centred, normalised, weighted training matrix
     evals, evecs = np.linalg.eigh(wcov)
-    return mean, scale, evals, evecs
-
-
-def _fit_stacked(columns: np.ndarray, n_target: int, s1: np.ndarray, s2: np.ndarray, n: np.ndarray,
-                 weight: np.ndarray, *, normalise: bool, variance: float = 0.99, components: int | None = None
-                 ) -> list[PCAModel]:
-    """:func:`fit_model` from the raw sums of F training sets at once: s1 (F, q), s2 (F, q, q), n (F,) rows.
-
-    One stacked eigendecomposition for the F sets (:func:`_decompose`): the same numbers per set as F calls.
-    """
-    mean, scale, evals, evecs = _decompose(s1, s2, n, weight, normalise=normalise)
     order = np.argsort(evals, axis=1)[:, ::-1]
     out = []
     for f, o in enumerate(order):
@@ -352,56 +342,53 @@ def weighted_sums(block: np.ndarray, row_weight: np.ndarray | None) -> tuple[np.
     return wb.sum(axis=0), block.T @ wb, float(row_weight.sum())
 
 
-def _fold_curves(mean: np.ndarray, scale: np.ndarray, weight: np.ndarray, bases: list[np.ndarray], nt: int,
-                 h1: np.ndarray, h2: np.ndarray, hn: np.ndarray, residuals: bool
-                 ) -> tuple[list[np.ndarray], Callable[[int], float] | None]:
-    """Per held-out block: the summed squared error (q, nt) of its targets with k = 1..q components, and (with
-    ``residuals``) a function k -> the blocks' summed squared predictor residual with k components.
+def _centred(h1: np.ndarray, h2: np.ndarray, hn: float, mean: np.ndarray) -> np.ndarray:
+    """sum over a block's rows of (x - mean)(x - mean)^T from its raw sums h1 = sum x, h2 = sum x x^T, hn rows."""
+    return h2 - np.outer(h1, mean) - np.outer(mean, h1) + hn * np.outer(mean, mean)
 
-    The F folds' models: mean, scale (F, q), weight (q,), ``bases`` F arrays (q, q), every component, largest first;
-    nt target columns.  h1 (F, q), h2 (F, q, q), hn (F,): each held-out block's raw sums (sum x, sum x x^T, rows) in
-    the models' column order.  With a block centred on its fold's mean, c = x - mean (C = sum c c^T), the scores are
-    s = B_p^T D_p c_p (D = weight / scale, B_p the basis' predictor rows) and the error of target coordinate t with k
-    components is e_t(k) = -c_t + sum_{j<=k} s_j u_tj, u_tj = B_tj scale_t / weight_t.  Summed over the rows,
-    sum e_t(k)^2 = C_tt - 2 sum_{j<=k} u_tj A_jt + sum_{i,j<=k} u_ti S_ij u_tj with A = B_p^T D_p C_pt and
-    S = B_p^T D_p C_pp D_p B_p.  The predictor residual off the first k components, r = z_p - B_pk s_k with
-    z_p = D_p c_p (as :func:`predictor_residual` forms it), sums to |r|^2 = tr(D_p C_pp D_p) - 2 tr(S_k) +
-    sum(G_k * S_k) with G = B_p^T B_p (the basis' predictor rows alone are not orthonormal) and _k the leading k x k
-    block.  Every truncation from q x q sums, the folds' elementwise steps stacked: no pass over the rows.
+
+def _fold_errors(model: PCAModel, h1: np.ndarray, h2: np.ndarray, hn: float) -> np.ndarray:
+    """Summed squared error (K, nt) of a held-out block's targets reconstructed with the first k = 1..K components.
+
+    h1 (q,), h2 (q, q), hn: the block's raw sums (sum x, sum x x^T, rows) in ``model.columns`` order.  With the
+    block centred on the model's mean, c = x - mean, the scores are s = B_p^T D_p c_p (D = weight / scale, B_p the
+    basis' predictor rows) and the reconstruction error of target coordinate t with k components is
+    e_t(k) = -c_t + sum_{j<=k} s_j u_tj, u_tj = B_tj scale_t / weight_t.  Summed over the rows,
+    sum e_t(k)^2 = C_tt - 2 sum_{j<=k} u_tj A_jt + sum_{i,j<=k} u_ti S_ij u_tj with C the block's centred Gram,
+    A = B_p^T D_p C_pt and S = B_p^T D_p C_pp D_p B_p: every truncation from q x q sums, without touching the rows
+    again (the cost no longer grows with the block's length).
     """
-    # sum c c^T (F, q, q), fold by fold (temporaries of F x q x q cost more than F of q x q)
-    cent = np.stack([h - np.outer(s, m) - np.outer(m, s) + c * np.outer(m, m) for s, h, c, m in zip(h1, h2, hn, mean)])
-    basis = np.stack(bases)
-    d = (weight / scale)[:, nt:]  # (F, q_p)
-    # the q x q products fold by fold (numpy's stacked ones are slower from q ~ 90), the rest stacked
-    bps = [b[nt:] * df[:, None] for b, df in zip(bases, d)]  # (q_p, K) each: scores s = bp^T c_p
-    a = np.stack([bp.T @ c[nt:, :nt] for bp, c in zip(bps, cent)])  # (F, K, nt): sum over rows of s c_t
-    gram_s = np.stack([bp.T @ c[nt:, nt:] @ bp for bp, c in zip(bps, cent)])  # (F, K, K): sum over rows of s s^T
-    u = np.swapaxes(basis[:, :nt], 1, 2) * (scale[:, :nt] / weight[:nt])[:, None, :]  # (F, K, nt)
+    nt = model.n_target
+    mean, basis = model.mean, model.basis
+    cent = _centred(h1, h2, hn, mean)  # sum c c^T (q, q)
+    d = (model.weight / model.scale)[nt:]
+    bp = basis[nt:] * d[:, None]  # (q_p, K): scores s = bp^T c_p
+    a = bp.T @ cent[nt:, :nt]  # (K, nt): sum over rows of s c_t
+    gram_s = bp.T @ cent[nt:, nt:] @ bp  # (K, K): sum over rows of s s^T
+    u = basis[:nt].T * (model.scale[:nt] / model.weight[:nt])  # (K, nt)
     # sum_{i,j<=k} u_i S_ij u_j grows by 2 u_k sum_{i<k} S_ik u_i + S_kk u_k^2 at step k
-    below = np.swapaxes(np.triu(gram_s, 1), 1, 2) @ u  # (F, K, nt): row k = sum_{i<k} S_ik u_i
-    diag_s = np.diagonal(gram_s, axis1=1, axis2=2)  # (F, K)
-    step = u * (2.0 * below + diag_s[:, :, None] * u) - 2.0 * u * a
-    cent_diag = np.diagonal(cent, axis1=1, axis2=2)  # (F, q)
+    below = np.triu(gram_s, 1).T @ u  # (K, nt): row k = sum_{i<k} S_ik u_i
+    step = u * (2.0 * below + np.diag(gram_s)[:, None] * u) - 2.0 * u * a
     # a marker the predictors fix exactly has error ~0, which the expansion's round-off can take below zero
-    errors = np.maximum(cent_diag[:, None, :nt] + np.cumsum(step, axis=1), 0.0)
-    if not residuals:
-        return list(errors), None
+    return np.maximum(np.diag(cent)[:nt][None, :] + np.cumsum(step, axis=0), 0.0)
 
-    def residual(k: int) -> float:
-        """The blocks' summed squared predictor residual with the first k components, fold by fold, O(q^2 k) each (its
-        last bits can decide between a segment model and a neighbourhood one: computed as it always was)."""
-        total = 0.0
-        for f in range(len(mean)):
-            bk = bases[f][nt:, :k]
-            bpk = bk * d[f][:, None]
-            cent_p = np.ascontiguousarray(cent[f, nt:, nt:])
-            s_mat = bpk.T @ cent_p @ bpk  # (k, k)
-            total += max(float(np.dot(d[f] * d[f], np.diag(cent_p))) - 2.0 * float(np.trace(s_mat))
-                         + float(np.sum((bk.T @ bk) * s_mat)), 0.0)
-        return total
 
-    return list(errors), residual
+def _fold_residual(model: PCAModel, h1: np.ndarray, h2: np.ndarray, hn: float, k: int) -> float:
+    """Summed squared residual of a held-out block's predictors off the model's first ``k`` components.
+
+    h1, h2, hn as in :func:`_fold_errors`.  In the model's weighted, normalised predictor space z_p = D_p c_p (as
+    :func:`predictor_residual` forms it), the scores are s = B_p^T z_p and the residual r = z_p - B_p s; summed over
+    the rows, |r|^2 = tr(Z) - 2 tr(S) + tr(G S) with Z = D_p C_pp D_p, S = B_p^T Z B_p and G = B_p^T B_p (the
+    basis' predictor rows alone are not orthonormal), B_p the first k columns: O(q^2 k), not a pass over the rows.
+    """
+    nt = model.n_target
+    mean, basis = model.mean[nt:], model.basis[nt:, :k]
+    cent = _centred(h1[nt:], h2[nt:, nt:], hn, mean)  # sum c_p c_p^T
+    d = (model.weight / model.scale)[nt:]
+    bp = basis * d[:, None]
+    s_mat = bp.T @ cent @ bp  # (k, k)
+    total = float(np.dot(d * d, np.diag(cent))) - 2.0 * float(np.trace(s_mat)) + float(np.sum((basis.T @ basis) * s_mat))
+    return max(total, 0.0)
 
 
 def predictor_residual(model: PCAModel, rows: np.ndarray) -> np.ndarray:
@@ -443,7 +430,7 @@ def cv_curve(
     ``row_weight`` (n_train,): the weight of each training row in the sums (reference frames beside the capture's
     own, see :mod:`mocapfill.references`; default 1).  ``holdout`` (n_train,) bool: the rows that are held out in
     blocks (the capture's own); the others always stay in training.  Default: every row.  ``residuals``: also a
-    function k -> the held-out rows' mean squared predictor residual with k components (:func:`_fold_curves`: the
+    function k -> the held-out rows' mean squared predictor residual with k components (:func:`_fold_residual`: the
     scale of :func:`predictor_residual` on poses a model did not learn from), returned as ``(curve, residual)``.
     ``fitted`` (a list): receives the model on every row with every component, what :func:`fit_model` gives on the
     same rows and weights (truncated to k components, it is that number's fit), from the folds' decomposition.
@@ -472,30 +459,26 @@ def cv_curve(
         # the error counts every held row once
         held_sums.append((sums, weighted_sums(held, None) if hw is not None and not np.all(hw == 1.0) else sums))
     # the folds' models and, last, the model on every row: one stacked decomposition
-    mean, scale, evals, evecs = _decompose(
-        np.stack([s1 - h[0][0] for h in held_sums] + [s1]), np.stack([s2 - h[0][1] for h in held_sums] + [s2]),
-        np.array([n - h[0][2] for h in held_sums] + [n], dtype=np.float64), weight, normalise=normalise)
+    models = _fit_stacked(columns, nt, np.stack([s1 - h[0][0] for h in held_sums] + [s1]),
+                          np.stack([s2 - h[0][1] for h in held_sums] + [s2]),
+                          np.array([n - h[0][2] for h in held_sums] + [n], dtype=np.float64), weight,
+                          normalise=normalise, components=len(columns))
     if fitted is not None:
-        o = np.argsort(evals[-1])[::-1]
-        # (the reordered eigenvectors column-major, as :func:`_fit_stacked` gives them: a product's last bits can
-        # depend on its operands' layout)
-        fitted.append(PCAModel(columns, nt, mean[-1], scale[-1], weight, evecs[-1][:, o],
-                               np.sqrt(np.clip(evals[-1][o], 0, None))))
-    folds_n = len(blocks)
-    # every component, largest first (column-major, as :func:`_fit_stacked` gives them)
-    bases = [evecs[f][:, o] for f, o in enumerate(np.argsort(evals[:folds_n], axis=1)[:, ::-1])]
-    errors, resid = _fold_curves(mean[:folds_n], scale[:folds_n], weight, bases, nt,
-                                 np.stack([h[1][0] for h in held_sums]), np.stack([h[1][1] for h in held_sums]),
-                                 np.array([h[1][2] for h in held_sums], dtype=np.float64), residuals)
+        fitted.append(models[-1])
+    models = models[:-1]
     sq = np.zeros((len(columns), nt))
-    for e in errors:
-        sq += e
-    count = sum(len(rows) for rows in blocks)
+    kept = []  # (fold model, held-out sums) for the residual, once the number of components is chosen
+    count = 0
+    for rows, model, (_, (h1, h2, hn)) in zip(blocks, models, held_sums):
+        sq += _fold_errors(model, h1, h2, hn)  # (per fold: numpy's stacked products of this size are slower)
+        if residuals:
+            kept.append((model, h1, h2, hn))
+        count += len(rows)
     per = sq / count  # (q, nt)
     curve = per.reshape(len(columns), len(targets), 3).mean(axis=2).T
     if not residuals:
         return curve
-    return curve, lambda k: resid(k) / count
+    return curve, lambda k: sum(_fold_residual(*fold, k) for fold in kept) / count
 
 
 def ranked_groups(keys: np.ndarray, sizes: np.ndarray | None, max_groups: int) -> list[tuple[np.ndarray, np.ndarray]]:
