@@ -136,7 +136,10 @@ with single_blas_thread():
 def timed_in(checkout: Path, path: Path, fill_jobs: int) -> float:
     """The default's fill of ``path`` (seconds, after a warm-up) in a new process on ``checkout``'s ``mocapfill``."""
     out = subprocess.run([sys.executable, "-c", _TIMED, str(Path(path).resolve()), str(fill_jobs)], cwd=checkout,
-                         check=True, capture_output=True, text=True)
+                         capture_output=True, text=True)
+    if out.returncode:
+        last = (out.stderr.strip().splitlines() or ["no message"])[-1]
+        raise SystemExit(f"--against: the fill of {path} with {checkout}'s package failed: {last}")
     return float(out.stdout.split()[-1])
 
 
