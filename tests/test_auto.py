@@ -13,7 +13,8 @@ from mocapfill.errors import MethodError
 from synthetic import tumbling_body
 from synthetic import moving_body, rot_x, rot_z
 from mocapfill.methods import get_method
-from mocapfill.engines.local_pca import prefer_segment, refit_parts, rigid_prediction, segment_markers
+from mocapfill.engines.local_pca import rigid_prediction
+from mocapfill.engines.local_refit import prefer_segment, refit_parts, segment_markers
 from mocapfill.methods.auto import (body_stage, displaced_runs, fill_auto, global_prediction, global_stage,
                                    model_changes, motion_model, rough_variance, seed_elsewhere, spatial_stage,
                                    temporal_stage)
@@ -763,7 +764,7 @@ def test_the_refit_without_trusted_neighbours_models_on_every_one_when_asked():
     """reconstruct_completed: every neighbour of a marker filled with an sd (50 mm) above ``trust`` during its gap
     leaves it without a model; with ``untrusted`` it gets one on all of them, read from that take, which predicts
     where one of them is observed."""
-    from mocapfill.engines.local_pca import reconstruct_completed
+    from mocapfill.engines.local_refit import reconstruct_completed
 
     truth, pos, sd, m, kw = _neighbours_filled_uncertainly(300, slice(100, 160))
     est, est_sd = reconstruct_completed(pos, truth, sd, **kw)[:2]
@@ -785,7 +786,7 @@ def test_trusted_runs_group_a_markers_gaps_by_the_neighbours_trusted_over_each()
     """Each run of the marker's gaps takes the candidates whose mean variance over it is within trust^2; runs with
     the same such set are one group (frames ascending, predictors in the candidates' order); fewer than 3: none;
     past the most groups, the smaller ones merge on the candidates trusted over all of them."""
-    from mocapfill.engines.local_pca import trusted_runs
+    from mocapfill.engines.local_refit import trusted_runs
 
     gaps = np.zeros(20, dtype=bool)
     gaps[2:5] = gaps[8:10] = gaps[14:18] = True
@@ -806,7 +807,7 @@ def test_beside_blackouts_judges_a_gap_running_into_a_blackout_on_its_frames_out
     """A gap run that :func:`trusted_runs` leaves out because it runs into a whole-body blackout (every candidate
     unknown there, so none is trusted over the run) is judged again on its frames outside the blackout; runs that
     touch no blackout, or keep their trusted candidates, are :func:`trusted_runs`' alone."""
-    from mocapfill.engines.local_pca import beside_blackouts, trusted_runs
+    from mocapfill.engines.local_refit import beside_blackouts, trusted_runs
 
     gaps = np.zeros(30, dtype=bool)
     gaps[2:5] = gaps[12:30] = True  # the second run ends in the blackout
@@ -848,7 +849,7 @@ def test_the_refit_models_a_gap_on_the_neighbours_trusted_there_when_no_whole_ga
     """reconstruct_completed: every neighbour filled with a large sd during one gap of the marker is untrusted over
     its gaps together, so the marker gets no whole-gap model; ``run_scales`` gives its other gap, where they are
     observed, a model of its own (the gap where they were filled stays without one)."""
-    from mocapfill.engines.local_pca import reconstruct_completed
+    from mocapfill.engines.local_refit import reconstruct_completed
 
     truth, pos, sd, m, kw = _neighbours_filled_uncertainly(400, slice(100, 160), slice(250, 280))
     est, est_sd = reconstruct_completed(pos, truth, sd, **kw)[:2]

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import mocapfill.engines.local_pca as lp
+import mocapfill.engines.local_refit as lr
 from mocapfill.bones.refinement import _bone_sums, _norm3, refine_bones
 from mocapfill.engines.body_frame import nearest_rotation
 from mocapfill.engines.weighted_pca import cv_curve, fit_model, mean_distances, predict, weighted_sums
@@ -243,9 +244,9 @@ def test_reconstruct_completed_equals_the_full_width_model(monkeypatch):
     completed = np.where(missing[..., None], lp.reconstruct_local(pos, scales=SCALES, align_scale=200.0)[0], pos)
     sd = np.where(missing, 5.0, 0.0)
     kw = dict(scales=SCALES, align_scale=200.0, knn=20, edge_frames=3, trust=10.0)
-    out = lp.reconstruct_completed(pos, completed, sd, **kw)
-    monkeypatch.setattr(lp, "group_model", _plain_group_model)
-    out0 = lp.reconstruct_completed(pos, completed, sd, **kw)
+    out = lr.reconstruct_completed(pos, completed, sd, **kw)
+    monkeypatch.setattr(lr, "group_model", _plain_group_model)
+    out0 = lr.reconstruct_completed(pos, completed, sd, **kw)
     assert np.isfinite(out[1]).any()
     for a, b in zip(out, out0):
         # the same neighbours; their mean residual added in another order

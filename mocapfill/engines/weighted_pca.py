@@ -488,7 +488,7 @@ def ranked_groups(keys: np.ndarray, sizes: np.ndarray | None, max_groups: int) -
     later key in lexicographic order first); with more than ``max_groups``, the largest ``max_groups - 1`` keep their
     key and the other rows form one group, last, keyed by the OR of theirs.  The one split behind
     :func:`pattern_groups` (a marker's frames by their missing predictors) and
-    :func:`~.local_pca.trusted_runs` (its gap runs by their untrusted neighbours).
+    :func:`~.local_refit.trusted_runs` (its gap runs by their untrusted neighbours).
     """
     patterns, inverse, counts = unique_rows(keys)
     totals = counts if sizes is None else np.bincount(inverse, weights=sizes, minlength=len(patterns))

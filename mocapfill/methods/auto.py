@@ -526,7 +526,7 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
 
     positions (n_frames, n_markers, 3) the input (NaN = missing); completed the same filled by stage 3, sd
     (n_frames, n_markers) its posterior sd (0 observed).  One model per marker with gaps, trained on every frame
-    where it is observed, every near marker a predictor (:func:`mocapfill.engines.local_pca.reconstruct_completed`;
+    where it is observed, every near marker a predictor (:func:`mocapfill.engines.local_refit.reconstruct_completed`;
     a filled neighbour's sd is propagated into the prediction's; with :attr:`ModelConfig.refit_by_run`, a marker
     without one model for all its gaps gets one per group of gaps with the same trusted neighbours).  Returns pred,
     sd, edge, edge_sd as :func:`spatial_stage` (NaN where the refit has no model; :func:`body_stage` runs after it,
@@ -539,7 +539,7 @@ def impute_stage(positions: np.ndarray, completed: np.ndarray, sd: np.ndarray, c
     (n_frames, n_markers) or None receives the spread of the widths' predictions (:func:`reported_sd`).  ``jobs``:
     processes the models are fitted on (the output does not depend on it).
     """
-    from ..engines.local_pca import reconstruct_completed
+    from ..engines.local_refit import reconstruct_completed
 
     pred, pred_sd, edge, edge_sd = reconstruct_completed(
         positions, completed, sd, scales=tuple(np.asarray(config.scales_mm) * mm), align_scale=config.align_mm * mm,
