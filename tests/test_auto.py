@@ -1033,7 +1033,7 @@ def test_bone_breaks_keeps_a_bone_against_an_overconfident_miss():
 
 
 def test_gap_records_name_the_bones_left_out():
-    from mocapfill.methods.auto_records import gap_records, restate_record
+    from mocapfill.methods.auto_records import gap_records
 
     pos, gapped, pred, sd, bones = _bone_case(150.0)
     missing = np.isnan(gapped).any(axis=2)
