@@ -614,6 +614,7 @@ def test_refit_parts_split_the_gap_by_the_left_out_neighbours_seen():
         [(gap.tolist(), candidates.tolist())]
 
 
+@pytest.mark.accuracy
 def test_refit_parts_carry_a_knee_on_a_thigh_seen_for_part_of_its_gap():
     """85_02 with the left shank and foot hidden for 1.25 s and the thigh marker for the second half of that and
     beyond: one model for the knee's whole gap leaves the thigh out (it is filled uncertainly for half the gap) and
@@ -704,6 +705,7 @@ def _toe_fill(config: ModelConfig) -> tuple[float, list, np.ndarray, np.ndarray]
     return float(np.sqrt(np.mean(err ** 2))), methods, res.positions, hidden
 
 
+@pytest.mark.accuracy
 def test_a_marker_the_refit_cannot_model_is_bridged_where_the_first_pass_is_not_sure():
     """The toe case: with no filled neighbour trusted (``impute_trust_mm`` 1e-6), the refit has no model for the
     toe, and the first pass is not as sure as a trusted neighbour, so the motion model and the body anchor bridge
@@ -713,6 +715,7 @@ def test_a_marker_the_refit_cannot_model_is_bridged_where_the_first_pass_is_not_
         assert bridged[0] > 20.0 and bridged[1] == ["anchor+motion"]
 
 
+@pytest.mark.accuracy
 def test_a_marker_without_trusted_neighbours_gets_a_model_on_all_of_them():
     """The toe case with ``refit_untrusted``: no neighbour is trusted, so the refit fits one model on every near
     marker, read from the first pass's smoother (2.1 mm RMS; 35.7 without a model)."""
@@ -1061,6 +1064,7 @@ def test_displaced_records_name_each_displaced_run_and_its_offset():
     assert out[0]["offset_mm"] == pytest.approx(50.0) and out[1]["offset_mm"] is None
 
 
+@pytest.mark.slow
 def test_the_fill_on_two_processes_is_the_fill_on_one(test_data):
     """jobs spreads the markers' local models (stages 1 and 4) and the bones' problems over forked processes: the
     same numbers, the same gap records (a real capture with gaps in most markers: refit parts, bones, reaches)."""

@@ -61,6 +61,7 @@ def test_prior_stage_fuses_by_inverse_variance():
     np.testing.assert_array_equal(p2_sd, sd)
 
 
+@pytest.mark.accuracy
 def test_weighted_references_reach_auto(halves, gappy):
     first, second = halves
     data, hidden = gappy
@@ -79,6 +80,7 @@ def test_weighted_references_reach_auto(halves, gappy):
     assert np.array_equal(with_ref.positions[observed], data.positions[observed])
 
 
+@pytest.mark.accuracy
 def test_each_model_keeps_a_wrong_body_out(halves, gappy):
     """Frames of another body forced in at weight 1: the models' cross-validation keeps them out where they hurt."""
     first, second = halves

@@ -123,6 +123,7 @@ def _outputs(out):
             if p.is_file() and p.name not in (RESULTS_NAME, STATE_NAME)}
 
 
+@pytest.mark.slow
 def test_two_local_processes_give_the_serial_outputs(session, tmp_path):
     serial = mocapfill.batch(session, tmp_path / "serial", method="pca")
     parallel = mocapfill.batch(session, tmp_path / "jobs2", method="pca", jobs=2)
@@ -131,6 +132,7 @@ def test_two_local_processes_give_the_serial_outputs(session, tmp_path):
     assert _outputs(tmp_path / "jobs2") == _outputs(tmp_path / "serial") and len(_outputs(tmp_path / "serial")) == 4
 
 
+@pytest.mark.slow
 def test_dask_local_cluster_gives_the_serial_outputs(session, tmp_path):
     distributed = pytest.importorskip("distributed")
     mocapfill.batch(session, tmp_path / "serial", method="pca", format="csv")
@@ -144,6 +146,7 @@ def test_dask_local_cluster_gives_the_serial_outputs(session, tmp_path):
     assert _outputs(tmp_path / "dask") == _outputs(tmp_path / "serial")
 
 
+@pytest.mark.slow
 def test_an_unreachable_scheduler_is_a_one_line_error(session, tmp_path, monkeypatch):
     pytest.importorskip("distributed")
     monkeypatch.setattr("mocapfill.runtime.executor.CONNECT_TIMEOUT", "1s")
@@ -199,6 +202,7 @@ def test_a_killed_worker_fails_only_its_file(session, tmp_path):
     assert (tmp_path / "out" / "serve.c3d").is_file() and (tmp_path / "out" / "vicon.csv").is_file()
 
 
+@pytest.mark.slow
 def test_a_killed_dask_worker_fails_only_its_file(session, tmp_path):
     dask = pytest.importorskip("dask")
     distributed = pytest.importorskip("distributed")
@@ -219,6 +223,7 @@ def test_a_killed_dask_worker_fails_only_its_file(session, tmp_path):
     assert "Dask worker died" in rows[2].error and "stuck.c3d" in rows[2].error
 
 
+@pytest.mark.slow
 def test_ctrl_c_keeps_finished_outputs_and_leaves_nothing_half_written(session, tmp_path):
     out = tmp_path / "out"
 

@@ -177,6 +177,7 @@ def test_json_report_lists_every_gap_with_uncertainty(runner, gappy, tmp_path):
     assert doc["summary"]["settings"].get("max_iter") == 20
 
 
+@pytest.mark.slow
 def test_html_report(runner, gappy, tmp_path):
     pytest.importorskip("matplotlib")
     report = tmp_path / "report.html"

@@ -26,6 +26,7 @@ CASES = [
 ]
 
 
+@pytest.mark.accuracy
 @pytest.mark.parametrize("relative", CASES)
 def test_default_fill_is_no_jerkier_than_the_capture(relative, sample_data):
     path = sample_data.parent / relative

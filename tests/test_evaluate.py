@@ -287,6 +287,7 @@ def test_unknown_method_and_ignored_options(clip):
         evaluate(clip, ["linear"], trials=1, seed=0, options={"max_iter": 5})
 
 
+@pytest.mark.slow
 def test_serial_and_parallel_agree(clip):
     kwargs = dict(trials=4, seed=3, occlusion_min=20, occlusion_max=80)
     serial = evaluate(clip, ["linear", "spline"], "limb", jobs=1, **kwargs)

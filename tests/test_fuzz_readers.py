@@ -32,6 +32,7 @@ def test_every_format_is_seeded(fuzz):
         assert module.run_case(raw, fmt, True) == "ok", name
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(index=st.integers(min_value=0, max_value=10**9))
 def test_mutated_files_raise_only_our_errors(fuzz, index):

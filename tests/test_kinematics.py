@@ -128,6 +128,7 @@ def test_evaluate_scores_joint_angles(leg, tmp_path):
     assert "Best for joint angles" in page and "knee_angle" in page and "(left missing)" in page
 
 
+@pytest.mark.slow
 def test_evaluate_cli_ik(leg, tmp_path):
     from click.testing import CliRunner
 

@@ -60,6 +60,7 @@ def test_corruption_follows_holden(cmu):
     assert 0.02 < moved.mean() < 0.2 and np.nanmax(np.abs(bad - clean)) <= 500.0
 
 
+@pytest.mark.slow
 def test_training_is_quick_and_the_model_file_records_everything(tiny, cmu):
     model, path = tiny
     back = load_model(path)
@@ -71,6 +72,7 @@ def test_training_is_quick_and_the_model_file_records_everything(tiny, cmu):
     np.testing.assert_allclose(predict_frames(x, back), predict_frames(x, model), atol=1e-3)
 
 
+@pytest.mark.slow
 def test_learned_fill_keeps_observed_samples_and_beats_the_mean_pose(tiny, cmu):
     model, path = tiny
     gappy = cmu.positions.copy()
@@ -84,6 +86,7 @@ def test_learned_fill_keeps_observed_samples_and_beats_the_mean_pose(tiny, cmu):
     assert np.sqrt(np.mean(error ** 2)) < 150.0  # a tiny model, but the gap's ends pin it
 
 
+@pytest.mark.slow
 def test_denoise_marks_a_displaced_marker_repaired(tiny, cmu, tmp_path):
     model, path = tiny
     shifted = cmu.positions.copy()
@@ -102,6 +105,7 @@ def test_denoise_marks_a_displaced_marker_repaired(tiny, cmu, tmp_path):
     assert np.linalg.norm(out.positions[300:320, 12] - cmu.positions[300:320, 12], axis=1).max() < 300.0
 
 
+@pytest.mark.slow
 def test_a_marker_placed_differently_is_not_displaced(tiny, cmu):
     """A marker that sits off the network's estimate all take long (another body, another placement) is judged
     against its typical error on this capture, not its training error; a displaced stretch still stands out."""
@@ -118,6 +122,7 @@ def test_a_marker_placed_differently_is_not_displaced(tiny, cmu):
     assert found[:, 12].sum() - found[300:320, 12].sum() <= 0.01 * cmu.n_frames
 
 
+@pytest.mark.slow
 def test_train_command(cmu, tmp_path, sample_data):
     pytest.importorskip("jax")
     out = tmp_path / "layout.model"
@@ -211,6 +216,7 @@ def test_truncated_and_empty_model_files_are_one_line_errors(tmp_path, sample_da
     assert "Traceback" not in result.output
 
 
+@pytest.mark.slow
 def test_the_model_is_a_prior_of_the_default(tiny, cmu, tmp_path):
     """``fill --model M`` with the candidate default: the network's estimate joins the spatial model (its sd learnt
     from hiding observed samples with a gap frame's missing markers), the observed samples come back bit-identical and the report says so."""

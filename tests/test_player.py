@@ -103,6 +103,7 @@ def fill_report(tmp_path_factory):
     return path
 
 
+@pytest.mark.slow
 def test_the_fill_report_holds_a_self_contained_player(fill_report):
     page = fill_report.read_text()
     assert page.index('id="player"') < page.index('id="summary"')
@@ -134,6 +135,7 @@ def _chromium() -> str | None:
     return None
 
 
+@pytest.mark.slow
 def test_the_player_draws_and_its_slider_moves_the_frame_in_headless_chromium(fill_report, tmp_path):
     browser = _chromium()
     if browser is None:

@@ -126,6 +126,7 @@ def test_static_trial_gives_shape_but_no_outlier_ranges(halves):
     assert refs[0].stages["reject_outliers"].startswith("not used: a static trial")
 
 
+@pytest.mark.accuracy
 def test_references_make_the_default_and_pca_better(halves):
     from mocapfill.evaluation.occlusions import make_occlusions
 
@@ -351,6 +352,7 @@ def test_a_method_without_weights_gets_only_the_well_fitting_references(halves):
     assert method_options([ref], "linear", set()) == {} and ref.stages["fill"].startswith("not used: method")
 
 
+@pytest.mark.accuracy
 def test_a_reference_with_gaps_and_a_marker_it_lacks_still_trains_the_default(halves):
     """A session's take has gaps: no frame of this one shows every marker, and it lacks RFIN altogether.  Its gaps
     are completed as predictors (``references.completed_frames``, ``ModelConfig.reference_pca_mm``): it still trains

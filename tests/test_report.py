@@ -184,6 +184,7 @@ def test_html_report_is_self_contained_with_one_plot_per_filled_marker(case, tmp
     assert "1 gap to review" in text and "M1 30-44" in text  # the gap the method flagged, in file numbering
 
 
+@pytest.mark.slow
 def test_html_report_plots_drawn_on_two_processes_are_the_same_page(case, tmp_path):
     # The trajectory and bone plots (tenths of a second of matplotlib each) may be drawn on forked processes: the
     # page is the same, figure for figure and in the same order.
