@@ -74,7 +74,7 @@ from ..guards.copies import bones_on_distinct, distinct_markers, lent_by_copies,
 from ..guards.windows import DEFAULT_WINDOW, fill_in_windows
 from ..references import completed_frames
 from ..runtime.blas import single_blas_thread
-from ..runtime.executor import resolve_jobs
+from ..runtime.executor import forked_map, resolve_jobs
 from ..units import length_factor
 from .auto_config import DEFAULT_CONFIG, ModelConfig
 from .auto_records import displaced_records, gap_records, restate_record
@@ -265,7 +265,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     believed = (np.empty(positions.shape), np.empty(missing.shape)) if config.refit_untrusted else None
     fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate,
                                         report_sd=None if config.impute_passes else report_sd, displaced=displaced,
-                                        believed=believed, white_only=anchored, globbed=globbed)
+                                        believed=believed, white_only=anchored, globbed=globbed, jobs=jobs)
     segment_used = None  # where the last refit's segment models predicted (none without a refit)
     spread = None  # the spread of the last refit's widths (:func:`reported_sd`)
     moved = None  # how far the last refit's bone stage moved each prediction (:attr:`ModelConfig.bone_move_sd`)
@@ -309,7 +309,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         displaced[:, untrusted_used] = False  # a model on guessed neighbours does not overrule an observation
         fill, sd, outliers = temporal_stage(positions, pred, pred_sd, edge, edge_sd, model, config, mm, rate,
                                             report_sd=report_sd if last else None, displaced=displaced,
-                                            rough=untrusted_used, white_only=anchored, globbed=globbed)
+                                            rough=untrusted_used, white_only=anchored, globbed=globbed, jobs=jobs)
     if used_refs is not None:
         info["references"] = ({"frames": int((reference_weights > 0).sum()), "models": len(used_refs),
                                "used": int(sum(used_refs))} if config.impute_passes
@@ -881,7 +881,7 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
                    edge_sd: np.ndarray, model: MotionModel, config: ModelConfig, mm: float, rate: float,
                    report_sd: np.ndarray | None = None, displaced: np.ndarray | None = None,
                    rough: np.ndarray | None = None, believed: tuple[np.ndarray, np.ndarray] | None = None,
-                   white_only: np.ndarray | None = None, globbed: np.ndarray | None = None
+                   white_only: np.ndarray | None = None, globbed: np.ndarray | None = None, jobs: int | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stage 3: the smoother's posterior mean and sd for every marker with gaps.
 
@@ -898,7 +898,8 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
     :func:`model_changes`).  ``rough`` (n_markers,) bool or None: markers whose spatial
     predictions' white error variance grows by :func:`rough_variance`.  ``believed`` (take (n_frames, n_markers, 3),
     sd (n_frames, n_markers)) or None receives the take as the smoother believes it: the fill and its sd, but at the
-    observed samples it measured as noisy (fragments, displaced runs) its posterior mean and sd.
+    observed samples it measured as noisy (fragments, displaced runs) its posterior mean and sd.  ``jobs``: the
+    processes the last mean pass and the variance pass share (:func:`_mean_and_variance_passes`).
     """
     missing = np.isnan(positions).any(axis=2)
     # (a marker the take never shows is smoothed where a reference take let the spatial model predict it)
@@ -951,7 +952,14 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
             kind[wo] = 3
         reset = model_changes(np.where(np.isfinite(sp_sd), kind, 0))
     inflate = np.ones_like(sp_sd)
+    sd_redo = None
     for attempt in range(config.reweight_passes + 1):
+        if attempt == config.reweight_passes and report_sd is not None:
+            # the last mean pass and the variance pass read the same weights: one process each
+            mean, sd, sd_redo = _mean_and_variance_passes(obs, sp, white, bias, sub, obs_var, reset, inflate,
+                                                          missing[:, todo], report_sd[:, todo], edge_sd[:, todo],
+                                                          sp_sd, split, jobs)
+            break
         mean, sd = smooth(obs, sp, white * np.sqrt(inflate), bias * np.sqrt(inflate), sub, obs_var=obs_var,
                           reset=reset)
         if attempt == config.reweight_passes:
@@ -963,13 +971,8 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
             break
         inflate = np.where(bad, np.maximum(inflate, (z / config.outlier) ** 2 * 10.0), inflate)
     outliers[:, todo] = inflate > 1.0
-    if report_sd is not None:
-        rep = np.where(missing[:, todo], report_sd[:, todo], edge_sd[:, todo]) * np.sqrt(inflate)
-        redo = np.flatnonzero((np.nan_to_num(rep) > np.nan_to_num(sp_sd * np.sqrt(inflate))).any(axis=0))
-        if len(redo):  # a Kalman smoother's variances do not depend on the measurements' values
-            _, sd[:, redo] = smooth(obs[:, redo], sp[:, redo], *split(rep[:, redo], redo),
-                                    sub._replace(q=sub.q[redo]), obs_var=obs_var[:, redo],
-                                    reset=None if reset is None else reset[:, redo])
+    if sd_redo is not None:
+        sd[:, sd_redo[0]] = sd_redo[1]
     fill[:, todo] = np.where(missing[:, todo, None], mean, positions[:, todo])
     sd_out[:, todo] = np.where(missing[:, todo], sd, 0.0)
     if believed is not None:
@@ -978,6 +981,30 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
         believed[0][:, todo] = np.where(noisy[..., None], mean, fill[:, todo])
         believed[1][:, todo] = np.where(noisy, sd, sd_out[:, todo])
     return fill, sd_out, outliers
+
+
+def _mean_and_variance_passes(obs, sp, white, bias, sub: MotionModel, obs_var, reset, inflate, missing, report_sd,
+                              edge_sd, sp_sd, split, jobs):
+    """Stage 3's last smoother pass for the mean, and its variance pass: the posterior sd with the reported spatial
+    sd ``report_sd`` (n_frames, n_series), on the series where it exceeds the one the mean used (a Kalman smoother's
+    variances do not depend on the measurements' values).  Both read the outlier weights ``inflate``, so they run at
+    once on up to two processes (:func:`~mocapfill.runtime.executor.forked_map`; the same numbers as one after the
+    other).  Returns the mean (n_frames, n_series, 3), its sd (n_frames, n_series) and (the redone series, their
+    sd) or None."""
+    rep = np.where(missing, report_sd, edge_sd) * np.sqrt(inflate)
+    redo = np.flatnonzero((np.nan_to_num(rep) > np.nan_to_num(sp_sd * np.sqrt(inflate))).any(axis=0))
+
+    def run(which: str):
+        if which == "mean":
+            return smooth(obs, sp, white * np.sqrt(inflate), bias * np.sqrt(inflate), sub, obs_var=obs_var,
+                          reset=reset)
+        return smooth(obs[:, redo], sp[:, redo], *split(rep[:, redo], redo), sub._replace(q=sub.q[redo]),
+                      obs_var=obs_var[:, redo], reset=None if reset is None else reset[:, redo])[1]
+
+    if not len(redo):
+        return (*run("mean"), None)
+    (mean, sd), sd_redo = forked_map(run, ["mean", "variance"], jobs)
+    return mean, sd, (redo, sd_redo)
 
 
 def model_changes(sources: np.ndarray) -> np.ndarray:
