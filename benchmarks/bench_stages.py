@@ -9,8 +9,8 @@ stage functions, so a stage that calls itself counts once; ``rest``: the fill's 
 their local models and bone problems on the fill's processes, so a stage's wall time is what the user waits for.
 
 The stages (the module docstring of :mod:`mocapfill.methods.auto` says what each does): ``spatial`` (stage 1's local
-PCA and the body stage), ``global`` (the global PCA's prediction), ``anchor``, ``bones`` (the bone set, its break
-rates and the reaches, once per fill), ``bone`` (stage 2, both passes), ``temporal`` (stage 3, both passes),
+PCA and the body stage), ``take`` (the global PCA's prediction and the bone set, its break rates and the reaches,
+once per fill, at once), ``anchor``, ``bone`` (stage 2, both passes), ``temporal`` (stage 3, both passes),
 ``refit`` (stage 4's models), ``records`` (the gap records).
 
 Run from the repository root, nothing else running (it measures time)::
@@ -48,13 +48,11 @@ from mocapfill.runtime.blas import single_blas_thread  # noqa: E402
 from mocapfill.runtime.executor import resolve_jobs  # noqa: E402
 
 #: Column -> the functions timed for it, as (module, attribute): the stage functions of ``mocapfill.methods.auto``
-#: (model_fill looks them up as module globals when it calls them) and the bones' set-up, imported at call time.
+#: (model_fill looks them up as module globals when it calls them).
 STAGES: dict[str, tuple[tuple[str, str], ...]] = {
     "spatial": (("mocapfill.methods.auto", "spatial_stage"),),
-    "global": (("mocapfill.methods.auto", "global_prediction"),),
+    "take": (("mocapfill.methods.auto", "take_stage"),),
     "anchor": (("mocapfill.methods.auto", "anchor_stage"),),
-    "bones": (("mocapfill.bones.boneset", "resolve_bones"), ("mocapfill.methods.auto", "bone_break_rates"),
-              ("mocapfill.bones.reach", "reaches")),
     "bone": (("mocapfill.methods.auto", "bone_stage"),),
     "temporal": (("mocapfill.methods.auto", "temporal_stage"),),
     "refit": (("mocapfill.methods.auto", "impute_stage"),),

@@ -17,7 +17,7 @@ from mocapfill.engines.local_pca import rigid_prediction
 from mocapfill.engines.local_refit import prefer_segment, refit_parts, segment_markers
 from mocapfill.methods.auto import (body_stage, displaced_runs, fill_auto, global_prediction, global_stage,
                                    model_changes, motion_model, rough_variance, seed_elsewhere, spatial_stage,
-                                   temporal_stage)
+                                   take_stage, temporal_stage)
 from mocapfill.methods.auto_records import gap_records, restate_record
 from mocapfill.methods.auto_config import DEFAULT_CONFIG, ModelConfig
 
@@ -173,6 +173,24 @@ def test_temporal_stage_runs_its_mean_and_variance_passes_at_once_with_the_same_
     np.testing.assert_array_equal(runs[0][0], runs[2][0])  # the mean does not read the reported sd
     assert np.all(runs[0][1][100:160, 0] > runs[2][1][100:160, 0])
     np.testing.assert_array_equal(runs[0][1][:, 2], runs[2][1][:, 2])
+
+
+def test_take_stage_learns_the_global_pca_and_the_bones_at_once_with_the_same_numbers():
+    """The global PCA's prediction and the bones' set-up read the take alone: on two processes, what one gives."""
+    pos = tumbling_body()
+    gapped = pos.copy()
+    gapped[100:160, 0] = np.nan
+    gapped[20:40, 3] = np.nan
+    labels = [f"m{i}" for i in range(pos.shape[1])]
+    one, two = (take_stage(gapped, None, DEFAULT_CONFIG, 1.0, ["global", "bones"], units="mm", labels=labels,
+                           jobs=jobs) for jobs in (1, 2))
+    assert list(one) == list(two) == ["global", "bones"]
+    for a, b in zip(one["global"], two["global"]):
+        assert np.array_equal(a, b, equal_nan=True)
+    (bones_1, rates_1, reach_1), (bones_2, rates_2, reach_2) = one["bones"], two["bones"]
+    assert len(bones_1) > 0 and np.array_equal(bones_1.pairs, bones_2.pairs)
+    assert np.array_equal(bones_1.lengths, bones_2.lengths) and np.array_equal(rates_1, rates_2, equal_nan=True)
+    assert np.array_equal(reach_1.pairs, reach_2.pairs)
 
 
 def test_model_changes_where_the_kind_of_measurement_changes():

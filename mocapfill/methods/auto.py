@@ -225,9 +225,12 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
         info["prior"] = {"markers": int(np.isfinite(prior_est[1]).sum()),
                          "median_sd": float(np.nanmedian(prior_est[1])) if np.isfinite(prior_est[1]).any()
                          else None}
-    glob, globbed = None, np.zeros(missing.shape, dtype=bool)  # the global PCA, and where it predicted
-    if config.global_sd_mm and (missing & ~np.isfinite(pred_sd)).any():
-        glob = global_prediction(positions, units)
+    # the global PCA, where the local models left samples without a prediction, and the bones' set-up
+    tasks = [task for task, needed in (("global", config.global_sd_mm and (missing & ~np.isfinite(pred_sd)).any()),
+                                       ("bones", refine and bones is not False)) if needed]
+    done = take_stage(positions, bones, config, mm, tasks, units=units, labels=labels, jobs=jobs)
+    glob, globbed = done.get("global"), np.zeros(missing.shape, dtype=bool)  # the global PCA, and where it predicted
+    if glob is not None:
         pred, pred_sd, edge, edge_sd, report_sd = joined(positions, pred, pred_sd, edge, edge_sd, report_sd, None,
                                                          glob, config, mm, globbed=globbed)
     anchor, anchored = None, np.zeros(missing.shape, dtype=bool)
@@ -240,17 +243,10 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     reach, stretched = None, None  # the reaches, and where the last bone stage found a prediction past one
     holds = False  # whether the bone stage has anything to hold a prediction with
     solved: dict = {}  # the bone problems solved so far: the refit's bone stage reuses those it left as they were
-    if refine and bones is not False:
-        from ..bones.boneset import resolve_bones
-        boneset = resolve_bones(positions, bones, units=units, labels=labels)
+    if "bones" in done:
+        boneset, rates, reach = done["bones"]
         broken = np.zeros((len(positions), len(boneset)), dtype=bool)
-        # (a take without gaps has no bone to judge: the rates are not needed)
-        rates = (bone_break_rates(positions, boneset, config, mm)
-                 if len(boneset) and config.bone_break_dof and missing.any() else None)
-        if config.reach_partners > 0:
-            from ..bones.reach import reaches
-            reach = reaches(positions, boneset.pairs, partners=config.reach_partners,
-                            turned_deg=config.reach_turned_deg)
+        if reach is not None:
             stretched = np.zeros((len(positions), len(reach.pairs)), dtype=bool)
         holds = bool(len(boneset)) or (reach is not None and bool(len(reach.pairs)))
         if holds and np.isfinite(pred_sd).any():
@@ -325,6 +321,36 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     info["displaced"] = displaced_records(positions, displaced, edge, mm, labels)
     info["review"] = review_indices(info["gap_methods"])
     return finish(positions, fill, std=sd, info=info)
+
+
+def take_stage(positions: np.ndarray, bones, config: ModelConfig, mm: float, tasks: list[str], *, units: str, labels,
+               jobs: int = 1) -> dict[str, Any]:
+    """What stage 1's :func:`global_stage` and stage 2's bones learn from the take: :func:`take_models` for each of
+    ``tasks``, which read the take alone, at once on up to ``jobs`` processes
+    (:func:`~mocapfill.runtime.executor.forked_map`; the same numbers as one after the other).  Returns {task: its
+    result}."""
+    return dict(zip(tasks, forked_map(partial(take_models, positions, bones, config, mm, units=units, labels=labels),
+                                      tasks, jobs)))
+
+
+def take_models(positions: np.ndarray, bones, config: ModelConfig, mm: float, task: str, *, units: str, labels):
+    """What the model learns from the take ``positions`` (n_frames, n_markers, 3) alone, by ``task``: "global", the
+    global PCA's prediction (:func:`global_prediction`); "bones", the bone set (``bones`` as
+    :func:`mocapfill.bones.boneset.resolve_bones` takes it), its break rates (:func:`bone_break_rates`; None for a
+    take without gaps, which has no bone to judge, or without bones) and the reaches
+    (:func:`mocapfill.bones.reach.reaches`; None without ``reach_partners``)."""
+    if task == "global":
+        return global_prediction(positions, units)
+    from ..bones.boneset import resolve_bones
+
+    boneset = resolve_bones(positions, bones, units=units, labels=labels)
+    rates = (bone_break_rates(positions, boneset, config, mm)
+             if len(boneset) and config.bone_break_dof and np.isnan(positions).any() else None)
+    reach = None
+    if config.reach_partners > 0:
+        from ..bones.reach import reaches
+        reach = reaches(positions, boneset.pairs, partners=config.reach_partners, turned_deg=config.reach_turned_deg)
+    return boneset, rates, reach
 
 
 def shown_by(reference_frames: np.ndarray | None, reference_weights: np.ndarray | None) -> np.ndarray | None:
