@@ -1015,8 +1015,10 @@ def _mean_and_variance_passes(obs, sp, white, bias, sub: MotionModel, obs_var, r
     sd ``report_sd`` (n_frames, n_series), on the series where it exceeds the one the mean used (a Kalman smoother's
     variances do not depend on the measurements' values).  Both read the outlier weights ``inflate``, so they run at
     once on up to two processes (:func:`~mocapfill.runtime.executor.forked_map`; the same numbers as one after the
-    other).  Returns the mean (n_frames, n_series, 3), its sd (n_frames, n_series) and (the redone series, their
-    sd) or None."""
+    other).  obs / sp (n_frames, n_series, 3); white / bias (the white and correlated sds of ``sp``), obs_var,
+    inflate, missing, edge_sd and sp_sd (n_frames, n_series), as :func:`temporal_stage` has them; ``split`` its
+    split of an sd into those two parts.  Returns the mean (n_frames, n_series, 3), its sd (n_frames, n_series) and
+    (the redone series, their sd) or None."""
     rep = np.where(missing, report_sd, edge_sd) * np.sqrt(inflate)
     redo = np.flatnonzero((np.nan_to_num(rep) > np.nan_to_num(sp_sd * np.sqrt(inflate))).any(axis=0))
 
