@@ -15,9 +15,9 @@ from synthetic import moving_body, rot_x, rot_z
 from mocapfill.methods import get_method
 from mocapfill.engines.local_pca import rigid_prediction
 from mocapfill.engines.local_refit import prefer_segment, refit_parts, segment_markers
-from mocapfill.methods.auto import (body_stage, displaced_runs, fill_auto, global_prediction, global_stage,
-                                   model_changes, motion_model, rough_variance, seed_elsewhere, spatial_stage,
-                                   take_stage, temporal_stage)
+from mocapfill.methods.auto import (FORK_FRAMES, body_stage, displaced_runs, fill_auto, global_prediction,
+                                   global_stage, model_changes, motion_model, rough_variance, seed_elsewhere,
+                                   spatial_stage, take_stage, temporal_stage)
 from mocapfill.methods.auto_records import gap_records, restate_record
 from mocapfill.methods.auto_config import DEFAULT_CONFIG, ModelConfig
 
@@ -154,7 +154,7 @@ def test_temporal_stage_down_weights_a_jumping_prediction():
 def test_temporal_stage_runs_its_mean_and_variance_passes_at_once_with_the_same_numbers():
     """With a reported sd, the last mean pass and the variance pass run on two processes: the fill, its sd and the
     outliers are those of one process; the variance pass widens the sd where the reported sd is the larger."""
-    pos = tumbling_body()
+    pos = tumbling_body(FORK_FRAMES)  # (shorter takes run the passes in turn)
     gapped = pos.copy()
     gapped[100:160, 0] = np.nan
     gapped[30:50, 2] = np.nan
@@ -177,7 +177,7 @@ def test_temporal_stage_runs_its_mean_and_variance_passes_at_once_with_the_same_
 
 def test_take_stage_learns_the_global_pca_and_the_bones_at_once_with_the_same_numbers():
     """The global PCA's prediction and the bones' set-up read the take alone: on two processes, what one gives."""
-    pos = tumbling_body()
+    pos = tumbling_body(FORK_FRAMES)  # (shorter takes run the two in turn)
     gapped = pos.copy()
     gapped[100:160, 0] = np.nan
     gapped[20:40, 3] = np.nan

@@ -323,14 +323,20 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
     return finish(positions, fill, std=sd, info=info)
 
 
+#: Frames from which the take's models (:func:`take_stage`) and the smoother's last two passes
+#: (:func:`_mean_and_variance_passes`) each get a process of their own: a fork costs 10-25 ms, about what either
+#: costs on a take of a few hundred frames (the smoother's pass ~0.1 ms a frame), so shorter takes run them in turn.
+FORK_FRAMES = 500
+
+
 def take_stage(positions: np.ndarray, bones, config: ModelConfig, mm: float, tasks: list[str], *, units: str, labels,
                jobs: int = 1) -> dict[str, Any]:
     """What stage 1's :func:`global_stage` and stage 2's bones learn from the take: :func:`take_models` for each of
-    ``tasks``, which read the take alone, at once on up to ``jobs`` processes
+    ``tasks``, which read the take alone, at once on up to ``jobs`` processes from :data:`FORK_FRAMES` frames
     (:func:`~mocapfill.runtime.executor.forked_map`; the same numbers as one after the other).  Returns {task: its
     result}."""
     return dict(zip(tasks, forked_map(partial(take_models, positions, bones, config, mm, units=units, labels=labels),
-                                      tasks, jobs)))
+                                      tasks, jobs if len(positions) >= FORK_FRAMES else 1)))
 
 
 def take_models(positions: np.ndarray, bones, config: ModelConfig, mm: float, task: str, *, units: str, labels):
@@ -1014,11 +1020,11 @@ def _mean_and_variance_passes(obs, sp, white, bias, sub: MotionModel, obs_var, r
     """Stage 3's last smoother pass for the mean, and its variance pass: the posterior sd with the reported spatial
     sd ``report_sd`` (n_frames, n_series), on the series where it exceeds the one the mean used (a Kalman smoother's
     variances do not depend on the measurements' values).  Both read the outlier weights ``inflate``, so they run at
-    once on up to two processes (:func:`~mocapfill.runtime.executor.forked_map`; the same numbers as one after the
-    other).  obs / sp (n_frames, n_series, 3); white / bias (the white and correlated sds of ``sp``), obs_var,
-    inflate, missing, edge_sd and sp_sd (n_frames, n_series), as :func:`temporal_stage` has them; ``split`` its
-    split of an sd into those two parts.  Returns the mean (n_frames, n_series, 3), its sd (n_frames, n_series) and
-    (the redone series, their sd) or None."""
+    once on up to two processes from :data:`FORK_FRAMES` frames (:func:`~mocapfill.runtime.executor.forked_map`; the
+    same numbers as one after the other).  obs / sp (n_frames, n_series, 3); white / bias (the white and correlated
+    sds of ``sp``), obs_var, inflate, missing, edge_sd and sp_sd (n_frames, n_series), as :func:`temporal_stage`
+    has them; ``split`` its split of an sd into those two parts.  Returns the mean (n_frames, n_series, 3), its sd
+    (n_frames, n_series) and (the redone series, their sd) or None."""
     rep = np.where(missing, report_sd, edge_sd) * np.sqrt(inflate)
     redo = np.flatnonzero((np.nan_to_num(rep) > np.nan_to_num(sp_sd * np.sqrt(inflate))).any(axis=0))
 
@@ -1031,7 +1037,7 @@ def _mean_and_variance_passes(obs, sp, white, bias, sub: MotionModel, obs_var, r
 
     if not len(redo):
         return (*run("mean"), None)
-    (mean, sd), sd_redo = forked_map(run, ["mean", "variance"], jobs)
+    (mean, sd), sd_redo = forked_map(run, ["mean", "variance"], jobs if len(obs) >= FORK_FRAMES else 1)
     return mean, sd, (redo, sd_redo)
 
 
