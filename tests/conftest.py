@@ -34,6 +34,19 @@ def shared_data() -> Path:
     return SHARED_DATA
 
 
+@pytest.fixture(scope="module")
+def halves(sample_data):
+    """CMU 85_02's first half (the capture, path "first") and second half (a reference take of the same subject,
+    path "second"), 405 frames each; fresh for each module."""
+    import mocapfill
+    from mocapfill.markers import MarkerData
+
+    cmu = mocapfill.read(sample_data / "85_02.c3d")
+    first = MarkerData(cmu.positions[:405].copy(), list(cmu.labels), cmu.rate, cmu.units, path="first")
+    second = MarkerData(cmu.positions[405:].copy(), list(cmu.labels), cmu.rate, cmu.units, path="second")
+    return first, second
+
+
 @pytest.fixture(scope="session", autouse=True)
 def one_blas_thread():
     """Small matrices everywhere: BLAS threads only add contention on a busy 2-core machine (10-50x slower fills)."""

@@ -8,17 +8,8 @@ import numpy as np
 import pytest
 
 import mocapfill
-from mocapfill.markers import MarkerData
 from mocapfill.methods import get_method
 from mocapfill.methods.auto import prior_stage
-
-
-@pytest.fixture(scope="module")
-def halves(sample_data):
-    cmu = mocapfill.read(sample_data / "85_02.c3d")
-    first = MarkerData(cmu.positions[:405].copy(), list(cmu.labels), cmu.rate, cmu.units, path="first")
-    second = MarkerData(cmu.positions[405:].copy(), list(cmu.labels), cmu.rate, cmu.units, path="second")
-    return first, second
 
 
 @pytest.fixture(scope="module")

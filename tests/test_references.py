@@ -23,14 +23,6 @@ def cmu(sample_data):
     return mocapfill.read(sample_data / "85_02.c3d")
 
 
-@pytest.fixture(scope="module")
-def halves(cmu):
-    """The CMU take's first half (the capture) and second half (a reference take of the same subject)."""
-    first = MarkerData(cmu.positions[:405].copy(), list(cmu.labels), cmu.rate, cmu.units, path="first")
-    second = MarkerData(cmu.positions[405:].copy(), list(cmu.labels), cmu.rate, cmu.units, path="second")
-    return first, second
-
-
 def test_matched_by_label_in_any_order_without_prefix_and_converted(cmu):
     order = np.random.default_rng(0).permutation(cmu.n_markers)
     ref_labels = [cmu.labels[k].split(":")[-1] for k in order]  # no "Male:" prefix, shuffled
