@@ -324,7 +324,7 @@ def model_fill(positions: np.ndarray, *, units: str, labels, rate, bones, refine
 
 
 #: Frames from which the take's models (:func:`take_stage`) and the smoother's last two passes
-#: (:func:`_mean_and_variance_passes`) each get a process of their own: a fork costs 10-25 ms, about what either
+#: (:func:`temporal_stage`) each get a process of their own: a fork costs 10-25 ms, about what either
 #: costs on a take of a few hundred frames (the smoother's pass ~0.1 ms a frame), so shorter takes run them in turn.
 FORK_FRAMES = 500
 
@@ -931,7 +931,8 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
     predictions' white error variance grows by :func:`rough_variance`.  ``believed`` (take (n_frames, n_markers, 3),
     sd (n_frames, n_markers)) or None receives the take as the smoother believes it: the fill and its sd, but at the
     observed samples it measured as noisy (fragments, displaced runs) its posterior mean and sd.  ``jobs``: the
-    processes the last mean pass and the variance pass share (:func:`_mean_and_variance_passes`).
+    processes the last mean pass and the variance pass share (from :data:`FORK_FRAMES` frames; the same numbers as one
+    after the other).
     """
     missing = np.isnan(positions).any(axis=2)
     # (a marker the take never shows is smoothed where a reference take let the spatial model predict it)
@@ -984,18 +985,12 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
             kind[wo] = 3
         reset = model_changes(np.where(np.isfinite(sp_sd), kind, 0))
     inflate = np.ones_like(sp_sd)
-    sd_redo = None
-    for attempt in range(config.reweight_passes + 1):
-        if attempt == config.reweight_passes and report_sd is not None:
-            # the last mean pass and the variance pass read the same weights: one process each
-            mean, sd, sd_redo = _mean_and_variance_passes(obs, sp, white, bias, sub, obs_var, reset, inflate,
-                                                          missing[:, todo], report_sd[:, todo], edge_sd[:, todo],
-                                                          sp_sd, split, jobs)
-            break
-        mean, sd = smooth(obs, sp, white * np.sqrt(inflate), bias * np.sqrt(inflate), sub, obs_var=obs_var,
-                          reset=reset)
-        if attempt == config.reweight_passes:
-            break
+
+    def mean_pass() -> tuple[np.ndarray, np.ndarray]:
+        return smooth(obs, sp, white * np.sqrt(inflate), bias * np.sqrt(inflate), sub, obs_var=obs_var, reset=reset)
+
+    for _ in range(config.reweight_passes):  # predictions far off the smoothed path weigh less, and it runs again
+        mean, _ = mean_pass()
         with np.errstate(invalid="ignore"):
             z = np.sqrt(np.sum((sp - mean) ** 2, axis=2) / 3.0) / sp_sd
         bad = np.nan_to_num(z) > config.outlier
@@ -1003,8 +998,23 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
             break
         inflate = np.where(bad, np.maximum(inflate, (z / config.outlier) ** 2 * 10.0), inflate)
     outliers[:, todo] = inflate > 1.0
-    if sd_redo is not None:
-        sd[:, sd_redo[0]] = sd_redo[1]
+    redo = np.zeros(0, dtype=int)  # the series whose reported sd exceeds somewhere the one the mean pass uses
+    if report_sd is not None:
+        rep = np.where(missing[:, todo], report_sd[:, todo], edge_sd[:, todo]) * np.sqrt(inflate)
+        redo = np.flatnonzero((np.nan_to_num(rep) > np.nan_to_num(sp_sd * np.sqrt(inflate))).any(axis=0))
+
+    def last_pass(which: str):
+        if which == "mean":
+            return mean_pass()
+        # a Kalman smoother's variances do not depend on the measurements' values: the sd alone, with the reported sd
+        return smooth(obs[:, redo], sp[:, redo], *split(rep[:, redo], redo), sub._replace(q=sub.q[redo]),
+                      obs_var=obs_var[:, redo], reset=None if reset is None else reset[:, redo])[1]
+
+    # the last mean pass and the variance pass read the same weights: at once, one process each (from FORK_FRAMES)
+    (mean, sd), *variance = forked_map(last_pass, ["mean", "variance"][:1 + bool(len(redo))],
+                                       jobs if len(obs) >= FORK_FRAMES else 1)
+    if variance:
+        sd[:, redo] = variance[0]
     fill[:, todo] = np.where(missing[:, todo, None], mean, positions[:, todo])
     sd_out[:, todo] = np.where(missing[:, todo], sd, 0.0)
     if believed is not None:
@@ -1013,32 +1023,6 @@ def temporal_stage(positions: np.ndarray, pred: np.ndarray, pred_sd: np.ndarray,
         believed[0][:, todo] = np.where(noisy[..., None], mean, fill[:, todo])
         believed[1][:, todo] = np.where(noisy, sd, sd_out[:, todo])
     return fill, sd_out, outliers
-
-
-def _mean_and_variance_passes(obs, sp, white, bias, sub: MotionModel, obs_var, reset, inflate, missing, report_sd,
-                              edge_sd, sp_sd, split, jobs):
-    """Stage 3's last smoother pass for the mean, and its variance pass: the posterior sd with the reported spatial
-    sd ``report_sd`` (n_frames, n_series), on the series where it exceeds the one the mean used (a Kalman smoother's
-    variances do not depend on the measurements' values).  Both read the outlier weights ``inflate``, so they run at
-    once on up to two processes from :data:`FORK_FRAMES` frames (:func:`~mocapfill.runtime.executor.forked_map`; the
-    same numbers as one after the other).  obs / sp (n_frames, n_series, 3); white / bias (the white and correlated
-    sds of ``sp``), obs_var, inflate, missing, edge_sd and sp_sd (n_frames, n_series), as :func:`temporal_stage`
-    has them; ``split`` its split of an sd into those two parts.  Returns the mean (n_frames, n_series, 3), its sd
-    (n_frames, n_series) and (the redone series, their sd) or None."""
-    rep = np.where(missing, report_sd, edge_sd) * np.sqrt(inflate)
-    redo = np.flatnonzero((np.nan_to_num(rep) > np.nan_to_num(sp_sd * np.sqrt(inflate))).any(axis=0))
-
-    def run(which: str):
-        if which == "mean":
-            return smooth(obs, sp, white * np.sqrt(inflate), bias * np.sqrt(inflate), sub, obs_var=obs_var,
-                          reset=reset)
-        return smooth(obs[:, redo], sp[:, redo], *split(rep[:, redo], redo), sub._replace(q=sub.q[redo]),
-                      obs_var=obs_var[:, redo], reset=None if reset is None else reset[:, redo])[1]
-
-    if not len(redo):
-        return (*run("mean"), None)
-    (mean, sd), sd_redo = forked_map(run, ["mean", "variance"], jobs if len(obs) >= FORK_FRAMES else 1)
-    return mean, sd, (redo, sd_redo)
 
 
 def model_changes(sources: np.ndarray) -> np.ndarray:
