@@ -160,8 +160,9 @@ def against(captures: list, other: Path, repeat: int, fill_jobs: int, results) -
                   f"fill(s) each, in turn, each in its own process after a warm-up, on {resolve_jobs(fill_jobs)} "
                   "process(es)) and the median of the pairs' ratios",
                   ["capture", "this s", "other s", "this / other"], rows)
-    results.figure("against_median_ratio", statistics.median(r[3] for r in rows), "ratio")
-    print(f"median ratio {statistics.median(r[3] for r in rows):.3f} over {len(rows)} captures", file=sys.stderr)
+    median = statistics.median(r[3] for r in rows)
+    results.figure("against_median_ratio", median, "ratio")
+    print(f"median ratio {median:.3f} over {len(rows)} captures", file=sys.stderr)
     results.write()
 
 
